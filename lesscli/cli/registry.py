@@ -1,0 +1,14 @@
+"""Subcommand registry: name -> (module under lesscli.cli, one-line help).
+
+The one-line help is shown by ``less --help`` without importing the module, so listing the
+commands never loads torch, cv2, trimesh, skimage or dynamixel_sdk. Each module exposes ``cli``,
+a click command or group.
+"""
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "info": ("info", "Describe a scan set: counts, shapes, units, sensor, labels, history."),
+    "subsample": ("subsample", "Keep every N-th step, K trajectories per scan, or a maximum length."),
+    "concat": ("concat", "Concatenate scan sets that share sensor and units."),
+    "split": ("split", "Split a scan set into train/val/test by insert or by scan."),
+    "import": ("import_", "Import the published HDF5 dataset layout into a scan set."),
+}

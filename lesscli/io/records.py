@@ -1,0 +1,114 @@
+"""Records: one JSON object per line on stdout (NaN -> null), or a table / markdown for people."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Iterable, Mapping
+from typing import IO, Any
+
+import numpy as np
+
+from lesscli.errors import DataError
+
+
+def to_jsonable(value: Any) -> Any:
+    """Plain JSON types: numpy scalars/arrays unwrapped, NaN/inf -> None (written as null)."""
+    if isinstance(value, Mapping):
+        return {str(k): to_jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return to_jsonable(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def dumps(record: Mapping) -> str:
+    """One record as a single JSON line (allow_nan=False: NaN was already turned into null)."""
+    return json.dumps(to_jsonable(record), allow_nan=False, separators=(", ", ": "))
+
+
+def _cell(value: Any) -> str:
+    value = to_jsonable(value)
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, (list, dict)):
+        return json.dumps(value)
+    return str(value)
+
+
+def _columns(rows: list[Mapping], columns: list[str] | None) -> list[str]:
+    if columns:
+        return columns
+    seen: dict[str, None] = {}
+    for row in rows:
+        seen.update(dict.fromkeys(row))
+    return list(seen)
+
+
+def format_table(rows: list[Mapping], columns: list[str] | None = None, markdown: bool = False) -> str:
+    """Aligned text table (or GitHub markdown table) of ``rows``."""
+    cols = _columns(rows, columns)
+    cells = [[_cell(row.get(c)) for c in cols] for row in rows]
+    widths = [max([len(c)] + [len(r[i]) for r in cells]) for i, c in enumerate(cols)]
+    if markdown:
+        line = lambda vals: "| " + " | ".join(v.ljust(w) for v, w in zip(vals, widths)) + " |"  # noqa: E731
+        sep = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
+        return "\n".join([line(cols), sep, *(line(r) for r in cells)])
+    line = lambda vals: "  ".join(v.rjust(w) for v, w in zip(vals, widths)).rstrip()  # noqa: E731
+    return "\n".join([line(cols), line(["-" * w for w in widths]), *(line(r) for r in cells)])
+
+
+def resolve_format(fmt: str | None, stream: IO = sys.stdout) -> str:
+    """Default format: table on a terminal, JSON lines otherwise."""
+    if fmt:
+        return fmt
+    return "table" if getattr(stream, "isatty", lambda: False)() else "jsonl"
+
+
+def emit_records(
+    rows: Iterable[Mapping], fmt: str | None = None, stream: IO | None = None, columns: list[str] | None = None
+) -> None:
+    """Write records to ``stream`` (stdout) as JSON lines, a JSON array, a table or markdown.
+
+    JSON lines are streamed one by one (a long sweep shows progress through a pipe); tables are
+    collected first to align columns.
+    """
+    stream = stream or sys.stdout
+    fmt = resolve_format(fmt, stream)
+    if fmt == "jsonl":
+        for row in rows:
+            stream.write(dumps(row) + "\n")
+            stream.flush()
+        return
+    rows = list(rows)
+    if fmt == "json":
+        stream.write(json.dumps(to_jsonable(rows), allow_nan=False, indent=1) + "\n")
+    elif rows:
+        stream.write(format_table(rows, columns, markdown=fmt == "markdown") + "\n")
+    stream.flush()
+
+
+def read_jsonl(path: str, stream: IO | None = None) -> list[dict]:
+    """Read JSON lines from ``path`` ('-' = stdin); blank lines are skipped, bad lines name their number."""
+    fh = stream if stream is not None else (sys.stdin if path == "-" else open(path, encoding="utf-8"))
+    rows = []
+    try:
+        for number, line in enumerate(fh, start=1):
+            if not line.strip():
+                continue
+            try:
+                rows.append(json.loads(line))
+            except json.JSONDecodeError as exc:
+                raise DataError(f"{path}: line {number} is not valid JSON ({exc.msg})") from None
+    finally:
+        if fh is not sys.stdin and stream is None:
+            fh.close()
+    return rows

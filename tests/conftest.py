@@ -1,0 +1,36 @@
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BIN = Path(sys.executable).parent
+
+
+@pytest.fixture
+def run_less(tmp_path):
+    """Run the installed ``less`` console script in a subprocess (real pipes, real exit codes)."""
+
+    def run(*args, input=None, check=False, cwd=None, env=None):
+        full_env = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", **(env or {})}
+        proc = subprocess.run([str(BIN / "less"), *map(str, args)], input=input, capture_output=True,
+                              cwd=cwd or tmp_path, env=full_env, timeout=600)
+        if check and proc.returncode != 0:
+            raise AssertionError(f"less {' '.join(map(str, args))} failed ({proc.returncode}):\n"
+                                 f"{proc.stderr.decode(errors='replace')}")
+        return proc
+
+    return run
+
+
+@pytest.fixture
+def scanset_file(tmp_path):
+    """A small valid scan set on disk."""
+    from factories import random_scanset
+
+    from lesscli.io.scans import save_scans
+
+    path = tmp_path / "scans.npz"
+    save_scans(str(path), random_scanset())
+    return path

@@ -1,0 +1,58 @@
+"""Small valid objects for tests: random scan sets and label volumes with known geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lesscli.io.labels import LabelVolume
+from lesscli.io.scans import ScanSet, default_meta
+from lesscli.io.sensor import xela_uscu
+
+GRID_SHAPE = (26, 128, 128)
+GRID_SPACING_MM = (0.9, 0.4774, 0.4774)
+
+
+def grid_origin(shape=GRID_SHAPE, spacing=GRID_SPACING_MM) -> np.ndarray:
+    """Origin that centres the grid on x = y = 0 and puts the top slice at z = 0 (phantom frame)."""
+    d, h, w = shape
+    dz, dy, dx = spacing
+    return np.array([-(d - 1) * dz, -(h - 1) / 2 * dy, -(w - 1) / 2 * dx])
+
+
+def sphere_labels(center_mm=(-8.0, 3.0, -5.0), radius_mm=6.0, shape=GRID_SHAPE, spacing=GRID_SPACING_MM,
+                  name="sphere") -> LabelVolume:
+    """Insert everywhere inside |x|,|y| < 28 mm, an inclusion sphere at ``center_mm`` (z, y, x)."""
+    origin = grid_origin(shape, spacing)
+    z, y, x = np.meshgrid(*(origin[a] + spacing[a] * np.arange(shape[a]) for a in range(3)), indexing="ij")
+    data = np.zeros(shape, np.uint8)
+    data[(np.abs(x) < 28) & (np.abs(y) < 28)] = 1
+    r2 = (z - center_mm[0]) ** 2 + (y - center_mm[1]) ** 2 + (x - center_mm[2]) ** 2
+    data[r2 <= radius_mm**2] = 3
+    return LabelVolume(data, origin, spacing, name)
+
+
+def random_scanset(n_scans: int = 2, traj_per_scan: int = 3, max_len: int = 12, seed: int = 0,
+                   with_labels: bool = True, inserts: list[str] | None = None) -> ScanSet:
+    """A valid scan set with random poses over the phantom and forces that grow with depth."""
+    rng = np.random.default_rng(seed)
+    lengths = rng.integers(1, max_len + 1, size=n_scans * traj_per_scan)
+    n = int(lengths.sum())
+    pose = np.zeros((n, 6), np.float32)
+    pose[:, :2] = rng.uniform(-25, 25, size=(n, 2))
+    pose[:, 2] = -rng.uniform(0, 4, size=n)
+    pose[:, 5] = rng.uniform(0, 1.4, size=n)
+    force = rng.normal(0, 0.05, size=(n, 30, 3)).astype(np.float32)
+    force[..., 2] += -pose[:, 2:3] * 0.5
+    time_s = np.concatenate([np.arange(k) * 0.01 for k in lengths])
+    inserts = inserts or [f"St{10 + 2 * (i % 3)}C{5 + i}" for i in range(n_scans)]
+    labels = [sphere_labels(center_mm=(-8.0, 2.0 * i, -3.0 + i), name=f"{inserts[i]}_0") for i in range(n_scans)] \
+        if with_labels else []
+    return ScanSet(
+        pose=pose, force=force, time_s=time_s,
+        traj_offsets=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
+        traj_scan=np.repeat(np.arange(n_scans), traj_per_scan).astype(np.int64),
+        scan_insert=np.array(inserts[:n_scans]), scan_orientation=np.arange(n_scans) % 8,
+        scan_label=np.arange(n_scans) if with_labels else -np.ones(n_scans, np.int64),
+        labels=labels, meta=default_meta(xela_uscu()),
+        traj_attrs={"target_force_n": rng.uniform(1.5, 6, n_scans * traj_per_scan).astype(np.float32)},
+    )
