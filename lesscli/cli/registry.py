@@ -11,4 +11,5 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "concat": ("concat", "Concatenate scan sets that share sensor and units."),
     "split": ("split", "Split a scan set into train/val/test by insert or by scan."),
     "import": ("import_", "Import the published HDF5 dataset layout into a scan set."),
+    "bench": ("bench", "Benchmarks: accuracy against time, ratios against in-run baselines."),
 }

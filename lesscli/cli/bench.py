@@ -1,0 +1,40 @@
+"""``less bench NAME``: benchmarks that print ratios against a baseline measured in the same run.
+
+Each benchmark is a module ``lesscli.cli.bench_<module>`` exposing ``cli`` and is imported only
+when run, like the top-level subcommands.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import click
+
+from lesscli.cli import common
+
+# name -> (module under lesscli.cli, one-line help)
+BENCHES: dict[str, tuple[str, str]] = {}
+
+
+class _LazyBenchGroup(click.Group):
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(BENCHES)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name not in BENCHES:
+            hint = common.closest(name, BENCHES)
+            if hint:
+                ctx.fail(f"no benchmark '{name}'. Did you mean '{hint}'?")
+            return None
+        return importlib.import_module(f"lesscli.cli.{BENCHES[name][0]}").cli
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = [(n, BENCHES[n][1]) for n in self.list_commands(ctx)]
+        if rows:
+            with formatter.section("Benchmarks"):
+                formatter.write_dl(rows)
+
+
+@click.group("bench", cls=_LazyBenchGroup)
+def cli() -> None:
+    """Measure what accuracy costs in time; results are JSON lines (table on a terminal)."""
