@@ -1,4 +1,7 @@
 #!/usr/bin/env bash
 # Benchmarks: each prints ratios against a baseline measured in the same run.
 set -euo pipefail
-echo "less bench: no benchmarks in this build yet." >&2
+less bench metrics --quick
+less bench train --quick --threads 1
+less bench mri --quick
+less bench sim --quick

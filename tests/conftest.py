@@ -15,7 +15,7 @@ def run_less(tmp_path):
     def run(*args, input=None, check=False, cwd=None, env=None):
         full_env = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", **(env or {})}
         proc = subprocess.run([str(BIN / "less"), *map(str, args)], input=input, capture_output=True,
-                              cwd=cwd or tmp_path, env=full_env, timeout=600)
+                              cwd=cwd or tmp_path, env=full_env, timeout=600, check=False)
         if check and proc.returncode != 0:
             raise AssertionError(f"less {' '.join(map(str, args))} failed ({proc.returncode}):\n"
                                  f"{proc.stderr.decode(errors='replace')}")

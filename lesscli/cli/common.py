@@ -28,10 +28,12 @@ def configure(verbose: int = 0, quiet: bool = False) -> None:
     level = logging.ERROR if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
     if verbose == 0 and not quiet:
         level = logging.WARNING
-    if not LOG.handlers:
-        handler = logging.StreamHandler(sys.stderr)
-        handler.setFormatter(logging.Formatter("less: %(message)s"))
-        LOG.addHandler(handler)
+    for old in list(LOG.handlers):  # in-process reruns (tests) must log to the current stderr
+        LOG.removeHandler(old)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("less: %(message)s"))
+    LOG.addHandler(handler)
+    LOG.propagate = False
     LOG.setLevel(level)
 
 

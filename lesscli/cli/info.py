@@ -9,11 +9,16 @@ from lesscli.cli.common import format_option
 
 @click.command("info")
 @click.argument("path", metavar="FILE")
+@click.option("--full-history", is_flag=True,
+              help="Show history entries as stored (time, output file) instead of the summary.")
 @format_option
-def cli(path: str, fmt: str | None) -> None:
+def cli(path: str, full_history: bool, fmt: str | None) -> None:
     """Describe a scan set: counts, shapes, units, sensor, label geometry, history.
 
     FILE is a .npz scan set, a directory of shards, or '-' for stdin.
+
+    The history summary leaves out output paths and times, so the same data read from a file or
+    from a pipe gives the same record.
 
     Example: less info scans.npz --format table
     """
@@ -21,4 +26,4 @@ def cli(path: str, fmt: str | None) -> None:
     from lesscli.io.records import emit_records
     from lesscli.io.scans import load_scans
 
-    emit_records(describe(load_scans(path), path), fmt)
+    emit_records(describe(load_scans(path), path, full_history=full_history), fmt)

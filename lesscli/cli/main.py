@@ -22,8 +22,19 @@ from lesscli.cli.registry import COMMANDS
 from lesscli.errors import LessError
 
 
+class PipeClosed(Exception):
+    """stdout's reader went away (``| head``); raised instead of BrokenPipeError, which click would
+    turn into exit status 1."""
+
+
 class LazyGroup(click.Group):
     """A group whose subcommands are imported only when invoked (or their help is asked for)."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except BrokenPipeError:
+            raise PipeClosed() from None
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return sorted(COMMANDS)
@@ -81,7 +92,7 @@ def main(argv: list[str] | None = None) -> None:
     except (KeyboardInterrupt, click.exceptions.Abort):
         click.echo("less: interrupted", err=True)
         sys.exit(130)
-    except BrokenPipeError:
+    except (BrokenPipeError, PipeClosed):
         _silence_stdout()
         sys.exit(0)
     except LessError as exc:

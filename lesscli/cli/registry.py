@@ -12,4 +12,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "split": ("split", "Split a scan set into train/val/test by insert or by scan."),
     "import": ("import_", "Import the published HDF5 dataset layout into a scan set."),
     "bench": ("bench", "Benchmarks: accuracy against time, ratios against in-run baselines."),
+    "lift": ("lift", "Scissor lift over Dynamixel servos: home, raise, lower, rotate, cycle; or emulate it."),
+    "metrics": ("metrics", "Imaging metrics in mm (F1, centroid, ARSE, diameter, area/volume) per scan and set."),
 }

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -102,7 +103,7 @@ def load_nifti_labels(path: str) -> LabelVolume:
     try:
         img = nib.load(path)
         data = np.asarray(img.dataobj)
-    except Exception as exc:  # nibabel raises many types for corrupt files
+    except (OSError, ValueError, EOFError, zlib.error, nib.filebasedimages.ImageFileError) as exc:
         raise DataError(f"{path}: not a readable NIfTI file ({exc})") from None
     if data.ndim != 3:
         raise DataError(f"{path}: expected a 3D label volume, got shape {data.shape}")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 from collections.abc import Iterable, Mapping
 from typing import IO, Any
@@ -59,17 +60,23 @@ def format_table(rows: list[Mapping], columns: list[str] | None = None, markdown
     cells = [[_cell(row.get(c)) for c in cols] for row in rows]
     widths = [max([len(c)] + [len(r[i]) for r in cells]) for i, c in enumerate(cols)]
     if markdown:
-        line = lambda vals: "| " + " | ".join(v.ljust(w) for v, w in zip(vals, widths)) + " |"  # noqa: E731
+        def line(vals: list[str]) -> str:
+            return "| " + " | ".join(v.ljust(w) for v, w in zip(vals, widths)) + " |"
+
         sep = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
         return "\n".join([line(cols), sep, *(line(r) for r in cells)])
-    line = lambda vals: "  ".join(v.rjust(w) for v, w in zip(vals, widths)).rstrip()  # noqa: E731
-    return "\n".join([line(cols), line(["-" * w for w in widths]), *(line(r) for r in cells)])
+
+    def row(vals: list[str]) -> str:
+        return "  ".join(v.rjust(w) for v, w in zip(vals, widths)).rstrip()
+
+    return "\n".join([row(cols), row(["-" * w for w in widths]), *(row(r) for r in cells)])
 
 
-def resolve_format(fmt: str | None, stream: IO = sys.stdout) -> str:
+def resolve_format(fmt: str | None, stream: IO | None = None) -> str:
     """Default format: table on a terminal, JSON lines otherwise."""
     if fmt:
         return fmt
+    stream = sys.stdout if stream is None else stream
     return "table" if getattr(stream, "isatty", lambda: False)() else "jsonl"
 
 
@@ -96,19 +103,25 @@ def emit_records(
     stream.flush()
 
 
+def _parse_jsonl(lines: Iterable[str], path: str) -> list[dict]:
+    rows = []
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError as exc:
+            raise DataError(f"{path}: line {number} is not valid JSON ({exc.msg})") from None
+    return rows
+
+
 def read_jsonl(path: str, stream: IO | None = None) -> list[dict]:
     """Read JSON lines from ``path`` ('-' = stdin); blank lines are skipped, bad lines name their number."""
-    fh = stream if stream is not None else (sys.stdin if path == "-" else open(path, encoding="utf-8"))
-    rows = []
-    try:
-        for number, line in enumerate(fh, start=1):
-            if not line.strip():
-                continue
-            try:
-                rows.append(json.loads(line))
-            except json.JSONDecodeError as exc:
-                raise DataError(f"{path}: line {number} is not valid JSON ({exc.msg})") from None
-    finally:
-        if fh is not sys.stdin and stream is None:
-            fh.close()
-    return rows
+    if stream is not None:
+        return _parse_jsonl(stream, path)
+    if path == "-":
+        return _parse_jsonl(sys.stdin, path)
+    if not os.path.isfile(path):
+        raise DataError(f"{path}: no such file")
+    with open(path, encoding="utf-8") as fh:
+        return _parse_jsonl(fh, path)

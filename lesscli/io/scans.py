@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import sys
 import time
 import zipfile
@@ -61,7 +62,7 @@ def default_meta(sensor: dict, force_units: str = "N", sample_rate_hz: float = 1
 
 def append_history(meta: dict, seed: int | None = None, argv: list[str] | None = None, **info) -> dict:
     """Return a copy of ``meta`` with one more ``history`` entry (command line, version, seed, time)."""
-    entry = {"command": " ".join(["less", *(sys.argv[1:] if argv is None else argv)]),
+    entry = {"command": shlex.join(["less", *(sys.argv[1:] if argv is None else argv)]),
              "version": __version__, "seed": seed, "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"), **info}
     return {**meta, "history": [*meta.get("history", []), entry]}
 
@@ -125,8 +126,8 @@ class ScanSet:
     def select_steps(self, keep: np.ndarray) -> ScanSet:
         """Keep the steps where ``keep`` (N,) is True; trajectories left empty are dropped."""
         keep = np.asarray(keep, dtype=bool)
-        counts = np.add.reduceat(keep.astype(np.int64), self.traj_offsets[:-1]) if self.n_traj else np.zeros(0, np.int64)
-        counts[self.traj_lengths() == 0] = 0
+        traj_of_step = np.repeat(np.arange(self.n_traj), self.traj_lengths())
+        counts = np.bincount(traj_of_step[keep], minlength=self.n_traj).astype(np.int64)
         sub = replace(self, pose=self.pose[keep], force=self.force[keep], time_s=self.time_s[keep],
                       traj_offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64))
         return sub.select_trajectories(counts > 0)
@@ -331,7 +332,7 @@ def concat(parts: list[ScanSet], names: list[str] | None = None) -> ScanSet:
     names = names or [f"input {i + 1}" for i in range(len(parts))]
     first = parts[0].meta
     for part, name in zip(parts[1:], names[1:]):
-        for key in ("sensor", "units"):
+        for key in ("sensor", "units", "sample_rate_hz"):
             if part.meta.get(key) != first.get(key):
                 raise DataError(f"{name}: '{key}' differs from {names[0]}; cannot concatenate "
                                 f"({part.meta.get(key)} vs {first.get(key)})")
@@ -353,7 +354,10 @@ def concat(parts: list[ScanSet], names: list[str] | None = None) -> ScanSet:
         steps += part.n_steps
         scans_before += part.n_scans
     history = [h for p in parts for h in p.meta.get("history", [])]
-    cat = lambda attr: np.concatenate([getattr(p, attr) for p in parts])  # noqa: E731
+
+    def cat(attr: str) -> np.ndarray:
+        return np.concatenate([getattr(p, attr) for p in parts])
+
     return ScanSet(cat("pose"), cat("force"), cat("time_s"), np.concatenate(traj_offsets), np.concatenate(traj_scan),
                    cat("scan_insert"), cat("scan_orientation"), np.concatenate(scan_label), labels,
                    {k: np.concatenate([p.traj_attrs[k] for p in parts]) for k in TRAJ_ATTRS},
