@@ -14,4 +14,5 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("bench", "Benchmarks: accuracy against time, ratios against in-run baselines."),
     "lift": ("lift", "Scissor lift over Dynamixel servos: home, raise, lower, rotate, cycle; or emulate it."),
     "metrics": ("metrics", "Imaging metrics in mm (F1, centroid, ARSE, diameter, area/volume) per scan and set."),
+    "pose": ("pose", "Hand-held pose: AprilTag tracking, synthetic frames, robot calibration, accuracy."),
 }
