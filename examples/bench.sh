@@ -2,4 +2,5 @@
 # Benchmarks: each prints ratios against a baseline measured in the same run.
 set -euo pipefail
 less bench metrics --quick
+less bench mri --quick
 less bench pose --quick

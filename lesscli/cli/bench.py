@@ -15,6 +15,7 @@ from lesscli.cli import common
 # name -> (module under lesscli.cli, one-line help)
 BENCHES: dict[str, tuple[str, str]] = {
     "metrics": ("bench_metrics", "Time to score a 26x128x128 volume with a 16 mm inclusion vs F1-only and all-pairs."),
+    "mri": ("bench_mri", "Seconds to label a 256^3 synthetic MRI volume on one core vs plain thresholding."),
     "pose": ("bench_pose", "AprilTag sensor-pose error and time per frame: refinements vs the plain pipeline."),
 }
 

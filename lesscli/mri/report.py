@@ -1,0 +1,106 @@
+"""Records about a segmentation (class volumes, inclusions, frame, warnings) and a QC figure."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from lesscli.io.labels import BACKGROUND, CLASS_NAMES, INCLUSION, INSERT, PILLAR
+
+OVERLAY_RGBA = {INSERT: (0.2, 0.5, 1.0, 0.25), PILLAR: (1.0, 0.6, 0.0, 0.7), INCLUSION: (1.0, 0.1, 0.1, 0.6)}
+
+
+def class_rows(labels: np.ndarray, affine: np.ndarray) -> list[dict]:
+    """One row per class: voxel count and volume in mm^3 (|det| of the affine per voxel)."""
+    voxel_mm3 = abs(float(np.linalg.det(np.asarray(affine)[:3, :3])))
+    counts = np.bincount(labels.ravel(), minlength=len(CLASS_NAMES))
+    return [{"row": "class", "class": name, "voxels": int(counts[c]), "volume_mm3": float(counts[c]) * voxel_mm3}
+            for c, name in enumerate(CLASS_NAMES)]
+
+
+def inclusion_rows(labels: np.ndarray, affine: np.ndarray) -> list[dict]:
+    """One row per inclusion (largest first): volume, equivalent-sphere and longest diameters, centroid.
+
+    Centroids are world x, y, z mm of the affine's frame; ``extent_mm`` is the largest distance between
+    two voxel centres of the inclusion (a lower bound of its size by up to one voxel).
+    """
+    from scipy import ndimage
+    from scipy.spatial import ConvexHull, QhullError
+
+    from lesscli.mri.frame import voxel_to_world
+
+    comps, _n = ndimage.label(labels == INCLUSION)
+    voxel_mm3 = abs(float(np.linalg.det(np.asarray(affine)[:3, :3])))
+    rows = []
+    for i, sl in enumerate(ndimage.find_objects(comps), start=1):
+        idx = np.argwhere(comps[sl] == i) + [s.start for s in sl]
+        pts = voxel_to_world(idx, affine)
+        try:
+            hull = pts[ConvexHull(pts).vertices] if len(pts) >= 5 else pts
+        except QhullError:
+            hull = pts
+        diff = hull[:, None, :] - hull[None, :, :]
+        volume = len(idx) * voxel_mm3
+        rows.append({"row": "inclusion", "volume_mm3": volume,
+                     "diameter_mm": (6.0 * volume / math.pi) ** (1.0 / 3.0),
+                     "extent_mm": float(np.sqrt((diff ** 2).sum(axis=2)).max()),
+                     "centroid_mm": [round(float(v), 3) for v in pts.mean(axis=0)]})
+    rows.sort(key=lambda r: -r["volume_mm3"])
+    for k, row in enumerate(rows):
+        row["index"] = k
+    return rows
+
+
+def frame_row(frame) -> dict:
+    """The found phantom frame as a record."""
+    return {"row": "frame", "rotation_deg": frame.rotation_deg, "width_mm": frame.width_mm,
+            "height_mm": frame.height_mm, "origin_mm": [round(float(v), 3) for v in frame.origin_mm],
+            "axis": [round(float(v), 5) for v in frame.axes[:, 2]]}
+
+
+def warning_rows(warnings: list[str]) -> list[dict]:
+    return [{"row": "warning", "message": w} for w in warnings]
+
+
+def _overlay(labels2d: np.ndarray) -> np.ndarray:
+    rgba = np.zeros(labels2d.shape + (4,))
+    for code, colour in OVERLAY_RGBA.items():
+        rgba[labels2d == code] = colour
+    return rgba
+
+
+def save_qc(path: str, image: np.ndarray, labels: np.ndarray, spacing_mm, title: str = "") -> None:
+    """PNG with three orthogonal slices (through the largest inclusion, else the insert) and the label overlay.
+
+    Args:
+        path: output .png (written atomically).
+        image: 3D intensities; labels: same shape codes; spacing_mm: (3,) per array axis.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from lesscli.io.atomic import atomic_path
+
+    target = labels == INCLUSION if (labels == INCLUSION).any() else labels != BACKGROUND
+    centre = np.round(np.argwhere(target).mean(axis=0)).astype(int) if target.any() else np.array(labels.shape) // 2
+    spacing = np.asarray(spacing_mm, dtype=np.float64)
+    lo, hi = np.percentile(image, [1, 99.5])
+    fig, axes = plt.subplots(1, 3, figsize=(12, 4.5))
+    for ax, axis in zip(axes, range(3)):
+        keep = [a for a in range(3) if a != axis]
+        img2d = np.take(image, centre[axis], axis=axis)
+        lab2d = np.take(labels, centre[axis], axis=axis)
+        extent = (0, img2d.shape[1] * spacing[keep[1]], img2d.shape[0] * spacing[keep[0]], 0)
+        ax.imshow(img2d, cmap="gray", vmin=lo, vmax=hi, extent=extent, interpolation="nearest")
+        ax.imshow(_overlay(lab2d), extent=extent, interpolation="nearest")
+        ax.set_title(f"axis {axis} = {centre[axis]}")
+        ax.set_xlabel(f"axis {keep[1]} (mm)")
+        ax.set_ylabel(f"axis {keep[0]} (mm)")
+    fig.suptitle(title or "labels: blue insert, orange pillar, red inclusion")
+    fig.tight_layout()
+    with atomic_path(path, ".png") as tmp:
+        fig.savefig(tmp, dpi=90)
+    plt.close(fig)

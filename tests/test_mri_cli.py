@@ -1,0 +1,161 @@
+"""`less mri-label`: synthesise -> label -> metrics, phantom grid with 8 orientations, bad inputs."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+
+import nibabel as nib
+import numpy as np
+import pytest
+
+from lesscli.io.labels import INCLUSION, load_nifti_labels
+from lesscli.metrics import dice
+from lesscli.mri.synth import MRIParams, synthesize
+from lesscli.phantom.catalogue import single_insert
+from lesscli.phantom.geometry import Phantom, label_grid_origin
+
+SYNTH_SPACING = "0.7,0.7,0.7"
+
+
+@pytest.fixture(scope="module")
+def synth_files(tmp_path_factory):
+    """A synthetic scan of St12C13 with its truth, written by the CLI once for the module."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    folder = tmp_path_factory.mktemp("mri")
+    less = Path(sys.executable).parent / "less"
+    subprocess.run([str(less), "mri-label", "--synth", "St12C13", "-o", "scan.nii.gz", "--truth-out", "truth.nii.gz",
+                    "--spacing-mm", SYNTH_SPACING, "--seed", "3", "--contrast", "silicone-brighter"],
+                   cwd=folder, check=True, capture_output=True)
+    return folder
+
+
+def _one_line_error(proc) -> str:
+    err = proc.stderr.decode()
+    assert proc.returncode == 1, err
+    assert "Traceback" not in err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def test_synth_label_metrics_roundtrip(run_less, synth_files, tmp_path):
+    scan, truth = synth_files / "scan.nii.gz", synth_files / "truth.nii.gz"
+    proc = run_less("mri-label", scan, "-o", "labels.nii.gz", "--report", "--format", "jsonl", "--qc", "qc.png",
+                    check=True)
+    rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
+    contrast = next(r for r in rows if r["row"] == "contrast")
+    assert contrast["silicone_brighter"] is True and contrast["silicone"] > contrast["hydrogel"]
+    inclusions = [r for r in rows if r["row"] == "inclusion"]
+    assert len(inclusions) == 1 and abs(inclusions[0]["diameter_mm"] - 12.0) < 1.0
+    assert not [r for r in rows if r["row"] == "warning"]
+    assert (tmp_path / "qc.png").stat().st_size > 1000
+    out, ref = nib.load(tmp_path / "labels.nii.gz"), nib.load(scan)
+    np.testing.assert_allclose(out.affine, ref.affine)
+    assert out.shape == ref.shape
+    pred, true = load_nifti_labels(str(tmp_path / "labels.nii.gz")), load_nifti_labels(str(truth))
+    assert dice(pred.data == INCLUSION, true.data == INCLUSION) > 0.93
+    metrics = run_less("metrics", "--truth", truth, "--pred", "labels.nii.gz", "--format", "jsonl", check=True)
+    first = json.loads(metrics.stdout.decode().splitlines()[0])
+    assert first["f1_3d"] > 0.93
+
+
+def test_phantom_grid_writes_eight_orientations(run_less, synth_files, tmp_path):
+    run_less("mri-label", synth_files / "scan.nii.gz", "-o", "grid.nii.gz", "--grid", "phantom", "--orientations", "8",
+             check=True)
+    vols = [load_nifti_labels(str(tmp_path / f"grid_{k}.nii.gz")) for k in range(8)]
+    assert not (tmp_path / "grid.nii.gz").exists()
+    for vol in vols:
+        assert vol.shape == (26, 128, 128)
+        np.testing.assert_allclose(vol.origin_mm, label_grid_origin((26, 128, 128), (0.9, 0.4774, 0.4774)), atol=1e-4)
+        assert (vol.data == INCLUSION).sum() > 100
+    # a 90 degree step maps the centred square grid onto itself: orientation 2 is orientation 0 turned x -> y
+    turned = np.rot90(vols[0].data, k=1, axes=(2, 1))
+    assert dice(turned == INCLUSION, vols[2].data == INCLUSION) > 0.98
+    assert dice(vols[0].data == INCLUSION, vols[1].data == INCLUSION) < 0.5
+
+
+def test_numpy_scan_with_spacing(run_less, tmp_path):
+    params = MRIParams(spacing_mm=(0.9, 0.6, 0.6), noise_sigma=0.03, supersample=1)
+    synth = synthesize(single_insert(14, "D", 9), np.random.default_rng(5), params)
+    np.save(tmp_path / "scan.npy", synth.image)
+    run_less("mri-label", "scan.npy", "--spacing-mm", "0.9,0.6,0.6", "-o", "labels.nii.gz", check=True)
+    labels = load_nifti_labels(str(tmp_path / "labels.nii.gz"))
+    np.testing.assert_allclose(labels.spacing_mm, [0.9, 0.6, 0.6])
+    assert labels.shape == synth.labels.shape
+    assert dice(labels.data == INCLUSION, synth.labels.data == INCLUSION) > 0.93
+    assert dice(labels.data > 0, synth.labels.data > 0) > 0.97
+
+
+def _bad_arrays(tmp_path) -> dict:
+    rng = np.random.default_rng(0)
+    noise = np.abs(rng.normal(0, 1, (48, 48, 48)) + 1j * rng.normal(0, 1, (48, 48, 48)))
+    with_nan = rng.random((32, 32, 32))
+    with_nan[5, 6, 7] = np.nan
+    arrays = {"flat.npy": rng.random((64, 64)), "nan.npy": with_nan, "empty.npy": np.zeros((32, 32, 32)),
+              "noise.npy": noise}
+    for name, arr in arrays.items():
+        np.save(tmp_path / name, arr)
+    return arrays
+
+
+@pytest.mark.parametrize("name, spacing, message", [
+    ("flat.npy", "1,1,1", "expected a 3D volume"),
+    ("nan.npy", "1,1,1", "NaN"),
+    ("empty.npy", "1,1,1", "volume is empty"),
+    ("noise.npy", "1,1,1", "no insert found"),
+    ("noise.npy", None, "needs --spacing-mm"),
+    ("missing.nii.gz", None, "no such file"),
+    ("scan.txt", None, "unknown scan format"),
+])
+def test_bad_inputs_fail_with_one_line(run_less, tmp_path, name, spacing, message):
+    _bad_arrays(tmp_path)
+    (tmp_path / "scan.txt").write_text("not a scan")
+    args = ["mri-label", name, "-o", "out.nii.gz"] + (["--spacing-mm", spacing] if spacing else [])
+    line = _one_line_error(run_less(*args))
+    assert name in line and message in line
+    assert not (tmp_path / "out.nii.gz").exists()
+
+
+def test_no_inclusion_warns_and_strict_fails(run_less, tmp_path):
+    empty_insert = Phantom("Plain")
+    params = MRIParams(spacing_mm=(1.0, 1.0, 1.0), supersample=1, noise_sigma=0.03)
+    np.save(tmp_path / "plain.npy", synthesize(empty_insert, np.random.default_rng(1), params).image)
+    proc = run_less("mri-label", "plain.npy", "--spacing-mm", "1,1,1", "-o", "out.nii.gz")
+    assert proc.returncode == 0 and "no inclusion found" in proc.stderr.decode()
+    assert (tmp_path / "out.nii.gz").exists()
+    line = _one_line_error(run_less("mri-label", "plain.npy", "--spacing-mm", "1,1,1", "-o", "strict.nii.gz",
+                                    "--strict"))
+    assert "no inclusion found" in line and not (tmp_path / "strict.nii.gz").exists()
+
+
+def test_dicom_folder_without_images_is_a_clear_error(run_less, tmp_path):
+    (tmp_path / "series").mkdir()
+    line = _one_line_error(run_less("mri-label", "series", "-o", "out.nii.gz"))
+    expected = "no DICOM images" if importlib.util.find_spec("pydicom") else "needs pydicom"
+    assert expected in line
+
+
+def test_usage_errors(run_less, synth_files):
+    proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", "x.nii.gz", "--spacing-mm", "1,0,1")
+    assert proc.returncode == 2 and "three positive numbers" in proc.stderr.decode()
+    proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", "x.nii.gz", "--orientations", "8")
+    assert proc.returncode == 2 and "--grid phantom" in proc.stderr.decode()
+    line = _one_line_error(run_less("mri-label", "--synth", "St12C31", "-o", "x.nii.gz"))
+    assert "did you mean" in line
+
+
+def test_phantom_command_writes_synthetic_mri(run_less, tmp_path):
+    proc = run_less("phantom", "--set", "single", "--names", "St8C5", "--orientations", "0", "--mri", "-o", "ph",
+                    "--format", "jsonl", check=True)
+    rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
+    mri_rows = [r for r in rows if "mri" in r]
+    assert len(mri_rows) == 1 and mri_rows[0]["insert"] == "St8C5"
+    truth = load_nifti_labels(str(tmp_path / "ph" / "mri" / "St8C5_0_truth.nii.gz"))
+    image = nib.load(tmp_path / "ph" / "mri" / "St8C5_0.nii.gz")
+    assert image.shape == truth.shape[::-1] and (truth.data == INCLUSION).sum() > 0
+    proc = run_less("phantom", "--stl", "x.stl", "--mri", "-o", "cad")
+    assert proc.returncode == 2 and "--mri needs --set" in proc.stderr.decode()

@@ -1,0 +1,174 @@
+"""Unit tests of the MRI pieces on small hand-made volumes: synthesis, bias correction, morphology, frame."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lesscli.errors import DataError
+from lesscli.io.labels import INCLUSION, INSERT, PILLAR
+from lesscli.metrics import dice
+from lesscli.mri.bias import correct_bias
+from lesscli.mri.morphology import split_silicone
+from lesscli.mri.segment import validate
+from lesscli.mri.synth import MRIParams, synthesize
+from lesscli.phantom.catalogue import single_insert
+
+SPACING = np.array([0.5, 0.5, 0.5])
+
+
+def _grid(shape):
+    return np.meshgrid(*(np.arange(n) * s for n, s in zip(shape, SPACING)), indexing="ij")
+
+
+def test_synth_truth_matches_geometry_and_contrast():
+    phantom = single_insert(10, "C", 9)
+    params = MRIParams(spacing_mm=(0.6, 0.6, 0.6), noise_sigma=0.0, bias_amplitude=0.0, max_tilt_deg=0.0,
+                       silicone_brighter=True)
+    synth = synthesize(phantom, np.random.default_rng(0), params)
+    voxel_mm3 = 0.6 ** 3
+    inclusion_mm3 = (synth.labels.data == INCLUSION).sum() * voxel_mm3
+    assert inclusion_mm3 == pytest.approx(4 / 3 * np.pi * 5.0 ** 3, rel=0.05)
+    body_mm3 = (synth.labels.data > 0).sum() * voxel_mm3
+    octagon_mm2 = 2 * (np.sqrt(2) - 1) * phantom.width_mm ** 2
+    assert body_mm3 == pytest.approx(octagon_mm2 * phantom.height_mm, rel=0.02)
+    img, lab = synth.image, synth.labels.data
+    assert np.median(img[lab == INCLUSION]) == pytest.approx(params.bright_level)
+    assert np.median(img[lab == INSERT]) == pytest.approx(params.dark_level)      # mostly hydrogel
+    assert np.median(img[lab == 0]) == pytest.approx(params.air_level)
+    partial = (img > 0.05) & (img < 0.4)           # partial-volume voxels exist only at the surface
+    assert partial.any()
+
+
+def test_synth_is_deterministic_and_noise_is_rician():
+    phantom = single_insert(8, "D", 5)
+    params = MRIParams(spacing_mm=(0.8, 0.8, 0.8), supersample=1, noise_sigma=0.05)
+    a = synthesize(phantom, np.random.default_rng(7), params)
+    b = synthesize(phantom, np.random.default_rng(7), params)
+    np.testing.assert_array_equal(a.image, b.image)
+    air = a.image[a.labels.data == 0]
+    assert air.min() >= 0.0
+    assert np.mean(air) == pytest.approx(0.05 * np.sqrt(np.pi / 2), rel=0.1)   # Rayleigh mean
+
+
+def test_bias_correction_recovers_smooth_field():
+    shape = (40, 48, 44)
+    z, y, x = _grid(shape)
+    obj = ((z - 10) ** 2 / 64 + (y - 12) ** 2 / 81 + (x - 11) ** 2 / 81) < 1
+    image = np.where(obj, 1.0, 0.02)
+    image[obj & (x > 13)] = 0.5                                   # a second tissue
+    field = np.exp(0.6 * (z / z.max() - 0.5) + 0.4 * (y / y.max()) ** 2)
+    corrected, mask = correct_bias((image * field).astype(np.float32), SPACING, degree=3)
+    inside = mask & obj & (x < 11)
+    ratio = corrected[inside] / image[inside]
+    raw = (image * field)[inside] / image[inside]
+    assert raw.std() / raw.mean() > 0.1
+    assert ratio.std() / ratio.mean() < 0.1 * raw.std() / raw.mean()   # field removed up to a global factor
+
+
+def test_split_silicone_separates_skin_inclusion_and_pillar():
+    shape = (44, 80, 80)                                          # an insert wider than tall, like the phantoms
+    z, y, x = _grid(shape)
+    insert = np.zeros(shape, bool)
+    insert[2:-2, 2:-2, 2:-2] = True
+    skin = insert & (z >= 19.0)                                   # 2 mm plate at the top
+    ball = (z - 12) ** 2 + (y - 15) ** 2 + (x - 15) ** 2 <= 4.0 ** 2
+    column = ((y - 15) ** 2 + (x - 15) ** 2 <= 1.25 ** 2) & (z <= 12) & insert
+    stray = ((y - 6) ** 2 + (x - 30) ** 2 <= 1.25 ** 2) & (z > 3) & (z < 10)   # a column touching nothing
+    lying = ((z - 8) ** 2 + (y - 30) ** 2 <= 1.25 ** 2) & (x > 20) & (x < 30)  # across the axis: not a pillar
+    pillar, inclusion, warnings = split_silicone(skin | ball | column | stray | lying, insert, SPACING, 4.5, 3.0)
+    assert dice(inclusion, ball) > 0.98
+    assert (pillar & column).sum() >= 0.85 * (column & ~ball).sum()      # a short 7 mm column
+    assert not (pillar & (skin | lying)).any() and not (inclusion & (skin | lying)).any()
+    assert any("pillar not connected" in w for w in warnings)
+
+
+def test_split_silicone_warns_without_inclusion():
+    shape = (30, 30, 30)
+    insert = np.ones(shape, bool)
+    skin = np.zeros(shape, bool)
+    skin[-5:] = True
+    pillar, inclusion, warnings = split_silicone(skin, insert, SPACING, 4.5, 3.0)
+    assert not inclusion.any() and not pillar.any()
+    assert "no inclusion found" in warnings
+
+
+@pytest.mark.parametrize("array, message", [
+    (np.zeros((16, 16)), "expected a 3D volume"),
+    (np.full((16, 16, 16), 3.0), "volume is empty"),
+    (np.where(np.eye(16, dtype=bool)[None].repeat(16, 0), np.nan, 1.0), "NaN"),
+    (np.zeros((4, 40, 40)), "too small"),
+])
+def test_validate_rejects_bad_volumes(array, message):
+    with pytest.raises(DataError, match=message):
+        validate(array, "scan.npy")
+
+
+def test_grid_and_orientation_conventions():
+    """Orientation copies of a resampled grid follow Phantom.rotated (+45 degrees per step)."""
+    from lesscli.mri.frame import InsertFrame, resample
+    from lesscli.mri.scan import zyx_affine
+
+    phantom = single_insert(12, "C", 13)
+    vol = phantom.label_volume((40, 140, 140), (0.8, 0.5, 0.5))
+    frame = InsertFrame(np.eye(3), np.zeros(3), 0.0, 60.0, 30.0)
+    affine = zyx_affine(vol.origin_mm, vol.spacing_mm)
+    for k in (1, 2, 7):
+        grid = resample(vol.data, affine, frame, orientation=k)
+        truth = phantom.rotated(k).label_volume()
+        assert dice(grid.data == INCLUSION, truth.data == INCLUSION) > 0.9
+        assert dice(grid.data == PILLAR, truth.data == PILLAR) > 0.6
+
+
+def test_container_walls_are_background_and_cut_insert_warns():
+    from lesscli.mri.segment import segment
+
+    phantom = single_insert(12, "C", 9)
+    params = MRIParams(spacing_mm=(0.8, 0.8, 0.8), supersample=1, noise_sigma=0.03, max_tilt_deg=0.0, yaw_deg=0.0)
+    synth = synthesize(phantom, np.random.default_rng(2), params)
+    walled = synth.image.copy()
+    for axis in range(3):                       # a bright box open nowhere: touches every face
+        for index in (0, 1, -2, -1):
+            np.moveaxis(walled, axis, 0)[index] = 1.0
+    seg = segment(walled, synth.labels.spacing_mm)
+    assert dice(seg.labels > 0, synth.labels.data > 0) > 0.97
+    assert (seg.labels[:2] == 0).all() and seg.warnings == []
+    cut = synth.image[:, :, 12:-12]             # field of view narrower than the insert
+    seg_cut = segment(cut, synth.labels.spacing_mm)
+    assert any("touches the border" in w for w in seg_cut.warnings)
+    assert dice(seg_cut.labels == INCLUSION, synth.labels.data[:, :, 12:-12] == INCLUSION) > 0.9
+
+
+def test_dicom_series_geometry_with_a_stand_in_reader(tmp_path, monkeypatch):
+    """Slice order, pixel layout, rescale and the LPS -> RAS affine, with a minimal stand-in for pydicom."""
+    import sys
+    import types
+
+    from lesscli.mri.scan import load_scan
+
+    volume = np.random.default_rng(0).integers(0, 1000, (5, 6, 7))        # slices, rows, columns
+    for k in range(volume.shape[0]):
+        np.save(tmp_path / f"s{(k * 3) % 5}.npy", np.array([k]))          # file order differs from slice order
+    (tmp_path / "notes.txt").write_text("not DICOM")
+
+    class InvalidDicomError(Exception):
+        pass
+
+    def dcmread(path):
+        if not path.endswith(".npy"):
+            raise InvalidDicomError(path)
+        k = int(np.load(path)[0])
+        return types.SimpleNamespace(ImagePositionPatient=[10.0, 20.0, 0.9 * k], ImageOrientationPatient=[1, 0, 0, 0, 1, 0],
+                                     PixelSpacing=[0.5, 0.6], pixel_array=volume[k], RescaleSlope=2.0,
+                                     RescaleIntercept=-1.0, PixelData=b"")
+
+    fake = types.ModuleType("pydicom")
+    fake.dcmread = dcmread
+    fake.errors = types.SimpleNamespace(InvalidDicomError=InvalidDicomError)
+    monkeypatch.setitem(sys.modules, "pydicom", fake)
+    scan = load_scan(str(tmp_path))
+    assert scan.kind == "dicom" and scan.data.shape == (7, 6, 5)            # columns, rows, slices
+    np.testing.assert_allclose(scan.data, 2.0 * np.transpose(volume, (2, 1, 0)) - 1.0)
+    np.testing.assert_allclose(scan.affine[:3, :3], np.diag([-0.6, -0.5, 0.9]))
+    np.testing.assert_allclose(scan.affine[:3, 3], [-10.0, -20.0, 0.0])
+    np.testing.assert_allclose(scan.spacing_mm, [0.6, 0.5, 0.9])
