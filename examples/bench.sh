@@ -3,4 +3,5 @@
 set -euo pipefail
 less bench metrics --quick
 less bench mri --quick
+less bench sim --quick
 less bench pose --quick

@@ -13,6 +13,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "import": ("import_", "Import the published HDF5 dataset layout into a scan set."),
     "bench": ("bench", "Benchmarks: accuracy against time, ratios against in-run baselines."),
     "phantom": ("phantom", "Phantom label volumes (NIfTI) and geometry specs: catalogues, TOML sets, STL meshes."),
+    "simulate": ("simulate", "Simulate palpation scans from a scene file (contact tiers, motions, effects)."),
     "lift": ("lift", "Scissor lift over Dynamixel servos: home, raise, lower, rotate, cycle; or emulate it."),
     "metrics": ("metrics", "Imaging metrics in mm (F1, centroid, ARSE, diameter, area/volume) per scan and set."),
     "mri-label": ("mri_label", "MRI scan of an insert -> label NIfTI (insert, pillar, inclusion); --synth makes test scans."),
