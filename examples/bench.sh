@@ -2,6 +2,8 @@
 # Benchmarks: each prints ratios against a baseline measured in the same run.
 set -euo pipefail
 less bench metrics --quick
+less bench train --quick --threads 1
 less bench mri --quick
 less bench sim --quick
 less bench pose --quick
+less bench imaging --quick --threads 1

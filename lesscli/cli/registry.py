@@ -15,7 +15,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "phantom": ("phantom", "Phantom label volumes (NIfTI) and geometry specs: catalogues, TOML sets, STL meshes."),
     "simulate": ("simulate", "Simulate palpation scans from a scene file (contact tiers, motions, effects)."),
     "lift": ("lift", "Scissor lift over Dynamixel servos: home, raise, lower, rotate, cycle; or emulate it."),
+    "pretrain": ("pretrain", "Self-supervised force-prediction pretraining of a LESS or GLOBAL representation."),
     "metrics": ("metrics", "Imaging metrics in mm (F1, centroid, ARSE, diameter, area/volume) per scan and set."),
+    "image": ("image", "Tactile imaging: fit a 2D/3D image decoder on a representation, predict label images."),
+    "render": ("render", "PNG figures of predictions: truth | prediction | uncertainty, and time strips."),
+    "mesh": ("mesh", "Per-class surface meshes (GLB/STL/PLY, mm) from a prediction or label NIfTI."),
     "mri-label": ("mri_label", "MRI scan of an insert -> label NIfTI (insert, pillar, inclusion); --synth makes test scans."),
     "pose": ("pose", "Hand-held pose: AprilTag tracking, synthetic frames, robot calibration, accuracy."),
 }

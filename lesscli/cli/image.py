@@ -1,0 +1,131 @@
+"""``less image fit|predict``: train an image decoder on a representation; predict label images."""
+
+from __future__ import annotations
+
+import click
+
+from lesscli.cli.common import format_option, output_option
+
+
+@click.group("image")
+def cli() -> None:
+    """Tactile imaging: 2D/3D label images with per-pixel uncertainty."""
+
+
+@cli.command("fit")
+@click.argument("data")
+@click.option("--rep", "rep_path", required=True, help="Representation checkpoint from 'less pretrain'.")
+@output_option(help="Best imaging checkpoint (.pt); beside it <stem>.last.pt (--resume) and <stem>.log.jsonl.")
+@click.option("--val", "val_path", default=None, help="Validation scan set: selects the best epoch.")
+@click.option("--dim", type=click.Choice(["2", "3"]), default=None, help="2: slice image, 3: volume.  [default: 3]")
+@click.option("--finetune", is_flag=True, default=None, help="Train the representation too (default: frozen).")
+@click.option("--slice", "slice_index", type=int, default=None,
+              help="2D: label slice index (default: through the inclusion centre).")
+@click.option("--decoder", default=None, help="patch or global (default: pairs with the encoder).")
+@click.option("--epochs", type=int, default=None, help="Epochs.  [default: 300]")
+@click.option("--batch-size", type=int, default=None, help="Scans per batch.  [default: 2]")
+@click.option("--lr", type=float, default=None, help="Adam learning rate (cosine decay).  [default: 1e-4]")
+@click.option("--seed", type=int, default=None, help="Seed for initialisation and sampling.  [default: 0]")
+@click.option("--device", default=None, help="auto, cpu, cuda or cuda:N.  [default: auto]")
+@click.option("--config", "config_path", default=None, help="TOML file with [image], [train], [loss] tables.")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+              help="Override a setting, e.g. --set image.width=32 --set loss.gamma=1 (repeatable).")
+@click.option("--resume", is_flag=True, help="Continue from <stem>.last.pt with the same settings.")
+@format_option
+def fit_cmd(data, rep_path, output, val_path, dim, finetune, slice_index, decoder, epochs, batch_size, lr, seed,
+            device, config_path, overrides, resume, fmt) -> None:
+    """Fit an image decoder on DATA's label volumes with the Dice-Focal loss.
+
+    The representation (--rep) is frozen unless --finetune; its normalisation statistics are
+    reused. 3D targets are the label volumes; 2D targets are the slice through the inclusion
+    centre (or --slice). The best epoch is chosen on --val (else the training loss). Under torchrun
+    the same command trains with DistributedDataParallel; rank 0 writes. A summary record goes to
+    stdout.
+
+    Example: less image fit split/train.npz --val split/val.npz --rep rep.pt -o imager.pt --dim 3
+    """
+    from lesscli.cli.common import LOG, progress
+    from lesscli.io.records import emit_records
+    from lesscli.io.scans import append_history, load_scans
+    from lesscli.train import distributed
+    from lesscli.train.config import load_config
+    from lesscli.train.image_fit import ImageFitConfig, fit_imager
+
+    explicit = {"image.dim": int(dim) if dim else None, "image.finetune": finetune, "image.slice": slice_index,
+                "image.decoder": decoder, "train.epochs": epochs, "train.batch_size": batch_size,
+                "train.lr": lr, "train.seed": seed, "train.device": device}
+    cfg = load_config(ImageFitConfig, config_path, overrides, explicit)
+    train = load_scans(data)
+    val = load_scans(val_path) if val_path else None
+    env = distributed.setup(cfg.train.device)
+    try:
+        history = append_history({}, seed=cfg.train.seed)["history"]
+        bar = progress if env.is_main else (lambda it, **_: it)
+        summary = fit_imager(train, val, rep_path, cfg, output, env=env, resume=resume, history=history,
+                             progress=bar, names=(data, val_path or ""))
+    finally:
+        distributed.teardown(env)
+    if not env.is_main:
+        return
+    if output == "-":
+        LOG.warning("image fit summary: %s", summary)
+    else:
+        emit_records([summary], fmt)
+
+
+@cli.command("predict")
+@click.argument("model")
+@click.argument("data")
+@output_option(help="Prediction file (less.pred/1 .npz; '-' for stdout).")
+@click.option("--threshold", type=click.FloatRange(0, 1), default=None,
+              help="Pillar/inclusion only above this probability (hand-held setting: 0.8). Default: argmax.")
+@click.option("--steps", type=click.IntRange(min=1), default=None,
+              help="Image N evenly spaced prefixes of each scan's sequence.")
+@click.option("--every", type=click.IntRange(min=1), default=None, help="Image every K-th prefix (and the whole).")
+@click.option("--grow", is_flag=True, help="Extend the particle grid over larger label grids (same spacing).")
+@click.option("--slice", "slice_index", type=int, default=None, help="2D: label slice (default: as trained).")
+@click.option("--nifti", "nifti_dir", default=None, help="Also write label and entropy NIfTI volumes here.")
+@click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True)
+@click.option("--device", default="auto", show_default=True, help="auto, cpu, cuda or cuda:N.")
+@format_option
+def predict_cmd(model, data, output, threshold, steps, every, grow, slice_index, nifti_dir, batch_size, device,
+                fmt) -> None:
+    """Predict label images of every scan in DATA with an imaging checkpoint MODEL.
+
+    Per scan: class probabilities, labels, per-pixel Shannon entropy (nats), the truth when DATA
+    has labels, and geometry. A summary record goes to stdout (unless -o -).
+
+    Example: less image predict imager.pt split/test.npz -o pred.npz --steps 5
+    """
+    if steps and every:
+        raise click.UsageError("--steps and --every are exclusive")
+    import time
+
+    import numpy as np
+
+    from lesscli.cli.common import LOG, progress
+    from lesscli.infer.predict import PredictOptions, load_imager, predict, write_nifti
+    from lesscli.io.predictions import save_predictions
+    from lesscli.io.records import emit_records
+    from lesscli.io.scans import append_history, load_scans
+    from lesscli.train.distributed import resolve_device
+
+    t0 = time.perf_counter()
+    dev = resolve_device(device)
+    imager, ckpt = load_imager(model, dev)
+    scans = load_scans(data)
+    opts = PredictOptions(threshold, steps, every, grow, batch_size, slice_index)
+    preds = predict(imager, ckpt, scans, opts, dev, name=data, progress=progress)
+    preds.meta.update({"imager": model, "set": data,
+                       "history": append_history({"history": [
+        h for h in ckpt.get("history", []) if "epoch" not in h]})["history"]})
+    save_predictions(output, preds)
+    paths = write_nifti(preds, nifti_dir) if nifti_dir else []
+    summary = {"output": output, "scans": scans.n_scans, "predictions": len(preds.scans),
+               "dim": preds.meta["dim"], "particles": preds.meta["particles"],
+               "mean_entropy_nats": float(np.mean([p.entropy.mean() for p in preds.scans])) if preds.scans else None,
+               "nifti_files": len(paths), "seconds": round(time.perf_counter() - t0, 2)}
+    if output == "-":
+        LOG.warning("image predict summary: %s", summary)
+    else:
+        emit_records([summary], fmt)

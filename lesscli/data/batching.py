@@ -1,0 +1,140 @@
+"""Scan sets as torch datasets: one item per scan, padded batches, force normalisation.
+
+Normalisation statistics are computed once from the training set (:func:`compute_norm_stats`),
+stored in the checkpoint, and reused unchanged for validation, test and inference data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from lesscli.errors import DataError
+from lesscli.io.scans import ScanSet
+
+# Force features whose standard deviation is below this are only centred, not scaled.
+STD_FLOOR = 1e-8
+
+
+@dataclass
+class Batch:
+    """A padded batch of scans (each scan = its trajectories concatenated in time).
+
+    Attributes:
+        pose: (B, L, 6) float32, x, y, z mm and roll, pitch, yaw rad (phantom frame), padded.
+        force: (B, L, T*3) float32, normalised forces (see :func:`compute_norm_stats`), padded.
+        valid: (B, L) bool, real steps (padding is False).
+        scan_index: (B,) long, index of each scan in its ScanSet.
+    """
+
+    pose: Tensor
+    force: Tensor
+    valid: Tensor
+    scan_index: Tensor
+
+    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> Batch:
+        """Move to a device; ``dtype`` converts the float fields (pose, force)."""
+        out = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if dtype is not None and value.is_floating_point():
+                value = value.to(dtype)
+            out[f.name] = value.to(device) if device is not None else value
+        return Batch(**out)
+
+    @property
+    def size(self) -> int:
+        return int(self.pose.shape[0])
+
+
+NORM_MODES = ("global", "feature")
+
+
+def compute_norm_stats(scans: ScanSet, mode: str = "global") -> dict:
+    """Force mean per feature and a scale, over every step of a (training) scan set.
+
+    Args:
+        scans: the training scan set.
+        mode: ``global`` (default): one standard deviation pooled over all features, so the
+            normalised MSE stays proportional to the physical squared error and channels that only
+            carry sensor noise (e.g. shear of a shear-free sensor) keep their small weight;
+            ``feature``: one standard deviation per feature.
+
+    Returns:
+        ``{"force_mean": [F floats], "force_std": [F floats], "mode": str, "n_steps": int,
+        "force_units": str}`` with F = taxels x 3; a standard deviation below ``STD_FLOOR`` is
+        stored as 1.
+    """
+    if mode not in NORM_MODES:
+        raise DataError(f"force normalisation '{mode}' is unknown (choices: {', '.join(NORM_MODES)})")
+    if scans.n_steps == 0:
+        raise DataError("training scan set has no steps: cannot compute normalisation statistics")
+    flat = scans.force.reshape(scans.n_steps, -1).astype(np.float64)
+    mean = flat.mean(axis=0)
+    var = flat.var(axis=0)
+    std = np.sqrt(var) if mode == "feature" else np.full_like(var, np.sqrt(var.mean()))
+    std = np.where(std > STD_FLOOR, std, 1.0)
+    units = scans.meta.get("units", {}).get("force", "") if isinstance(scans.meta, dict) else ""
+    return {"force_mean": mean.tolist(), "force_std": std.tolist(), "mode": mode,
+            "n_steps": int(scans.n_steps), "force_units": str(units)}
+
+
+def force_dim(norm_stats: dict) -> int:
+    """F, the number of force features the statistics describe."""
+    return len(norm_stats["force_mean"])
+
+
+class ScanDataset(torch.utils.data.Dataset):
+    """Scan s -> ``{"pose": (n, 6), "force": (n, F) normalised, "scan_index": s}`` float32 tensors.
+
+    Args:
+        scans: the scan set.
+        norm_stats: statistics from :func:`compute_norm_stats` on the training set.
+        name: file name used in error messages.
+    """
+
+    def __init__(self, scans: ScanSet, norm_stats: dict, name: str = "scan set") -> None:
+        features = scans.n_taxels * 3
+        if features != force_dim(norm_stats):
+            raise DataError(f"{name}: force has {scans.n_taxels} taxels x 3 = {features} features, "
+                            f"but the normalisation statistics have {force_dim(norm_stats)}")
+        self.scans = scans
+        self.offsets = scans.scan_step_offsets()
+        self.mean = np.asarray(norm_stats["force_mean"], np.float64)
+        self.std = np.asarray(norm_stats["force_std"], np.float64)
+
+    def __len__(self) -> int:
+        return self.scans.n_scans
+
+    def __getitem__(self, s: int) -> dict:
+        lo, hi = int(self.offsets[s]), int(self.offsets[s + 1])
+        force = self.scans.force[lo:hi].reshape(hi - lo, -1)
+        force = ((force - self.mean) / self.std).astype(np.float32)
+        return {"pose": torch.from_numpy(np.ascontiguousarray(self.scans.pose[lo:hi], np.float32)),
+                "force": torch.from_numpy(force), "scan_index": int(s)}
+
+
+def collate(items: list[dict]) -> Batch:
+    """Pad scans to the longest in the batch (at least one step); padding is zeros with valid False."""
+    length = max([1] + [int(it["pose"].shape[0]) for it in items])
+    b, f = len(items), int(items[0]["force"].shape[1])
+    pose = torch.zeros(b, length, 6)
+    force = torch.zeros(b, length, f)
+    valid = torch.zeros(b, length, dtype=torch.bool)
+    for i, it in enumerate(items):
+        n = int(it["pose"].shape[0])
+        pose[i, :n] = it["pose"]
+        force[i, :n] = it["force"]
+        valid[i, :n] = True
+    scan_index = torch.tensor([int(it["scan_index"]) for it in items], dtype=torch.long)
+    return Batch(pose=pose, force=force, valid=valid, scan_index=scan_index)
+
+
+def batches(scans: ScanSet, norm_stats: dict, batch_size: int = 2) -> list[Batch]:
+    """All scans in order as a list of batches (for inference and evaluation)."""
+    data = ScanDataset(scans, norm_stats)
+    return [collate([data[i] for i in range(lo, min(lo + batch_size, len(data)))])
+            for lo in range(0, len(data), batch_size)]

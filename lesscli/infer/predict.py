@@ -1,0 +1,166 @@
+"""Batch prediction: per scan (and per sequence prefix) class probabilities, labels, entropy, truth.
+
+Each scan is imaged on its own label grid when it has one (3D: the volume's grid; 2D: the slice
+through the inclusion centre, or the trained slice index), else on the training grid. ``steps``/
+``every`` image prefixes of the scan's sequence (the image developing over time); ``grow`` extends
+the particle grid over the largest label grid at the same particle spacing (weights are shared).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from lesscli.data.batching import ScanDataset, collate
+from lesscli.data.image_labels import AUTO_SLICE, grid_of, target_volume
+from lesscli.errors import DataError
+from lesscli.io.predictions import PredictionSet, ScanPrediction, labels_from_probs
+from lesscli.io.scans import ScanSet
+from lesscli.models.imager import Imager, grid_from_dict
+from lesscli.models.patch_decoder import ImageGrid
+from lesscli.train.checkpoint import load_checkpoint
+
+
+@dataclass
+class PredictOptions:
+    """How to predict.
+
+    Attributes:
+        threshold: pillar/inclusion only above this probability (None: plain argmax).
+        steps: image this many evenly spaced prefixes per scan (None: the whole sequence only).
+        every: image every K-th prefix (and the whole sequence); exclusive with ``steps``.
+        grow: extend the particle grid over larger label grids.
+        batch_size: prefixes per forward pass.
+        slice_index: 2D slice rule (default: the model's training rule).
+    """
+
+    threshold: float | None = None
+    steps: int | None = None
+    every: int | None = None
+    grow: bool = False
+    batch_size: int = 4
+    slice_index: int | None = None
+
+
+def load_imager(path: str, map_location: str | torch.device = "cpu") -> tuple[Imager, dict]:
+    """Rebuild an imaging model from its checkpoint (eval mode); DataError names the file."""
+    from lesscli.models.registry import build_encoder
+    from lesscli.train.image_fit import build_decoder
+
+    ckpt = load_checkpoint(path, map_location)
+    cfg = ckpt.get("config", {})
+    missing = [k for k in ("encoder", "decoder", "grid", "image") if k not in cfg]
+    if missing:
+        raise DataError(f"{path}: not an imaging checkpoint (config lacks {', '.join(missing)}); "
+                        "make one with 'less image fit'")
+    imager = Imager(build_encoder(cfg["encoder"]), build_decoder(cfg["decoder"]), grid_from_dict(cfg["grid"]))
+    try:
+        imager.load_state_dict(ckpt["model_state"])
+    except RuntimeError as exc:
+        raise DataError(f"{path}: weights do not match the model config ({str(exc).splitlines()[0]})") from None
+    return imager.to(map_location).eval(), ckpt
+
+
+def prefix_lengths(n_steps: int, steps: int | None = None, every: int | None = None) -> list[int]:
+    """Prefix lengths to image: evenly spaced ``steps`` of them, every ``every``-th, or just ``n_steps``."""
+    if steps:
+        return sorted({max(1, math.ceil(n_steps * i / steps)) for i in range(1, steps + 1)}) if n_steps else [0]
+    if every:
+        return [*range(every, n_steps, every), n_steps] if n_steps else [0]
+    return [n_steps]
+
+
+def scan_grid(scans: ScanSet, s: int, dim: int, slice_index: int, default: ImageGrid) -> tuple[ImageGrid, np.ndarray | None]:
+    """Output grid and truth (D, H, W) of scan ``s``; the training grid and None without a label."""
+    label = scans.label_of(s)
+    if label is None:
+        return default, None
+    vol = target_volume(label, dim, slice_index)
+    return grid_of(vol), vol.data
+
+
+def grow_extent_mm(grids: list[ImageGrid]) -> float:
+    """Side of the square particle grid that covers every grid's x-y extent."""
+    return max(max(g.shape[1] * g.spacing_mm[1], g.shape[2] * g.spacing_mm[2]) for g in grids)
+
+
+def _prefix_item(item: dict, k: int) -> dict:
+    return {**item, "pose": item["pose"][:k], "force": item["force"][:k]}
+
+
+def predict_scan(imager: Imager, item: dict, lengths: list[int], grid: ImageGrid, batch_size: int,
+                 device: torch.device) -> list[np.ndarray]:
+    """Probabilities (C, D, H, W) float32 for each prefix length of one scan."""
+    out = []
+    for lo in range(0, len(lengths), batch_size):
+        batch = collate([_prefix_item(item, k) for k in lengths[lo:lo + batch_size]]).to(device)
+        with torch.no_grad():
+            probs = torch.softmax(imager(batch, grid), dim=1)
+        out.extend(probs.float().cpu().numpy())
+    return out
+
+
+def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, device: torch.device | str = "cpu",
+            name: str = "scan set", progress: Callable = lambda it, **_: it) -> PredictionSet:
+    """Predict every scan of ``scans`` (see the module docstring)."""
+    device = torch.device(device)
+    cfg = ckpt["config"]
+    dim = int(cfg["image"]["dim"])
+    slice_index = int(cfg["image"].get("slice", AUTO_SLICE)) if opts.slice_index is None else opts.slice_index
+    grids = [scan_grid(scans, s, dim, slice_index, imager.grid) for s in range(scans.n_scans)]
+    if opts.grow and grids:
+        imager.encoder = imager.encoder.with_grid(grow_extent_mm([g for g, _ in grids]))
+    imager = imager.to(device).eval()
+    data = ScanDataset(scans, ckpt["norm_stats"], name)
+    offsets = scans.scan_step_offsets()
+    preds = []
+    for s in progress(range(scans.n_scans), desc="predict", leave=False):
+        grid, truth = grids[s]
+        lengths = prefix_lengths(int(offsets[s + 1] - offsets[s]), opts.steps, opts.every)
+        for k, probs in zip(lengths, predict_scan(imager, data[s], lengths, grid, opts.batch_size, device)):
+            preds.append(ScanPrediction(
+                probs=probs, origin_mm=np.array(grid.origin_mm), spacing_mm=np.array(grid.spacing_mm), truth=truth,
+                insert=str(scans.scan_insert[s]), orientation=int(scans.scan_orientation[s]), steps=int(k),
+                label=labels_from_probs(probs, opts.threshold)))
+    meta = {"dim": dim, "threshold": opts.threshold, "model": cfg["encoder"]["name"],
+            "decoder": cfg["decoder"]["name"], "grown": bool(opts.grow),
+            "particles": int(getattr(imager.encoder, "n_particles", 1)), "seed": cfg.get("train", {}).get("seed")}
+    return PredictionSet(preds, meta)
+
+
+def prediction_scans(preds: list[ScanPrediction]) -> list[int]:
+    """Scan number of each prediction: prefixes of one scan are consecutive with rising steps."""
+    out: list[int] = []
+    for i, p in enumerate(preds):
+        prev = preds[i - 1] if i else None
+        same = prev is not None and (prev.insert, prev.orientation) == (p.insert, p.orientation) and p.steps > prev.steps
+        out.append(out[-1] if same else (out[-1] + 1 if out else 0))
+    return out
+
+
+def write_nifti(preds: PredictionSet, folder: str) -> list[str]:
+    """Label and entropy volumes per prediction as NIfTI with their affine (all or none written).
+
+    Files are ``<scan>_<insert>_o<orientation>[_t<steps>]_{labels,entropy}.nii.gz``; returns their paths.
+    """
+    from lesscli.io.atomic import atomic_dir
+    from lesscli.io.labels import save_nifti, save_nifti_array
+
+    scan_of = prediction_scans(preds.scans)
+    multi = np.bincount(scan_of, minlength=1) > 1 if scan_of else np.zeros(0, bool)
+    paths = []
+    with atomic_dir(folder) as tmp:
+        for i, p in enumerate(preds.scans):
+            stem = f"{scan_of[i]:03d}_{p.insert or 'scan'}_o{p.orientation}"
+            if multi[scan_of[i]]:
+                stem += f"_t{p.steps}"
+            vol = p.label_volume()
+            save_nifti(os.path.join(tmp, f"{stem}_labels.nii.gz"), vol)
+            save_nifti_array(os.path.join(tmp, f"{stem}_entropy.nii.gz"), p.entropy.astype(np.float32), vol)
+            paths += [os.path.join(folder, f"{stem}_{kind}.nii.gz") for kind in ("labels", "entropy")]
+    return paths

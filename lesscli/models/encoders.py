@@ -1,0 +1,212 @@
+"""LESS particle encoder and the GLOBAL single-state baseline.
+
+For every particle: gather its in-field steps in time order, centre their x-y on the particle,
+encode each (pose, force) pair with the force-location encoder (sinusoidal pose encoding + MLP of
+the force, summed), and run one GRU whose weights all particles share. Only particles that saw at
+least one step are run, each only over its own real steps (packed sequences): the state read at
+the last real step equals a masked update, and no compute is spent on padding.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import torch
+from torch import Tensor, nn
+from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
+
+from lesscli.models.encoding import POSE_DIM, PoseEncoding
+from lesscli.models.particles import gather_receptive_field, particle_grid
+
+if TYPE_CHECKING:
+    from lesscli.data.batching import Batch
+
+
+def mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:
+    """Two-layer perceptron with a GELU (smooth, so finite-difference checks behave)."""
+    return nn.Sequential(nn.Linear(d_in, d_hidden), nn.GELU(), nn.Linear(d_hidden, d_out))
+
+
+@dataclass
+class ParticleStates:
+    """Final particle states.
+
+    Attributes:
+        z: (B, P, d_z) float, the state at each particle's last valid step (zeros when it saw nothing).
+        xy_mm: (P, 2) particle positions in the phantom frame (GLOBAL: P = 1, xy = 0).
+        seen: (B, P) bool, the particle saw at least one step.
+    """
+
+    z: Tensor
+    xy_mm: Tensor
+    seen: Tensor
+
+
+@dataclass
+class ParticleSequence:
+    """GRU outputs for the particles that saw something (N rows = seen (batch, particle) pairs).
+
+    Attributes:
+        batch_index, particle_index: (N,) long, which (b, p) each row is.
+        z: (N, C, d_z) GRU state after each gathered step.
+        pose: (N, C, 6) gathered poses, x-y centred on the particle.
+        force: (N, C, F) gathered forces (normalised).
+        mask: (N, C) bool, real steps (pose/force slots past ``count`` repeat the last step; z is 0 there).
+        count: (N,) long, real steps per row (>= 1).
+        shape: (B, P) of the full particle grid.
+        xy_mm: (P, 2) particle positions.
+    """
+
+    batch_index: Tensor
+    particle_index: Tensor
+    z: Tensor
+    pose: Tensor
+    force: Tensor
+    mask: Tensor
+    count: Tensor
+    shape: tuple[int, int]
+    xy_mm: Tensor
+
+    def final_states(self) -> ParticleStates:
+        """Scatter each row's state at its last real step into a (B, P, d_z) tensor."""
+        b, p = self.shape
+        rows = torch.arange(self.z.shape[0], device=self.z.device)
+        last = self.z[rows, self.count - 1]
+        z = self.z.new_zeros(b, p, self.z.shape[-1])
+        z = z.index_put((self.batch_index, self.particle_index), last)
+        seen = torch.zeros(b, p, dtype=torch.bool, device=self.z.device)
+        seen[self.batch_index, self.particle_index] = True
+        return ParticleStates(z=z, xy_mm=self.xy_mm, seen=seen)
+
+
+class ForceLocationEncoder(nn.Module):
+    """FLE: PE(centred pose) + MLP(force), (..., 6) and (..., F) -> (..., dim)."""
+
+    def __init__(self, force_dim: int, dim: int, n_freq: int = 16) -> None:
+        super().__init__()
+        self.pose_encoding = PoseEncoding(dim, n_freq)
+        self.force_mlp = mlp(force_dim, dim, dim)
+
+    def forward(self, pose: Tensor, force: Tensor) -> Tensor:
+        return self.pose_encoding(pose) + self.force_mlp(force)
+
+
+class ParticleEncoder(nn.Module):
+    """LESS: a grid of particles with local receptive fields and a shared GRU.
+
+    Args:
+        force_dim: F, force features per step (taxels x 3).
+        dim: d_z, width of the encoder and the GRU state.
+        spacing_mm: particle spacing.
+        grid_extent_mm: side of the square the grid covers (centred on ``grid_center_mm``).
+        receptive_field_mm: radius beta of each particle's receptive disc.
+        max_steps_per_particle: cap on gathered steps per particle (earliest kept); None = no cap.
+        n_freq: wavelengths per pose coordinate in the positional encoding.
+        grid_center_mm: x, y of the grid centre.
+    """
+
+    name = "less"
+
+    def __init__(self, force_dim: int, dim: int = 128, spacing_mm: float = 6.0, grid_extent_mm: float = 60.0,
+                 receptive_field_mm: float = 10.0, max_steps_per_particle: int | None = None, n_freq: int = 16,
+                 grid_center_mm: tuple[float, float] = (0.0, 0.0)) -> None:
+        super().__init__()
+        if not receptive_field_mm > 0:
+            raise ValueError(f"receptive_field_mm must be > 0, got {receptive_field_mm}")
+        self.settings = {"force_dim": int(force_dim), "dim": int(dim), "spacing_mm": float(spacing_mm),
+                         "grid_extent_mm": float(grid_extent_mm), "receptive_field_mm": float(receptive_field_mm),
+                         "max_steps_per_particle": None if max_steps_per_particle is None
+                         else int(max_steps_per_particle),
+                         "n_freq": int(n_freq), "grid_center_mm": [float(c) for c in grid_center_mm]}
+        self.dim = int(dim)
+        self.force_dim = int(force_dim)
+        self.receptive_field_mm = float(receptive_field_mm)
+        self.max_steps = self.settings["max_steps_per_particle"]
+        self.fle = ForceLocationEncoder(force_dim, dim, n_freq)
+        self.gru = nn.GRU(dim, dim, batch_first=True)
+        self.register_buffer("xy_mm", self._grid(), persistent=False)
+
+    def _grid(self) -> Tensor:
+        s = self.settings
+        return particle_grid(s["grid_extent_mm"], s["spacing_mm"], tuple(s["grid_center_mm"]))
+
+    def config(self) -> dict:
+        """Constructor arguments plus ``name``: ``ENCODERS[c.pop('name')](**c)`` rebuilds the encoder."""
+        return {"name": self.name, **copy.deepcopy(self.settings)}
+
+    def with_grid(self, extent_mm: float, center_xy_mm: tuple[float, float] | None = None) -> ParticleEncoder:
+        """A copy over a grid of another extent (and centre), same spacing and weights."""
+        kwargs = copy.deepcopy(self.settings)
+        kwargs["grid_extent_mm"] = float(extent_mm)
+        if center_xy_mm is not None:
+            kwargs["grid_center_mm"] = [float(c) for c in center_xy_mm]
+        other = type(self)(**kwargs)
+        other.load_state_dict(self.state_dict())
+        return other.to(device=self.xy_mm.device, dtype=next(self.parameters()).dtype)
+
+    @property
+    def n_particles(self) -> int:
+        return int(self.xy_mm.shape[0])
+
+    def encode_sequence(self, batch: Batch) -> ParticleSequence:
+        """Run the GRU over every seen particle's gathered steps (see :class:`ParticleSequence`)."""
+        xy = self.xy_mm.to(batch.pose.dtype)
+        g = gather_receptive_field(batch.pose[..., :2], batch.valid, xy, self.receptive_field_mm, self.max_steps)
+        bi, pi = g.seen.nonzero(as_tuple=True)
+        index = g.index[bi, pi]                                      # (N, C)
+        pose = batch.pose[bi[:, None], index]                        # (N, C, 6)
+        shift = torch.zeros(pi.shape[0], 1, POSE_DIM, dtype=pose.dtype, device=pose.device)
+        shift[:, 0, :2] = xy[pi]
+        pose = pose - shift
+        force = batch.force[bi[:, None], index]                      # (N, C, F)
+        count = g.count[bi, pi]
+        z = self._run_gru(self.fle(pose, force), count)
+        return ParticleSequence(batch_index=bi, particle_index=pi, z=z, pose=pose, force=force,
+                                mask=g.mask[bi, pi], count=count,
+                                shape=(int(g.count.shape[0]), int(g.count.shape[1])), xy_mm=xy)
+
+    def _run_gru(self, x: Tensor, count: Tensor) -> Tensor:
+        """GRU over (N, C, dim) inputs, each row only up to its ``count`` real steps (packed).
+
+        Returns (N, C, dim) states; slots past a row's count are zeros.
+        """
+        if x.shape[0] == 0:
+            return self.gru(x)[0]
+        packed = pack_padded_sequence(x, count.cpu(), batch_first=True, enforce_sorted=False)
+        out, _ = self.gru(packed)
+        return pad_packed_sequence(out, batch_first=True, total_length=x.shape[1])[0]
+
+    def forward(self, batch: Batch) -> ParticleStates:
+        """Batch -> ParticleStates with z (B, P, d_z)."""
+        return self.encode_sequence(batch).final_states()
+
+
+class GlobalEncoder(ParticleEncoder):
+    """GLOBAL baseline: the same encoder over the whole sequence, no filtering, no centring.
+
+    One state per scan (P = 1, particle at x = y = 0, unbounded receptive field).
+
+    Args:
+        force_dim: F, force features per step.
+        dim: d_z.
+        max_steps_per_particle: cap on steps (earliest kept); None = no cap.
+        n_freq: wavelengths per pose coordinate.
+    """
+
+    name = "global"
+
+    def __init__(self, force_dim: int, dim: int = 128, max_steps_per_particle: int | None = None,
+                 n_freq: int = 16, **_ignored) -> None:
+        super().__init__(force_dim, dim=dim, spacing_mm=1.0, grid_extent_mm=0.0, receptive_field_mm=math.inf,
+                         max_steps_per_particle=max_steps_per_particle, n_freq=n_freq)
+        self.settings = {k: self.settings[k] for k in ("force_dim", "dim", "max_steps_per_particle", "n_freq")}
+
+    def _grid(self) -> Tensor:
+        return torch.zeros(1, 2)
+
+    def with_grid(self, extent_mm: float, center_xy_mm: tuple[float, float] | None = None) -> GlobalEncoder:
+        """GLOBAL has one state whatever the phantom size: a copy of itself."""
+        return copy.deepcopy(self)

@@ -1,0 +1,42 @@
+"""Force decoder: predict the force at a (centred) query pose from a particle state.
+
+``FD(z, pose) = MLP_out(PE(pose) + MLP_z(z))``; the state and query halves are computed once and
+broadcast, so K states x K' queries cost K + K' encodings plus one output MLP over the pairs.
+"""
+
+from __future__ import annotations
+
+from torch import Tensor, nn
+
+from lesscli.models.encoders import mlp
+from lesscli.models.encoding import PoseEncoding
+
+
+class ForceDecoder(nn.Module):
+    """Decode forces from particle states at query poses.
+
+    Args:
+        force_dim: F, force features to predict.
+        dim: d_z (state width, also the hidden width).
+        n_freq: wavelengths per pose coordinate.
+    """
+
+    def __init__(self, force_dim: int, dim: int, n_freq: int = 16) -> None:
+        super().__init__()
+        self.settings = {"force_dim": int(force_dim), "dim": int(dim), "n_freq": int(n_freq)}
+        self.pose_encoding = PoseEncoding(dim, n_freq)
+        self.state_mlp = mlp(dim, dim, dim)
+        self.out_mlp = mlp(dim, dim, force_dim)
+
+    def forward(self, z: Tensor, pose: Tensor) -> Tensor:
+        """All pairs of states and queries.
+
+        Args:
+            z: (N, K, d_z) states.
+            pose: (N, K', 6) query poses, x-y centred on the particle (mm, rad).
+
+        Returns:
+            (N, K, K', F) predicted (normalised) forces.
+        """
+        hidden = self.state_mlp(z)[:, :, None, :] + self.pose_encoding(pose)[:, None, :, :]
+        return self.out_mlp(hidden)

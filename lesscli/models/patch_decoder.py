@@ -1,0 +1,183 @@
+"""LESS image reconstruction: every particle state -> a patch of logits placed at the particle.
+
+A shared transposed-convolution network maps each particle's state to a square patch of logits
+(2D: ``patch_px x patch_px`` pixels; 3D: a full-depth column ``depth_px x patch_px x patch_px``) at
+the pixel spacing of the training label grid. Patches are placed at their particle's x-y position in
+millimetres on the output grid, overlapping logits are summed, and the softmax is left to the caller.
+(``stitch="mean"`` averages them over the covering patches instead, which removes the seams that
+uneven overlap counts leave). A pixel that no particle covers keeps logit 0 for every class: uniform probabilities, maximum entropy
+ln(C). A particle that saw no step contributes nothing (its patch is masked), so untouched regions stay
+honestly uncertain.
+
+Placement is one ``index_add`` over all particles (no Python loop). On a grid with another spacing
+(e.g. the ``large`` set) patches are resampled to the same physical size first.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+PATCH_PX = 32               # in-plane patch side, pixels of the training grid
+DEPTH_PX = 26               # depth of a 3D column, slices of the training grid
+BASE_PX = 4                 # spatial side of the first feature map
+SPACING_RTOL = 1e-6         # grids whose spacings agree this well need no resampling
+STITCH_MODES = ("sum", "mean")
+
+
+@dataclass(frozen=True)
+class ImageGrid:
+    """Where an output image lives: (D, H, W) = (z, y, x) voxels with phantom-frame geometry.
+
+    Attributes:
+        shape: (D, H, W); a 2D image has D = 1.
+        origin_mm: z, y, x of voxel [0, 0, 0]'s centre, mm.
+        spacing_mm: dz, dy, dx, mm.
+    """
+
+    shape: tuple[int, int, int]
+    origin_mm: tuple[float, float, float]
+    spacing_mm: tuple[float, float, float]
+
+    def pixel_of(self, xy_mm: Tensor) -> Tensor:
+        """(P, 2) x, y mm -> (P, 2) fractional (column, row) pixel coordinates."""
+        x = (xy_mm[:, 0] - self.origin_mm[2]) / self.spacing_mm[2]
+        y = (xy_mm[:, 1] - self.origin_mm[1]) / self.spacing_mm[1]
+        return torch.stack([x, y], dim=1)
+
+
+def _up_block(dim: int, c_in: int, c_out: int, stride, last: bool) -> nn.Module:
+    conv_t = nn.ConvTranspose2d if dim == 2 else nn.ConvTranspose3d
+    kernel = tuple(2 * s for s in stride)
+    padding = tuple(s // 2 for s in stride)
+    layer = conv_t(c_in, c_out, kernel_size=kernel, stride=stride, padding=padding)
+    return layer if last else nn.Sequential(layer, nn.GELU())
+
+
+def upsampling_stack(dim: int, width: int, n_classes: int, strides: list[tuple[int, ...]]) -> nn.Sequential:
+    """Transposed convolutions, each multiplying the spatial size by its stride, halving channels."""
+    blocks, c_in = [], width
+    for i, stride in enumerate(strides):
+        last = i == len(strides) - 1
+        c_out = n_classes if last else max(c_in // 2, 8)
+        blocks.append(_up_block(dim, c_in, c_out, stride, last))
+        c_in = c_out
+    return nn.Sequential(*blocks)
+
+
+class PatchDecoder(nn.Module):
+    """Shared transposed-conv decoder from particle states to placed, summed logit patches.
+
+    Args:
+        d_z: particle state width.
+        n_classes: C.
+        dim: 2 (patches) or 3 (full-depth columns).
+        patch_px: in-plane patch side in pixels (a power of two times 4).
+        depth_px: column depth in slices (3D only).
+        patch_spacing_mm: dz, dy, dx of the pixels the patch is made in (the training grid's).
+        width: channels of the first feature map.
+        stitch: "sum" (the paper) or "mean" of overlapping patch logits.
+    """
+
+    def __init__(self, d_z: int, n_classes: int = 4, dim: int = 2, patch_px: int = PATCH_PX,
+                 depth_px: int = DEPTH_PX, patch_spacing_mm: tuple[float, float, float] = (0.9, 0.4774, 0.4774),
+                 width: int = 64, stitch: str = "sum") -> None:
+        super().__init__()
+        if stitch not in STITCH_MODES:
+            raise ValueError(f"stitch must be one of {STITCH_MODES}, got '{stitch}'")
+        self.stitch = stitch
+        n_up = round(math.log2(patch_px / BASE_PX))
+        if dim not in (2, 3) or BASE_PX * 2**n_up != patch_px:
+            raise ValueError(f"patch decoder needs dim 2 or 3 and patch_px = 4 * 2^k, got {dim}, {patch_px}")
+        self.dim, self.n_classes, self.width = dim, n_classes, width
+        self.patch_px, self.depth_px = patch_px, depth_px if dim == 3 else 1
+        self.patch_spacing_mm = tuple(float(s) for s in patch_spacing_mm)
+        self.base_depth = math.ceil(self.depth_px / 2**n_up) if dim == 3 else 1
+        self.inp = nn.Linear(d_z, width * self.base_depth * BASE_PX * BASE_PX)
+        stride = (2, 2) if dim == 2 else (2, 2, 2)
+        self.up = upsampling_stack(dim, width, n_classes, [stride] * n_up)
+
+    def patches(self, z: Tensor) -> Tensor:
+        """(B, P, d_z) -> (B, P, C, Dp, ph, pw) float32 logits (Dp = 1 in 2D)."""
+        b, p, _ = z.shape
+        h = self.inp(z.reshape(b * p, -1))
+        if self.dim == 2:
+            out = self.up(h.view(b * p, self.width, BASE_PX, BASE_PX))[:, :, None]
+        else:
+            out = self.up(h.view(b * p, self.width, self.base_depth, BASE_PX, BASE_PX))[:, :, :self.depth_px]
+        return out.reshape(b, p, *out.shape[1:]).to(torch.float32)
+
+    def forward(self, states, grid: ImageGrid) -> Tensor:
+        """Decode and place.
+
+        Args:
+            states: ParticleStates with ``z`` (B, P, d_z), ``xy_mm`` (P, 2), ``seen`` (B, P).
+            grid: the output grid.
+
+        Returns:
+            (B, C, D, H, W) float32 logits; 0 where no seen particle's patch reaches.
+        """
+        patches = self.patches(states.z)
+        return place_patches(patches, states.xy_mm, grid, self.patch_spacing_mm, states.seen, self.stitch)
+
+
+def resample_patches(patches: Tensor, size: tuple[int, int, int]) -> Tensor:
+    """(B, P, C, Dp, ph, pw) -> (B, P, C, *size), trilinear (identity when the size already matches)."""
+    if tuple(patches.shape[3:]) == tuple(size):
+        return patches
+    b, p, c = patches.shape[:3]
+    flat = patches.reshape(b * p, c, *patches.shape[3:])
+    out = F.interpolate(flat, size=size, mode="trilinear", align_corners=False)
+    return out.reshape(b, p, c, *size)
+
+
+def target_patch_size(patch_shape: tuple[int, int, int], patch_spacing_mm, grid: ImageGrid) -> tuple[int, int, int]:
+    """Patch size in ``grid`` pixels with the same physical extent (columns span the grid's depth)."""
+    depth = grid.shape[0] if patch_shape[0] > 1 or grid.shape[0] > 1 else 1
+    sizes = [max(1, round(patch_shape[a] * patch_spacing_mm[a] / grid.spacing_mm[a])) for a in (1, 2)]
+    same = all(math.isclose(patch_spacing_mm[a], grid.spacing_mm[a], rel_tol=SPACING_RTOL) for a in (1, 2))
+    return (depth, *(patch_shape[1:] if same else sizes))
+
+
+def place_patches(patches: Tensor, xy_mm: Tensor, grid: ImageGrid,
+                  patch_spacing_mm: tuple[float, float, float], seen: Tensor | None = None,
+                  stitch: str = "sum") -> Tensor:
+    """Sum patches into an image, each centred on its particle (within half a pixel).
+
+    Args:
+        patches: (B, P, C, Dp, ph, pw) logits at ``patch_spacing_mm``.
+        xy_mm: (P, 2) particle x, y, mm.
+        grid: output grid.
+        patch_spacing_mm: dz, dy, dx of the patch pixels.
+        seen: (B, P) bool; particles that saw nothing are left out. None keeps all.
+        stitch: "sum" of overlapping logits, or their "mean" over the covering patches.
+
+    Returns:
+        (B, C, D, H, W) float32 summed logits.
+    """
+    b, p, c = patches.shape[:3]
+    d, h, w = grid.shape
+    patches = resample_patches(patches, target_patch_size(tuple(patches.shape[3:]), patch_spacing_mm, grid))
+    ph, pw = patches.shape[-2:]
+    if seen is not None:
+        patches = patches * seen.to(patches.dtype)[:, :, None, None, None, None]
+    pix = grid.pixel_of(xy_mm.detach().to("cpu", torch.float64))        # index arithmetic on the CPU
+    col0 = torch.round(pix[:, 0] - (pw - 1) / 2).long().clamp(-pw, w)
+    row0 = torch.round(pix[:, 1] - (ph - 1) / 2).long().clamp(-ph, h)
+    wide = w + 2 * pw
+    rows = (row0 + ph)[:, None, None] + torch.arange(ph)[None, :, None]
+    cols = (col0 + pw)[:, None, None] + torch.arange(pw)[None, None, :]
+    index = (rows * wide + cols).reshape(-1).to(patches.device)                     # (P * ph * pw,)
+    values = patches.permute(0, 2, 3, 1, 4, 5).reshape(b, c, d, p * ph * pw)
+    canvas = torch.zeros(b, c, d, (h + 2 * ph) * wide, dtype=values.dtype, device=values.device)
+    canvas = canvas.index_add(3, index, values)
+    if stitch == "mean":
+        keep = torch.ones(b, p, device=values.device) if seen is None else seen.to(values.device, values.dtype)
+        ones = keep[:, :, None, None].expand(b, p, ph, pw).reshape(b, 1, 1, p * ph * pw)
+        count = torch.zeros(b, 1, 1, canvas.shape[-1], dtype=values.dtype, device=values.device)
+        canvas = canvas / count.index_add(3, index, ones).clamp_min(1.0)
+    return canvas.view(b, c, d, h + 2 * ph, wide)[..., ph:ph + h, pw:pw + w]

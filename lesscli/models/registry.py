@@ -1,0 +1,30 @@
+"""Registries of model parts by name, with did-you-mean errors."""
+
+from __future__ import annotations
+
+import difflib
+
+from lesscli.errors import LessError
+from lesscli.models.encoders import GlobalEncoder, ParticleEncoder
+from lesscli.models.force_decoder import ForceDecoder
+
+ENCODERS: dict[str, type] = {"less": ParticleEncoder, "global": GlobalEncoder}
+FORCE_DECODERS: dict[str, type] = {"mlp": ForceDecoder}
+
+
+def lookup(registry: dict[str, type], name: str, what: str = "model") -> type:
+    """``registry[name]``, or a LessError naming the choices and the closest one."""
+    if name in registry:
+        return registry[name]
+    hint = difflib.get_close_matches(name, list(registry), n=1, cutoff=0.5)
+    tip = f" Did you mean '{hint[0]}'?" if hint else ""
+    raise LessError(f"unknown {what} '{name}' (choices: {', '.join(sorted(registry))}).{tip}")
+
+
+def build_encoder(config: dict):
+    """Rebuild an encoder from ``encoder.config()`` (a dict with ``name`` and constructor arguments)."""
+    kwargs = dict(config)
+    cls = lookup(ENCODERS, kwargs.pop("name"), "encoder")
+    if "grid_center_mm" in kwargs:
+        kwargs["grid_center_mm"] = tuple(kwargs["grid_center_mm"])
+    return cls(**kwargs)

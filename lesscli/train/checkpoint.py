@@ -1,0 +1,96 @@
+"""Self-describing checkpoints, loadable with ``torch.load(..., weights_only=True)``.
+
+A checkpoint is a dict of tensors and plain Python values::
+
+    {"format": "less.checkpoint", "version": 1,
+     "model_state": {name: tensor},     # e.g. "encoder.*" and "decoder.*" for a representation
+     "config": {...},                   # resolved config; config["encoder"] = encoder.config()
+     "norm_stats": {...},               # lesscli.data.batching.compute_norm_stats of the training set
+     "history": [...],                  # per-epoch records and command history
+     "extra": {...}}
+
+Any checkpoint whose ``config["encoder"]`` is an encoder config and whose model state holds the
+encoder under the prefix ``encoder.`` can be opened with :func:`load_representation` (pretraining
+writes such files; an imaging model that keeps its encoder as the submodule ``encoder`` and copies
+the representation's ``config["encoder"]`` does too).
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import zipfile
+
+import torch
+
+from lesscli.errors import DataError
+from lesscli.io.atomic import atomic_path
+
+FORMAT, VERSION = "less.checkpoint", 1
+ENCODER_PREFIX = "encoder."
+LOAD_ERRORS = (pickle.UnpicklingError, zipfile.BadZipFile, RuntimeError, EOFError, OSError, ValueError,
+               KeyError, AttributeError, TypeError)
+
+
+def save_checkpoint(path: str, model_state: dict, config: dict, norm_stats: dict, history: list,
+                    extra: dict | None = None) -> None:
+    """Write a checkpoint atomically (temp file + rename).
+
+    Args:
+        path: output ``.pt`` path.
+        model_state: state dict (tensors are moved to CPU).
+        config: resolved configuration (plain values only).
+        norm_stats: normalisation statistics of the training set.
+        history: list of plain dicts.
+        extra: more plain values or tensors (optimizer state, RNG states, ...).
+    """
+    payload = {"format": FORMAT, "version": VERSION,
+               "model_state": {k: v.detach().cpu() for k, v in model_state.items()},
+               "config": config, "norm_stats": norm_stats, "history": list(history), "extra": extra or {}}
+    with atomic_path(path, ".pt") as tmp:
+        torch.save(payload, tmp)
+
+
+def load_checkpoint(path: str, map_location: str | torch.device = "cpu") -> dict:
+    """Read and check a checkpoint (``weights_only=True``); DataError names the file and problem."""
+    if not os.path.exists(path):
+        raise DataError(f"{path}: no such checkpoint")
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except LOAD_ERRORS as exc:  # torch raises many types for corrupt or foreign files
+        raise DataError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc})".splitlines()[0])
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise DataError(f"{path}: not a less checkpoint (expected format '{FORMAT}')")
+    if int(ckpt.get("version", 0)) > VERSION:
+        raise DataError(f"{path}: checkpoint version {ckpt['version']} is newer than this toolkit ({VERSION})")
+    return ckpt
+
+
+def encoder_state(model_state: dict) -> dict:
+    """The ``encoder.*`` entries of a state dict, prefix removed."""
+    n = len(ENCODER_PREFIX)
+    return {k[n:]: v for k, v in model_state.items() if k.startswith(ENCODER_PREFIX)}
+
+
+def load_representation(path: str, map_location: str | torch.device = "cpu"):
+    """Rebuild the encoder stored in a checkpoint.
+
+    Returns:
+        (encoder, checkpoint): the encoder in eval mode with its weights loaded, and the checkpoint
+        dict (``checkpoint["norm_stats"]`` normalises new data exactly as in training).
+    """
+    from lesscli.models.registry import build_encoder
+
+    ckpt = load_checkpoint(path, map_location)
+    enc_cfg = ckpt.get("config", {}).get("encoder")
+    if not isinstance(enc_cfg, dict) or "name" not in enc_cfg:
+        raise DataError(f"{path}: checkpoint config has no 'encoder' section; not a representation")
+    encoder = build_encoder(enc_cfg)
+    state = encoder_state(ckpt["model_state"])
+    try:
+        encoder.load_state_dict(state)
+    except RuntimeError as exc:
+        raise DataError(f"{path}: encoder weights do not match its config ({str(exc).splitlines()[0]})")
+    encoder.to(map_location)
+    encoder.eval()
+    return encoder, ckpt

@@ -1,0 +1,163 @@
+"""Fit an image decoder (2D or 3D) on a pretrained representation with the Dice-Focal loss.
+
+The representation's encoder and normalisation statistics are reused unchanged; by default the
+encoder is frozen (``finetune`` trains both). Training goes through the shared loop
+(:func:`lesscli.train.loop.fit`): validation, best checkpoint, resume, NaN guard, JSON-lines log,
+torchrun. The checkpoint keeps the encoder under ``encoder.*`` and its config under
+``config["encoder"]``, so ``load_representation`` opens an imaging checkpoint too.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+
+from lesscli.data.image_labels import AUTO_SLICE, ImageDataset, collate_images, training_targets
+from lesscli.errors import LessError
+from lesscli.io.labels import INCLUSION, N_CLASSES
+from lesscli.io.scans import ScanSet
+from lesscli.models.imager import DECODERS, DEFAULT_DECODER, Imager, grid_to_dict
+from lesscli.models.imaging_loss import GAMMA, LAMBDA, imaging_loss
+from lesscli.models.registry import lookup
+from lesscli.train import distributed
+from lesscli.train.checkpoint import load_representation
+from lesscli.train.config import LoopConfig, to_dict
+from lesscli.train.loop import FitResult, fit
+
+
+@dataclass
+class ImageModelConfig:
+    """Decoder and targets."""
+
+    dim: int = 3                  # 2: image (slice), 3: volume
+    decoder: str = ""             # patch | global; "" pairs with the encoder (less -> patch, global -> global)
+    width: int = 64               # channels of the decoder's first feature map
+    patch_px: int = 32            # patch side in label pixels (4 * 2^k)
+    stitch: str = "sum"           # overlapping patch logits: sum (paper) or mean
+    finetune: bool = False        # train the representation too
+    slice: int = AUTO_SLICE       # 2D label slice; -1 = through the inclusion centre
+
+
+@dataclass
+class LossConfig:
+    lam: float = LAMBDA
+    gamma: float = GAMMA
+
+
+@dataclass
+class ImageFitConfig:
+    image: ImageModelConfig = field(default_factory=ImageModelConfig)
+    train: LoopConfig = field(default_factory=lambda: LoopConfig(epochs=300))
+    loss: LossConfig = field(default_factory=LossConfig)
+
+
+_RULES = [("image.dim", lambda v: v in (2, 3), "2 or 3"), ("image.width", lambda v: v >= 8, ">= 8"),
+          ("image.patch_px", lambda v: v >= 4 and (v // 4) & (v // 4 - 1) == 0 and v % 4 == 0, "4 * 2^k"),
+          ("image.stitch", lambda v: v in ("sum", "mean"), "sum or mean"), ("loss.lam", lambda v: 0 <= v <= 1, "in [0, 1]"), ("loss.gamma", lambda v: v == 0 or v >= 1, "0 or >= 1"),
+          ("train.epochs", lambda v: v >= 1, ">= 1"), ("train.batch_size", lambda v: v >= 1, ">= 1"),
+          ("train.lr", lambda v: v > 0, "> 0")]
+
+
+def check_config(cfg: ImageFitConfig) -> ImageFitConfig:
+    """Raise LessError naming the first out-of-range setting."""
+    for key, ok, need in _RULES:
+        section, name = key.split(".")
+        value = getattr(getattr(cfg, section), name)
+        if not ok(value):
+            raise LessError(f"setting {key} = {value!r} is invalid: must be {need}")
+    if cfg.image.decoder and cfg.image.decoder not in DECODERS:
+        lookup(DECODERS, cfg.image.decoder, "decoder")
+    return cfg
+
+
+def decoder_settings(cfg: ImageFitConfig, encoder_name: str, d_z: int, grid) -> dict:
+    """Name and constructor arguments of the decoder for this encoder and grid."""
+    name = cfg.image.decoder or DEFAULT_DECODER.get(encoder_name, "patch")
+    common = {"d_z": int(d_z), "n_classes": N_CLASSES, "dim": cfg.image.dim, "width": cfg.image.width}
+    if name == "global":
+        return {"name": name, **common, "shape": list(grid.shape)}
+    return {"name": name, **common, "patch_px": cfg.image.patch_px, "depth_px": int(grid.shape[0]),
+            "patch_spacing_mm": list(grid.spacing_mm), "stitch": cfg.image.stitch}
+
+
+def build_decoder(settings: dict, seed: int | None = None) -> torch.nn.Module:
+    """Decoder from :func:`decoder_settings` (initialised from ``seed``; the global RNG is restored)."""
+    kwargs = dict(settings)
+    cls = lookup(DECODERS, kwargs.pop("name"), "decoder")
+    for key in ("shape", "patch_spacing_mm"):
+        if key in kwargs:
+            kwargs[key] = tuple(kwargs[key])
+    with torch.random.fork_rng(devices=[]):
+        if seed is not None:
+            torch.manual_seed(seed)
+        return cls(**kwargs)
+
+
+def image_loss_fn(lam: float, gamma: float):
+    """Loss callable for the loop: forward the inputs, score the logits against the targets."""
+    def loss_fn(model, batch, generator) -> torch.Tensor:
+        return imaging_loss(model(batch.inputs), batch.target, lam=lam, gamma=gamma).total
+    return loss_fn
+
+
+def inclusion_f1(model: Imager, dataset: ImageDataset, batch_size: int, device: torch.device) -> dict:
+    """Micro inclusion F1 (argmax labels) over a dataset, and the F1 of predicting no inclusion (0)."""
+    loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, collate_fn=collate_images)
+    tp = fp = fn = 0
+    model = model.to(device).eval()
+    with torch.no_grad():
+        for batch in loader:
+            batch = batch.to(device)
+            pred = model(batch.inputs).argmax(dim=1) == INCLUSION
+            true = batch.target == INCLUSION
+            tp += int((pred & true).sum())
+            fp += int((pred & ~true).sum())
+            fn += int((~pred & true).sum())
+    f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else float("nan")
+    return {"inclusion_f1": f1, "no_inclusion_f1": 0.0 if tp + fn else float("nan")}
+
+
+def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFitConfig, output: str, *,
+               env: distributed.DistEnv | None = None, resume: bool = False, history: list | None = None,
+               progress: Callable = lambda it, **_: it, names: tuple[str, str] = ("train", "val")) -> dict:
+    """Train an imaging model on ``train`` (best by ``val``) and write it to ``output``.
+
+    Returns:
+        A summary record (epochs, best epoch and loss, validation inclusion F1 when ``val`` is given).
+    """
+    env = env or distributed.DistEnv()
+    check_config(cfg)
+    t0 = time.perf_counter()
+    encoder, rep = load_representation(rep_path, map_location="cpu")
+    stats = rep["norm_stats"]
+    targets, grid = training_targets(train, cfg.image.dim, cfg.image.slice, names[0])
+    train_set = ImageDataset(train, stats, targets, names[0])
+    val_set = None
+    if val is not None and val.n_scans:
+        val_targets, _ = training_targets(val, cfg.image.dim, cfg.image.slice, names[1])
+        val_set = ImageDataset(val, stats, val_targets, names[1])
+    enc_cfg = encoder.config()
+    dec = decoder_settings(cfg, enc_cfg["name"], encoder.dim, grid)
+    model = Imager(encoder, build_decoder(dec, cfg.train.seed), grid, frozen=not cfg.image.finetune)
+    config = {**to_dict(cfg), "encoder": enc_cfg, "decoder": dec, "grid": grid_to_dict(grid),
+              "representation": {"path": rep_path, "config": rep.get("config", {})}}
+    result: FitResult = fit(model, image_loss_fn(cfg.loss.lam, cfg.loss.gamma), train_set, val_set, cfg.train,
+                            collate_fn=collate_images, output=output, config=config, norm_stats=stats, env=env,
+                            resume=resume, history=[*(h for h in rep.get("history", []) if "epoch" not in h),
+                                                    *(history or [])],
+                            progress=progress)
+    summary = {"output": output, "dim": cfg.image.dim, "decoder": dec["name"], "encoder": enc_cfg["name"],
+               "frozen": not cfg.image.finetune, "trainable_parameters": sum(
+                   p.numel() for p in model.parameters() if p.requires_grad),
+               "epochs": cfg.train.epochs, "best_epoch": result.best_epoch + 1, "best_loss": result.best_loss,
+               "selected_by": "val_loss" if val_set is not None else "train_loss"}
+    if val_set is not None and result.best_state is not None:
+        model.load_state_dict(result.best_state)
+        summary.update({f"val_{k}": v for k, v in
+                        inclusion_f1(model, val_set, cfg.train.batch_size, env.device).items()})
+    summary["seconds"] = round(time.perf_counter() - t0, 2)
+    return summary
+

@@ -1,0 +1,95 @@
+"""Self-supervised pretraining of a LESS or GLOBAL representation by force prediction."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import torch
+
+from lesscli.data.batching import ScanDataset, collate, compute_norm_stats, force_dim
+from lesscli.io.scans import ScanSet
+from lesscli.models.force_decoder import ForceDecoder
+from lesscli.models.registry import ENCODERS, lookup
+from lesscli.models.ssl_loss import ForcePredictor
+from lesscli.train import distributed
+from lesscli.train.config import PretrainConfig, check_pretrain_config, to_dict
+from lesscli.train.loop import EVAL_SEED, FitResult, fit
+
+
+def encoder_kwargs(cfg: PretrainConfig, n_force: int) -> dict:
+    """Constructor arguments of the configured encoder."""
+    m = cfg.model
+    return {"force_dim": n_force, "dim": m.dim, "spacing_mm": m.spacing_mm, "grid_extent_mm": m.grid_extent_mm,
+            "receptive_field_mm": m.receptive_field_mm, "n_freq": m.n_freq,
+            "max_steps_per_particle": m.max_steps_per_particle or None}
+
+
+def build_model(cfg: PretrainConfig, n_force: int) -> ForcePredictor:
+    """Encoder + force decoder, initialised from ``cfg.train.seed`` (the global RNG is restored after)."""
+    cls = lookup(ENCODERS, cfg.model.name, "encoder")
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(cfg.train.seed)
+        encoder = cls(**encoder_kwargs(cfg, n_force))
+        decoder = ForceDecoder(n_force, cfg.model.dim, cfg.model.n_freq)
+    return ForcePredictor(encoder, decoder, cfg.ssl.k_input, cfg.ssl.k_query)
+
+
+def ssl_loss_fn(model, batch, generator: torch.Generator) -> torch.Tensor:
+    """Loss callable for :func:`lesscli.train.loop.fit`: the model's forward returns the SSL loss."""
+    return model(batch, generator)
+
+
+def force_errors(model: ForcePredictor, dataset: ScanDataset, batch_size: int,
+                 device: torch.device) -> dict:
+    """Validation force-prediction MSE (normalised units) of the model and of predicting the mean.
+
+    Both use the same fixed draws of input and query steps; the mean is the training-set mean
+    (0 after normalisation).
+    """
+    loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, collate_fn=collate)
+    scores = {}
+    model = model.to(device).eval()
+    for name, baseline in (("mse", False), ("baseline_mse", True)):
+        gen = torch.Generator().manual_seed(EVAL_SEED)
+        total, n = 0.0, 0
+        with torch.no_grad():
+            for batch in loader:
+                total += float(model(batch.to(device), gen, baseline=baseline)) * batch.size
+                n += batch.size
+        scores[name] = total / max(1, n)
+    scores["ratio"] = scores["mse"] / scores["baseline_mse"] if scores["baseline_mse"] > 0 else float("nan")
+    return scores
+
+
+def pretrain(train: ScanSet, val: ScanSet | None, cfg: PretrainConfig, output: str, *,
+             env: distributed.DistEnv | None = None, resume: bool = False, history: list | None = None,
+             progress: Callable = lambda it, **_: it, names: tuple[str, str] = ("train", "val")) -> dict:
+    """Train a representation and write the best checkpoint to ``output``.
+
+    Returns:
+        A summary record: epochs, best epoch, best validation (or training) loss, and the
+        validation force MSE against the predict-the-mean baseline when ``val`` is given.
+    """
+    env = env or distributed.DistEnv()
+    check_pretrain_config(cfg)
+    t0 = time.perf_counter()
+    stats = compute_norm_stats(train, cfg.model.force_norm)
+    train_set = ScanDataset(train, stats, names[0])
+    val_set = ScanDataset(val, stats, names[1]) if val is not None else None
+    model = build_model(cfg, force_dim(stats))
+    config = {**to_dict(cfg), "encoder": model.encoder.config(),
+              "decoder": {"name": "mlp", **model.decoder.settings}}
+    result: FitResult = fit(model, ssl_loss_fn, train_set, val_set, cfg.train, collate_fn=collate, output=output,
+                            config=config, norm_stats=stats, env=env, resume=resume, history=history,
+                            progress=progress)
+    summary = {"output": output, "model": cfg.model.name, "particles": model.encoder.n_particles,
+               "parameters": sum(p.numel() for p in model.parameters()), "epochs": cfg.train.epochs,
+               "best_epoch": result.best_epoch + 1, "best_loss": result.best_loss,
+               "selected_by": "val_loss" if val_set is not None and len(val_set) else "train_loss"}
+    if val_set is not None and len(val_set) and result.best_state is not None:
+        model.load_state_dict(result.best_state)
+        summary.update({f"val_{k}": v for k, v in
+                        force_errors(model, val_set, cfg.train.batch_size, env.device).items()})
+    summary["seconds"] = round(time.perf_counter() - t0, 2)
+    return summary

@@ -1,0 +1,58 @@
+"""A tiny learnable scan set for imaging tests: the pad feels more force near the inclusion."""
+
+from __future__ import annotations
+
+import numpy as np
+from factories import sphere_labels
+
+from lesscli.io.scans import ScanSet, default_meta
+from lesscli.io.sensor import xela_uscu
+
+SMALL_SHAPE = (6, 32, 32)
+SMALL_SPACING_MM = (2.0, 1.9, 1.9)        # the 61 mm field of view at a quarter of the resolution
+INCLUSION_RADIUS_MM = 6.0
+INCLUSION_DEPTH_MM = -6.0
+TOUCH_X_MM = (-28.0, 2.0)                 # touches never reach x > 2 mm: the right side stays untouched
+BUMP_N, BUMP_WIDTH_MM = 3.0, 5.0
+
+
+def learnable_scanset(n_scans: int, seed: int, steps_per_traj: int = 8, traj_per_scan: int = 12,
+                      shape=SMALL_SHAPE, spacing=SMALL_SPACING_MM) -> ScanSet:
+    """Scans of single spherical inclusions; each press's normal force grows near the inclusion."""
+    rng = np.random.default_rng(seed)
+    n_traj = n_scans * traj_per_scan
+    centres = np.stack([rng.uniform(-18, -2, n_scans), rng.uniform(-12, 12, n_scans)], axis=1)
+    pose = np.zeros((n_traj, steps_per_traj, 6), np.float32)
+    xy = np.stack([rng.uniform(*TOUCH_X_MM, n_traj), rng.uniform(-25, 25, n_traj)], axis=1)
+    pose[:, :, :2] = xy[:, None, :] + rng.normal(0, 0.3, (n_traj, steps_per_traj, 2))
+    depth = np.linspace(0.2, 3.0, steps_per_traj)
+    pose[:, :, 2] = -depth
+    scan_of = np.repeat(np.arange(n_scans), traj_per_scan)
+    d2 = ((pose[:, :, :2] - centres[scan_of][:, None, :]) ** 2).sum(-1)
+    stiff = 1.0 + BUMP_N * np.exp(-d2 / (2 * BUMP_WIDTH_MM**2))
+    force = rng.normal(0, 0.02, (n_traj, steps_per_traj, 30, 3)).astype(np.float32)
+    force[..., 2] += (0.5 * depth[None, :] * stiff)[..., None]
+    labels = [sphere_labels(center_mm=(INCLUSION_DEPTH_MM, c[1], c[0]), radius_mm=INCLUSION_RADIUS_MM,
+                            shape=shape, spacing=spacing, name=f"Sph{i}_0") for i, c in enumerate(centres)]
+    n = n_traj * steps_per_traj
+    return ScanSet(
+        pose=pose.reshape(n, 6), force=force.reshape(n, 30, 3),
+        time_s=np.tile(np.arange(steps_per_traj) * 0.5, n_traj),
+        traj_offsets=np.arange(n_traj + 1, dtype=np.int64) * steps_per_traj, traj_scan=scan_of.astype(np.int64),
+        scan_insert=np.array([f"Sph{i}" for i in range(n_scans)]), scan_orientation=np.zeros(n_scans, np.int64),
+        scan_label=np.arange(n_scans, dtype=np.int64), labels=labels, meta=default_meta(xela_uscu()))
+
+
+def make_representation(path: str, scans: ScanSet, name: str = "less", dim: int = 16, seed: int = 0) -> None:
+    """An untrained representation checkpoint (as 'less pretrain' writes) for fast imaging tests."""
+    import torch
+
+    from lesscli.data.batching import compute_norm_stats
+    from lesscli.models.registry import ENCODERS
+    from lesscli.train.checkpoint import save_checkpoint
+
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        encoder = ENCODERS[name](force_dim=scans.n_taxels * 3, dim=dim)
+    state = {f"encoder.{k}": v for k, v in encoder.state_dict().items()}
+    save_checkpoint(path, state, {"encoder": encoder.config()}, compute_norm_stats(scans), [])
