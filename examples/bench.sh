@@ -6,4 +6,6 @@ less bench train --quick --threads 1
 less bench mri --quick
 less bench sim --quick
 less bench pose --quick
+less bench stream --quick --dim 2
+less bench guide --quick
 less bench imaging --quick --threads 1
