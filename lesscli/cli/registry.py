@@ -23,5 +23,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "render": ("render", "PNG figures of predictions: truth | prediction | uncertainty, and time strips."),
     "mesh": ("mesh", "Per-class surface meshes (GLB/STL/PLY, mm) from a prediction or label NIfTI."),
     "mri-label": ("mri_label", "MRI scan of an insert -> label NIfTI (insert, pillar, inclusion); --synth makes test scans."),
+    "noise-sweep": ("noise_sweep", "Imaging accuracy under i.i.d. Gaussian pose noise: F1 per noise cell, plot."),
     "pose": ("pose", "Hand-held pose: AprilTag tracking, synthetic frames, robot calibration, accuracy."),
 }

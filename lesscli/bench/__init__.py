@@ -1,0 +1,1 @@
+"""Benchmarks that need several layers at once (simulation, training, inference, metrics)."""

@@ -1,0 +1,92 @@
+"""``less bench tradeoff``: accuracy against time for the knobs that trade them."""
+
+from __future__ import annotations
+
+import click
+
+from lesscli.cli.common import format_option, seed_option
+
+TABLE_COLUMNS = ["knob", "value", "sim_s", "pretrain_s", "fit_s", "train_s", "train_s_ratio", "latency_ms_per_scan",
+                 "f1_single", "f1_multiple", "f1_single_delta", "f1_multiple_delta"]
+
+
+def _parse_values(items: tuple[str, ...], knobs: dict) -> dict[str, tuple]:
+    out = {}
+    for item in items:
+        knob, _, text = item.partition("=")
+        if knob not in knobs or not text:
+            raise click.BadParameter(f"'{item}': expected KNOB=V1,V2 with KNOB in {', '.join(knobs)}",
+                                     param_hint="--values")
+        kind = str if knob == "tier" else (int if knob in ("dim", "subsample", "epochs") else float)
+        try:
+            out[knob] = tuple(kind(v) for v in text.split(","))
+        except ValueError:
+            raise click.BadParameter(f"'{item}': values of {knob} must be {kind.__name__}s", param_hint="--values")
+    return out
+
+
+@click.command("tradeoff")
+@click.option("--quick", is_flag=True, help="Minutes on a CPU: small data, few epochs, few values per knob.")
+@click.option("--knob", "knobs", multiple=True, metavar="NAME",
+              help="Vary only these knobs (repeatable): tier, receptive_field, spacing, dim, subsample, epochs.")
+@click.option("--inserts", type=click.IntRange(min=4), default=None,
+              help="Single-inclusion inserts to simulate (a quarter held out for testing).")
+@click.option("--n-traj", type=click.IntRange(min=2), default=None, help="Pokes per scan.")
+@click.option("--epochs", type=click.IntRange(min=1), default=None, help="Base SSL epochs (the epochs knob varies it).")
+@click.option("--image-epochs", type=click.IntRange(min=1), default=None, help="Imaging epochs per setting.")
+@click.option("--values", "values", multiple=True, metavar="KNOB=V1,V2",
+              help="Values tried for a knob, e.g. --values receptive_field=5,10,20 (repeatable).")
+@click.option("--work-dir", default=None, help="Keep the checkpoints here (default: a temporary folder).")
+@click.option("--plot", "plot_path", default=None, help="PNG: F1 on single and multiple vs training time (Pareto).")
+@click.option("--knob-plot", "knob_plot", default=None,
+              help="PNG: F1 on single and multiple against the value of the (one) chosen knob.")
+@click.option("--device", default="cpu", show_default=True, help="cpu, cuda or cuda:N.")
+@click.option("--threads", type=click.IntRange(min=1), default=None, help="Torch CPU threads.")
+@seed_option()
+@format_option
+def cli(quick, knobs, inserts, n_traj, epochs, image_epochs, values, work_dir, plot_path, knob_plot, device, threads,
+        seed, fmt) -> None:
+    """For each setting (one knob changed from the base): simulate (once per tier), pretrain,
+    fit a 3D imager, predict held-out single inserts and the multiple set, and score them, all on
+    the same data in one run. One record per setting: simulation, pretraining, fitting and total
+    training seconds, inference latency per scan, micro F1 (inclusion, 3D) on single and multiple,
+    and ratios / differences against the base setting.
+
+    Example: less bench tradeoff --quick --plot tradeoff.png --format table
+    """
+    import dataclasses
+    import tempfile
+
+    import torch
+
+    from lesscli.bench.tradeoff import FULL, KNOBS, QUICK, TradeoffRun, run_tradeoff
+    from lesscli.cli.common import closest, progress
+    from lesscli.io.records import emit_records
+
+    for knob in knobs:
+        if knob not in KNOBS:
+            hint = closest(knob, KNOBS)
+            raise click.BadParameter(f"unknown knob '{knob}'" + (f"; did you mean '{hint}'?" if hint else ""),
+                                     param_hint="--knob")
+    if threads:
+        torch.set_num_threads(threads)
+    plan = QUICK if quick else FULL
+    sizes = {"single_inserts": inserts, "n_traj": n_traj, "image_epochs": image_epochs}
+    plan = dataclasses.replace(plan, **{k: v for k, v in sizes.items() if v is not None},
+                               values={**plan.values, **_parse_values(values, KNOBS)})
+    if epochs:
+        plan = dataclasses.replace(plan, base=dataclasses.replace(plan.base, epochs=epochs))
+    with tempfile.TemporaryDirectory(prefix="less-tradeoff-") as tmp:
+        run = TradeoffRun(workdir=work_dir or tmp, device=device, seed=seed, progress=progress)
+        rows = run_tradeoff(plan, list(knobs) or list(KNOBS), run)
+    if knob_plot and len(set(knobs)) != 1:
+        raise click.UsageError("--knob-plot needs exactly one --knob")
+    if plot_path or knob_plot:
+        from lesscli.plots.sweeps import line_figure, pareto_figure
+
+        if plot_path:
+            pareto_figure(rows, plot_path, title="LESS: F1 against training time (one knob at a time)")
+        if knob_plot:
+            line_figure(rows, knob_plot, "value", ["f1_single", "f1_multiple"], knobs[0],
+                        title=f"LESS: F1 on single and multiple against {knobs[0]}")
+    emit_records(rows, fmt, columns=TABLE_COLUMNS)

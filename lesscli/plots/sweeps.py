@@ -1,0 +1,130 @@
+"""Figures of sweeps: a metric against pose noise (one line per angle level) and accuracy against time.
+
+Each function builds its own Agg canvas (no global backend state) and writes the PNG atomically.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from lesscli.io.atomic import atomic_path
+
+DPI = 100
+FIGSIZE_IN = (6.4, 4.4)
+
+
+def _figure(size=FIGSIZE_IN):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size, dpi=DPI, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig, path: str) -> None:
+    with atomic_path(path, ".png") as tmp:
+        fig.savefig(tmp, format="png")
+
+
+def _num(value) -> float:
+    return float("nan") if value is None else float(value)
+
+
+def noise_figure(rows: Sequence[Mapping], path: str, metric: str = "f1", title: str = "") -> None:
+    """Metric vs position-noise sigma, one line per angle sigma, error bars = std over repeats.
+
+    Args:
+        rows: sweep rows with ``pos_mm``, ``ang_rad``, ``<metric>`` and ``<metric>_std``.
+        path: output PNG.
+        metric: the plotted key (F1 values in [0, 1] are drawn in percent).
+        title: figure title.
+    """
+    fig = _figure()
+    ax = fig.add_subplot(1, 1, 1)
+    scale = 100.0 if metric.startswith("f1") else 1.0
+    for ang in sorted({float(r["ang_rad"]) for r in rows}):
+        line = sorted((r for r in rows if float(r["ang_rad"]) == ang), key=lambda r: float(r["pos_mm"]))
+        x = np.array([float(r["pos_mm"]) for r in line])
+        y = np.array([_num(r.get(metric)) for r in line]) * scale
+        err = np.nan_to_num(np.array([_num(r.get(f"{metric}_std")) for r in line]), nan=0.0) * scale
+        ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=f"{ang:g} rad")
+    ax.set_xlabel("position noise sigma (x, y, z), mm")
+    ax.set_ylabel(f"{metric} (%)" if scale != 1.0 else metric)
+    ax.legend(title="angle noise sigma", fontsize="small")
+    ax.grid(alpha=0.3)
+    ax.set_title(title or "Pose-noise robustness (phantom frame, i.i.d. Gaussian)")
+    _save(fig, path)
+
+
+def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
+    """Indices of the points not dominated by another (lower or equal time and higher or equal score,
+    one strictly), sorted by time. NaN points are never on the front."""
+    idx = [i for i, (t, s) in enumerate(points) if np.isfinite(t) and np.isfinite(s)]
+    front = []
+    for i in idx:
+        ti, si = points[i]
+        dominated = any((points[j][0] <= ti and points[j][1] >= si) and (points[j][0] < ti or points[j][1] > si)
+                        for j in idx if j != i)
+        if not dominated:
+            front.append(i)
+    return sorted(front, key=lambda i: points[i][0])
+
+
+def pareto_figure(rows: Sequence[Mapping], path: str, time_key: str = "train_s",
+                  scores: Sequence[str] = ("f1_single", "f1_multiple"), title: str = "") -> None:
+    """Score vs time per setting (one marker per knob), the Pareto front of each score as a line.
+
+    Args:
+        rows: one row per setting with ``knob``, ``value``, ``time_key`` and the score keys.
+        path: output PNG.
+        time_key: the x axis (seconds).
+        scores: the y keys, one panel each (F1 in [0, 1], drawn in percent).
+        title: figure title.
+    """
+    fig = _figure((5.2 * len(scores), 4.4))
+    axes = fig.subplots(1, len(scores), squeeze=False)[0]
+    knobs = list(dict.fromkeys(str(r["knob"]) for r in rows))
+    markers = "osD^v<>pP*Xh"
+    for ax, score in zip(axes, scores):
+        pts = [(_num(r.get(time_key)), _num(r.get(score)) * 100.0) for r in rows]
+        for k, knob in enumerate(knobs):
+            sel = [i for i, r in enumerate(rows) if str(r["knob"]) == knob]
+            ax.scatter([pts[i][0] for i in sel], [pts[i][1] for i in sel], marker=markers[k % len(markers)],
+                       label=knob, zorder=3)
+            for i in sel:
+                ax.annotate(str(rows[i]["value"]), pts[i], fontsize=7, xytext=(3, 3), textcoords="offset points")
+        front = pareto_front(pts)
+        if front:
+            ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], "k--", lw=1, label="Pareto front")
+        ax.set_xscale("log")
+        ax.set_xlabel(f"{time_key} (s, log)")
+        ax.set_ylabel(f"{score} (%)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize="small")
+    fig.suptitle(title or "Accuracy against time")
+    _save(fig, path)
+
+
+def line_figure(rows: Sequence[Mapping], path: str, x_key: str, y_keys: Sequence[str], xlabel: str,
+                title: str = "") -> None:
+    """Scores vs one setting (e.g. F1 on single and multiple vs receptive field), F1 in percent.
+
+    Rows may carry ``<y>_std`` for error bars.
+    """
+    fig = _figure()
+    ax = fig.add_subplot(1, 1, 1)
+    line = sorted(rows, key=lambda r: float(r[x_key]))
+    x = np.array([float(r[x_key]) for r in line])
+    for key in y_keys:
+        y = np.array([_num(r.get(key)) for r in line]) * 100.0
+        err = np.nan_to_num(np.array([_num(r.get(f"{key}_std")) for r in line]), nan=0.0) * 100.0
+        ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=key)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("F1 (%)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small")
+    ax.set_title(title)
+    _save(fig, path)
