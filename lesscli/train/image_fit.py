@@ -4,7 +4,9 @@ The representation's encoder and normalisation statistics are reused unchanged; 
 encoder is frozen (``finetune`` trains both). Training goes through the shared loop
 (:func:`lesscli.train.loop.fit`): validation, best checkpoint, resume, NaN guard, JSON-lines log,
 torchrun. The checkpoint keeps the encoder under ``encoder.*`` and its config under
-``config["encoder"]``, so ``load_representation`` opens an imaging checkpoint too.
+``config["encoder"]``, so ``load_representation`` opens an imaging checkpoint too. With a frozen
+encoder its states are computed once per scan and only the decoder runs in the epochs
+(:mod:`lesscli.train.state_cache`); the training is the same up to float round-off.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from lesscli.train import distributed
 from lesscli.train.checkpoint import load_representation
 from lesscli.train.config import LoopConfig, to_dict
 from lesscli.train.loop import FitResult, fit
+from lesscli.train.state_cache import CachedImager, cache_states, collate_states
 
 
 @dataclass
@@ -103,9 +106,10 @@ def image_loss_fn(lam: float, gamma: float):
     return loss_fn
 
 
-def inclusion_f1(model: Imager, dataset: ImageDataset, batch_size: int, device: torch.device) -> dict:
+def inclusion_f1(model: torch.nn.Module, dataset, batch_size: int, device: torch.device,
+                 collate_fn: Callable = collate_images) -> dict:
     """Micro inclusion F1 (argmax labels) over a dataset, and the F1 of predicting no inclusion (0)."""
-    loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, collate_fn=collate_images)
+    loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, collate_fn=collate_fn)
     tp = fp = fn = 0
     model = model.to(device).eval()
     with torch.no_grad():
@@ -120,10 +124,24 @@ def inclusion_f1(model: Imager, dataset: ImageDataset, batch_size: int, device: 
     return {"inclusion_f1": f1, "no_inclusion_f1": 0.0 if tp + fn else float("nan")}
 
 
+def fit_inputs(model: Imager, train_set: ImageDataset, val_set: ImageDataset | None, batch_size: int,
+               device: torch.device, cache: bool) -> tuple:
+    """(model, train set, val set, collate) for the loop: cached encoder states when ``cache``."""
+    if not cache:
+        return model, train_set, val_set, collate_images
+    cached_val = cache_states(model, val_set, batch_size, device) if val_set is not None else None
+    return (CachedImager(model), cache_states(model, train_set, batch_size, device), cached_val,
+            collate_states)
+
+
 def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFitConfig, output: str, *,
                env: distributed.DistEnv | None = None, resume: bool = False, history: list | None = None,
-               progress: Callable = lambda it, **_: it, names: tuple[str, str] = ("train", "val")) -> dict:
+               progress: Callable = lambda it, **_: it, names: tuple[str, str] = ("train", "val"),
+               cache: bool = True) -> dict:
     """Train an imaging model on ``train`` (best by ``val``) and write it to ``output``.
+
+    ``cache`` (frozen encoder only) computes the encoder's states once per scan instead of
+    in every epoch; ``False`` re-runs the encoder per batch (same training up to round-off).
 
     Returns:
         A summary record (epochs, best epoch and loss, validation inclusion F1 when ``val`` is given).
@@ -144,8 +162,10 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
     model = Imager(encoder, build_decoder(dec, cfg.train.seed), grid, frozen=not cfg.image.finetune)
     config = {**to_dict(cfg), "encoder": enc_cfg, "decoder": dec, "grid": grid_to_dict(grid),
               "representation": {"path": rep_path, "config": rep.get("config", {})}}
+    model, train_set, val_set, collate = fit_inputs(model, train_set, val_set, cfg.train.batch_size, env.device,
+                                                    cache and not cfg.image.finetune)
     result: FitResult = fit(model, image_loss_fn(cfg.loss.lam, cfg.loss.gamma), train_set, val_set, cfg.train,
-                            collate_fn=collate_images, output=output, config=config, norm_stats=stats, env=env,
+                            collate_fn=collate, output=output, config=config, norm_stats=stats, env=env,
                             resume=resume, history=[*(h for h in rep.get("history", []) if "epoch" not in h),
                                                     *(history or [])],
                             progress=progress)
@@ -157,7 +177,7 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
     if val_set is not None and result.best_state is not None:
         model.load_state_dict(result.best_state)
         summary.update({f"val_{k}": v for k, v in
-                        inclusion_f1(model, val_set, cfg.train.batch_size, env.device).items()})
+                        inclusion_f1(model, val_set, cfg.train.batch_size, env.device, collate).items()})
     summary["seconds"] = round(time.perf_counter() - t0, 2)
     return summary
 

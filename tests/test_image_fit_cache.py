@@ -1,0 +1,43 @@
+"""A frozen-encoder fit on cached encoder states trains exactly as the per-batch encoder path."""
+
+import pytest
+import torch
+from imaging_factory import learnable_scanset, make_representation
+
+from lesscli.train.checkpoint import load_checkpoint
+from lesscli.train.config import LoopConfig
+from lesscli.train.image_fit import ImageFitConfig, ImageModelConfig, build_decoder, fit_imager
+
+ROUND_OFF_ATOL = 1e-5      # float32 encoder outputs from differently padded batches
+
+
+def _fit(tmp_path, name, rep, train, val, cache):
+    cfg = ImageFitConfig(image=ImageModelConfig(dim=2, width=8, patch_px=8),
+                         train=LoopConfig(epochs=2, batch_size=3, lr=1e-2, seed=5, device="cpu"))
+    out = str(tmp_path / f"{name}.pt")
+    summary = fit_imager(train, val, rep, cfg, out, cache=cache)
+    return summary, load_checkpoint(out)["model_state"], load_checkpoint(out.replace(".pt", ".last.pt"))
+
+
+@pytest.mark.parametrize("encoder", ["less", "global"])
+def test_cached_states_give_the_same_decoder(tmp_path, encoder):
+    train, val = learnable_scanset(7, 3), learnable_scanset(2, 4)
+    rep = str(tmp_path / "rep.pt")
+    make_representation(rep, train, name=encoder, dim=8)
+    plain, best_plain, last_plain = _fit(tmp_path, "plain", rep, train, val, cache=False)
+    cached, best_cached, last_cached = _fit(tmp_path, "cached", rep, train, val, cache=True)
+    assert best_cached.keys() == best_plain.keys() and any(k.startswith("encoder.") for k in best_cached)
+    decoder_keys = [k for k in last_plain["model_state"] if k.startswith("decoder.")]
+    assert decoder_keys
+    start = build_decoder(last_plain["config"]["decoder"], seed=5).state_dict()
+    assert any(not torch.allclose(start[k.removeprefix("decoder.")], last_plain["model_state"][k])
+               for k in decoder_keys), "training did not move the decoder"
+    for key in decoder_keys:
+        torch.testing.assert_close(last_cached["model_state"][key], last_plain["model_state"][key],
+                                   atol=ROUND_OFF_ATOL, rtol=1e-4)
+    for key in best_plain:
+        torch.testing.assert_close(best_cached[key], best_plain[key], atol=ROUND_OFF_ATOL, rtol=1e-4)
+    assert [h["train_loss"] for h in last_cached["history"]] == pytest.approx(
+        [h["train_loss"] for h in last_plain["history"]], rel=1e-5)
+    assert cached["best_epoch"] == plain["best_epoch"]
+    assert cached["val_inclusion_f1"] == pytest.approx(plain["val_inclusion_f1"], nan_ok=True)
