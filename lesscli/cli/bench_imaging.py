@@ -7,22 +7,14 @@ cross-entropy as the cheapest loss next to lambda Dice + (1 - lambda) eta Focal.
 
 from __future__ import annotations
 
-import time
-
 import click
 
+from lesscli.bench.timing import best_time
 from lesscli.cli.common import format_option, seed_option
 
 SPACING_MM = (0.9, 0.4774, 0.4774)
 
 
-def _best(fn, repeat: int) -> tuple[float, object]:
-    best, out = float("inf"), None
-    for _ in range(repeat):
-        start = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - start)
-    return best, out
 
 
 def loop_placement(patches, xy_mm, grid):
@@ -52,11 +44,11 @@ def _case(dim: int, batch: int, repeat: int, gen) -> list[dict]:
                      SPACING_MM)
     xy = particle_grid(60.0, 6.0)
     patches = torch.randn(batch, xy.shape[0], 4, shape[0], 32, 32, generator=gen)
-    t_vec, fast = _best(lambda: place_patches(patches, xy, grid, SPACING_MM), repeat)
-    t_loop, slow = _best(lambda: loop_placement(patches, xy, grid), repeat)
+    t_vec, fast = best_time(lambda: place_patches(patches, xy, grid, SPACING_MM), repeat)
+    t_loop, slow = best_time(lambda: loop_placement(patches, xy, grid), repeat)
     target = torch.randint(0, 4, (batch, *shape), generator=gen)
-    t_loss, _ = _best(lambda: imaging_loss(fast, target).total, repeat)
-    t_ce, _ = _best(lambda: torch.nn.functional.cross_entropy(fast, target), repeat)
+    t_loss, _ = best_time(lambda: imaging_loss(fast, target).total, repeat)
+    t_ce, _ = best_time(lambda: torch.nn.functional.cross_entropy(fast, target), repeat)
     common = {"bench": "imaging", "dim": dim, "batch": batch, "particles": int(xy.shape[0]),
               "grid": "x".join(map(str, shape)), "repeat": repeat}
     return [

@@ -7,10 +7,9 @@ convex-hull diameter replaces; the two diameters must agree.
 
 from __future__ import annotations
 
-import time
-
 import click
 
+from lesscli.bench.timing import best_time
 from lesscli.cli.common import format_option, seed_option
 
 GRID_SHAPE = (26, 128, 128)
@@ -35,13 +34,6 @@ def _volumes(diameter_mm: float, seed: int):
     return pred, truth, origin, spacing
 
 
-def _best_time(fn, repeat: int) -> tuple[float, object]:
-    best, out = float("inf"), None
-    for _ in range(repeat):
-        start = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - start)
-    return best, out
 
 
 @click.command("metrics")
@@ -59,10 +51,10 @@ def cli(quick: bool, repeat: int | None, diameter_mm: float, seed: int, fmt: str
 
     repeat = repeat or (2 if quick else 7)
     pred, truth, origin, spacing = _volumes(diameter_mm, seed)
-    t_full, row = _best_time(lambda: score_labels(pred, truth, origin, spacing), repeat)
-    t_f1, f1 = _best_time(lambda: f1_from(*confusion(pred == 3, truth == 3)), repeat)
-    t_hull, d_hull = _best_time(lambda: hull_diameter(truth == 3, spacing), repeat)
-    t_pairs, d_pairs = _best_time(lambda: all_pairs_diameter_mm(truth == 3, spacing), max(1, repeat // 2))
+    t_full, row = best_time(lambda: score_labels(pred, truth, origin, spacing), repeat)
+    t_f1, f1 = best_time(lambda: f1_from(*confusion(pred == 3, truth == 3)), repeat)
+    t_hull, d_hull = best_time(lambda: hull_diameter(truth == 3, spacing), repeat)
+    t_pairs, d_pairs = best_time(lambda: all_pairs_diameter_mm(truth == 3, spacing), max(1, repeat // 2))
     common = {"shape": "x".join(map(str, GRID_SHAPE)), "inclusion_diameter_mm": diameter_mm, "repeat": repeat}
     emit_records([
         {"bench": "metrics", "case": "score_volume (3D + 2D, all metrics)", **common, "seconds": t_full,
