@@ -73,13 +73,18 @@ _RULES = [("model.dim", lambda v: v >= 1, ">= 1"), ("model.spacing_mm", lambda v
           ("ssl.k_query", lambda v: v >= 1, ">= 1")]
 
 
-def check_pretrain_config(cfg: PretrainConfig) -> PretrainConfig:
-    """Raise LessError naming the first out-of-range setting."""
-    for key, ok, need in _RULES:
+def check_rules(cfg, rules) -> None:
+    """Raise LessError naming the first setting of ``cfg`` that breaks ``rules`` ((key, ok, need) tuples)."""
+    for key, ok, need in rules:
         section, name = key.split(".")
         value = getattr(getattr(cfg, section), name)
         if not ok(value):
             raise LessError(f"setting {key} = {value!r} is invalid: must be {need}")
+
+
+def check_pretrain_config(cfg: PretrainConfig) -> PretrainConfig:
+    """Raise LessError naming the first out-of-range setting."""
+    check_rules(cfg, _RULES)
     return cfg
 
 

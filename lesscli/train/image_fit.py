@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 import torch
 
 from lesscli.data.image_labels import AUTO_SLICE, ImageDataset, collate_images, training_targets
-from lesscli.errors import LessError
 from lesscli.io.labels import INCLUSION, N_CLASSES
 from lesscli.io.scans import ScanSet
 from lesscli.models.imager import DECODERS, DEFAULT_DECODER, Imager, grid_to_dict
@@ -26,7 +25,7 @@ from lesscli.models.imaging_loss import GAMMA, LAMBDA, imaging_loss
 from lesscli.models.registry import lookup
 from lesscli.train import distributed
 from lesscli.train.checkpoint import load_representation
-from lesscli.train.config import LoopConfig, to_dict
+from lesscli.train.config import LoopConfig, check_rules, to_dict
 from lesscli.train.loop import FitResult, fit
 from lesscli.train.state_cache import CachedImager, cache_states, collate_states
 
@@ -66,11 +65,7 @@ _RULES = [("image.dim", lambda v: v in (2, 3), "2 or 3"), ("image.width", lambda
 
 def check_config(cfg: ImageFitConfig) -> ImageFitConfig:
     """Raise LessError naming the first out-of-range setting."""
-    for key, ok, need in _RULES:
-        section, name = key.split(".")
-        value = getattr(getattr(cfg, section), name)
-        if not ok(value):
-            raise LessError(f"setting {key} = {value!r} is invalid: must be {need}")
+    check_rules(cfg, _RULES)
     if cfg.image.decoder and cfg.image.decoder not in DECODERS:
         lookup(DECODERS, cfg.image.decoder, "decoder")
     return cfg
