@@ -41,3 +41,26 @@ def test_cached_states_give_the_same_decoder(tmp_path, encoder):
         [h["train_loss"] for h in last_plain["history"]], rel=1e-5)
     assert cached["best_epoch"] == plain["best_epoch"]
     assert cached["val_inclusion_f1"] == pytest.approx(plain["val_inclusion_f1"], nan_ok=True)
+
+
+@pytest.mark.parametrize("select", ["f1", "loss"])
+def test_best_epoch_is_the_best_validation_f1_or_loss(tmp_path, select):
+    train, val = learnable_scanset(7, 3), learnable_scanset(3, 4)
+    rep = str(tmp_path / "rep.pt")
+    make_representation(rep, train, name="less", dim=8)
+    cfg = ImageFitConfig(image=ImageModelConfig(dim=2, width=8, patch_px=8, select=select),
+                         train=LoopConfig(epochs=6, batch_size=3, lr=3e-2, seed=1, device="cpu"))
+    out = str(tmp_path / "img.pt")
+    summary = fit_imager(train, val, rep, cfg, out)
+    history = [h for h in load_checkpoint(out)["history"] if "val_loss" in h]
+    assert len(history) == 6
+    if select == "f1":
+        assert summary["selected_by"] == "val_f1"
+        scored = [h for h in history if "val_score" in h]
+        assert scored, "no epoch had a defined validation F1"
+        best = max(scored, key=lambda h: (h["val_score"], -h["val_loss"]))
+        assert summary["val_inclusion_f1"] == pytest.approx(best["val_score"])
+    else:
+        assert summary["selected_by"] == "val_loss" and all("val_score" not in h for h in history)
+        best = min(history, key=lambda h: h["val_loss"])
+    assert summary["best_epoch"] == best["epoch"]

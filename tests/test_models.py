@@ -127,8 +127,7 @@ def _row(seq, p):
 
 
 def test_locality_outside_touches_do_not_change_a_particle():
-    """Moving out-of-field touches: state bit-identical. Adding them: the particle's gathered input
-    is bit-identical and its state equal up to BLAS round-off (matrix sizes change with the batch)."""
+    """Moving or adding out-of-field touches leaves the particle's state bit-identical (evaluation)."""
     enc = tiny_encoder()
     gen = torch.Generator().manual_seed(7)
     batch = make_batch(gen, b=1, length=40)
@@ -153,7 +152,18 @@ def test_locality_outside_touches_do_not_change_a_particle():
     assert n > 0 and int(after.count[r2]) == n and after.z.shape[1] > before.z.shape[1]
     assert torch.equal(before.pose[r1, :n], after.pose[r2, :n])
     assert torch.equal(before.force[r1, :n], after.force[r2, :n])
-    torch.testing.assert_close(enc(added).z[0, p], enc(batch).z[0, p], atol=1e-6, rtol=0)
+    assert torch.equal(enc(added).z[0, p], enc(batch).z[0, p])
+    assert not torch.equal(enc(added).z[0, 13], enc(moved).z[0, 13])       # its neighbour did see them
+
+
+def test_fixed_shape_evaluation_matches_the_packed_training_path():
+    enc = tiny_encoder(max_steps_per_particle=7)
+    batch = make_batch(torch.Generator().manual_seed(17), b=3, length=50)
+    fixed = enc(batch)
+    packed = enc.train()(batch)
+    assert torch.equal(fixed.seen, packed.seen) and fixed.seen.any() and not fixed.seen.all()
+    torch.testing.assert_close(fixed.z, packed.z, atol=1e-6, rtol=0)
+    assert torch.all(fixed.z[~fixed.seen] == 0)
 
 
 def test_centring_shift_of_scene_and_particles_leaves_states_unchanged():

@@ -17,6 +17,8 @@ def cli() -> None:
 @click.option("--rep", "rep_path", required=True, help="Representation checkpoint from 'less pretrain'.")
 @output_option(help="Best imaging checkpoint (.pt); beside it <stem>.last.pt (--resume) and <stem>.log.jsonl.")
 @click.option("--val", "val_path", default=None, help="Validation scan set: selects the best epoch.")
+@click.option("--select", type=click.Choice(["f1", "loss"]), default=None,
+              help="Best epoch on --val by inclusion F1 (ties: loss) or by loss.  [default: f1]")
 @click.option("--dim", type=click.Choice(["2", "3"]), default=None, help="2: slice image, 3: volume.  [default: 3]")
 @click.option("--finetune", is_flag=True, default=None, help="Train the representation too (default: frozen).")
 @click.option("--slice", "slice_index", type=int, default=None,
@@ -32,13 +34,14 @@ def cli() -> None:
               help="Override a setting, e.g. --set image.width=32 --set loss.gamma=1 (repeatable).")
 @click.option("--resume", is_flag=True, help="Continue from <stem>.last.pt with the same settings.")
 @format_option
-def fit_cmd(data, rep_path, output, val_path, dim, finetune, slice_index, decoder, epochs, batch_size, lr, seed,
+def fit_cmd(data, rep_path, output, val_path, select, dim, finetune, slice_index, decoder, epochs, batch_size, lr, seed,
             device, config_path, overrides, resume, fmt) -> None:
     """Fit an image decoder on DATA's label volumes with the Dice-Focal loss.
 
     The representation (--rep) is frozen unless --finetune; its normalisation statistics are
     reused. 3D targets are the label volumes; 2D targets are the slice through the inclusion
-    centre (or --slice). The best epoch is chosen on --val (else the training loss). Under torchrun
+    centre (or --slice). The best epoch is chosen on --val by its inclusion F1, ties broken by the
+    loss (--select loss: by the loss alone; without --val: the training loss). Under torchrun
     the same command trains with DistributedDataParallel; rank 0 writes. A summary record goes to
     stdout.
 
@@ -51,7 +54,7 @@ def fit_cmd(data, rep_path, output, val_path, dim, finetune, slice_index, decode
     from lesscli.train.config import load_config
     from lesscli.train.image_fit import ImageFitConfig, fit_imager
 
-    explicit = {"image.dim": int(dim) if dim else None, "image.finetune": finetune, "image.slice": slice_index,
+    explicit = {"image.dim": int(dim) if dim else None, "image.finetune": finetune, "image.slice": slice_index, "image.select": select,
                 "image.decoder": decoder, "train.epochs": epochs, "train.batch_size": batch_size,
                 "train.lr": lr, "train.seed": seed, "train.device": device}
     cfg = load_config(ImageFitConfig, config_path, overrides, explicit)

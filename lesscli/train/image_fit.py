@@ -41,6 +41,7 @@ class ImageModelConfig:
     stitch: str = "sum"           # overlapping patch logits: sum (paper) or mean
     finetune: bool = False        # train the representation too
     slice: int = AUTO_SLICE       # 2D label slice; -1 = through the inclusion centre
+    select: str = "f1"            # best epoch on --val: inclusion "f1" (ties: loss) or "loss"
 
 
 @dataclass
@@ -58,7 +59,8 @@ class ImageFitConfig:
 
 _RULES = [("image.dim", lambda v: v in (2, 3), "2 or 3"), ("image.width", lambda v: v >= 8, ">= 8"),
           ("image.patch_px", lambda v: v >= 4 and (v // 4) & (v // 4 - 1) == 0 and v % 4 == 0, "4 * 2^k"),
-          ("image.stitch", lambda v: v in ("sum", "mean"), "sum or mean"), ("loss.lam", lambda v: 0 <= v <= 1, "in [0, 1]"), ("loss.gamma", lambda v: v == 0 or v >= 1, "0 or >= 1"),
+          ("image.stitch", lambda v: v in ("sum", "mean"), "sum or mean"),
+          ("image.select", lambda v: v in ("f1", "loss"), "f1 or loss"), ("loss.lam", lambda v: 0 <= v <= 1, "in [0, 1]"), ("loss.gamma", lambda v: v == 0 or v >= 1, "0 or >= 1"),
           ("train.epochs", lambda v: v >= 1, ">= 1"), ("train.batch_size", lambda v: v >= 1, ">= 1"),
           ("train.lr", lambda v: v > 0, "> 0")]
 
@@ -119,6 +121,13 @@ def inclusion_f1(model: torch.nn.Module, dataset, batch_size: int, device: torch
     return {"inclusion_f1": f1, "no_inclusion_f1": 0.0 if tp + fn else float("nan")}
 
 
+def _f1_score(dataset, batch_size: int, device: torch.device, collate_fn: Callable) -> Callable:
+    """The loop's validation score: micro inclusion F1 of a model on ``dataset``."""
+    def score(model: torch.nn.Module) -> float:
+        return inclusion_f1(model, dataset, batch_size, device, collate_fn)["inclusion_f1"]
+    return score
+
+
 def fit_inputs(model: Imager, train_set: ImageDataset, val_set: ImageDataset | None, batch_size: int,
                device: torch.device, cache: bool) -> tuple:
     """(model, train set, val set, collate) for the loop: cached encoder states when ``cache``."""
@@ -148,10 +157,11 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
     stats = rep["norm_stats"]
     targets, grid = training_targets(train, cfg.image.dim, cfg.image.slice, names[0])
     train_set = ImageDataset(train, stats, targets, names[0])
-    val_set = None
+    val_set, by_f1 = None, False
     if val is not None and val.n_scans:
         val_targets, _ = training_targets(val, cfg.image.dim, cfg.image.slice, names[1])
         val_set = ImageDataset(val, stats, val_targets, names[1])
+        by_f1 = cfg.image.select == "f1" and any(bool((t == INCLUSION).any()) for t in val_targets)
     enc_cfg = encoder.config()
     dec = decoder_settings(cfg, enc_cfg["name"], encoder.dim, grid)
     model = Imager(encoder, build_decoder(dec, cfg.train.seed), grid, frozen=not cfg.image.finetune)
@@ -163,12 +173,13 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
                             collate_fn=collate, output=output, config=config, norm_stats=stats, env=env,
                             resume=resume, history=[*(h for h in rep.get("history", []) if "epoch" not in h),
                                                     *(history or [])],
-                            progress=progress)
+                            progress=progress, score_fn=_f1_score(val_set, cfg.train.batch_size, env.device, collate)
+                            if by_f1 else None)
     summary = {"output": output, "dim": cfg.image.dim, "decoder": dec["name"], "encoder": enc_cfg["name"],
                "frozen": not cfg.image.finetune, "trainable_parameters": sum(
                    p.numel() for p in model.parameters() if p.requires_grad),
                "epochs": cfg.train.epochs, "best_epoch": result.best_epoch + 1, "best_loss": result.best_loss,
-               "selected_by": "val_loss" if val_set is not None else "train_loss"}
+               "selected_by": "val_f1" if by_f1 else "val_loss" if val_set is not None else "train_loss"}
     if val_set is not None and result.best_state is not None:
         model.load_state_dict(result.best_state)
         summary.update({f"val_{k}": v for k, v in

@@ -8,8 +8,9 @@ Usage (any model whose loss is computed through its ``forward``)::
     result = fit(model, loss_fn, train_set, val_set, cfg, collate_fn=collate, output="rep.pt",
                  config=resolved_config_dict, norm_stats=stats, env=distributed.setup(cfg.device))
 
-Files (rank 0 only): ``output`` holds the best model so far (by validation loss; by training loss
-when there is no validation set) and is rewritten with the full history at the end;
+Files (rank 0 only): ``output`` holds the best model so far (by validation loss, or by a validation
+score such as the imaging F1 with ties broken by the loss; by training loss when there is no
+validation set) and is rewritten with the full history at the end;
 ``<stem>.last.pt`` holds the latest epoch with optimizer and schedule state for ``resume=True``
 (random streams are keyed by seed, epoch and rank, so a resumed run draws as an uninterrupted one); ``<stem>.log.jsonl`` gets one JSON line per epoch. Parameters with
 ``requires_grad=False`` (a frozen representation) are not optimised.
@@ -53,12 +54,18 @@ def _strip(config):
 
 @dataclass
 class FitResult:
-    """What :func:`fit` did: per-epoch records, the best epoch and its loss."""
+    """What :func:`fit` did: per-epoch records, the best epoch, its loss and its validation score."""
 
     history: list[dict] = field(default_factory=list)
     best_epoch: int = -1
     best_loss: float = math.inf
+    best_score: float | None = None
     best_state: dict | None = None
+
+    def criterion(self) -> tuple[float, float]:
+        """What a better epoch must beat: (-score, loss), lexicographically (no score: -inf)."""
+        score = -math.inf if self.best_score is None else self.best_score
+        return (-score if self.best_epoch >= 0 else math.inf, self.best_loss)
 
 
 def side_paths(output: str) -> tuple[str, str]:
@@ -141,6 +148,7 @@ class _Trainer:
         self.start_epoch, self.step = int(extra["epoch"]) + 1, int(extra["step"])
         self.result.history = [h for h in ckpt["history"] if "epoch" in h]
         self.result.best_epoch, self.result.best_loss = int(extra["best_epoch"]), float(extra["best_loss"])
+        self.result.best_score = extra.get("best_score")
         if os.path.exists(self.output):
             self.result.best_state = load_checkpoint(self.output)["model_state"]
             self.saved_any = True
@@ -186,13 +194,18 @@ class _Trainer:
                 bar.set_postfix(loss=f"{losses[-1]:.4g}")
         return sum(losses) / max(1, len(losses))
 
-    def end_epoch(self, epoch: int, train_loss: float, val_loss: float | None, seconds: float) -> dict:
-        score = val_loss if val_loss is not None else train_loss
-        improved = score < self.result.best_loss
+    def end_epoch(self, epoch: int, train_loss: float, val_loss: float | None, val_score: float | None,
+                  seconds: float) -> dict:
+        loss = val_loss if val_loss is not None else train_loss
+        if val_score is not None and not math.isfinite(val_score):
+            val_score = None                                     # undefined (NaN): never better
+        score = -math.inf if val_score is None else val_score
+        improved = (-score, loss) < self.result.criterion()
         if improved:
-            self.result.best_loss, self.result.best_epoch = score, epoch
+            self.result.best_loss, self.result.best_score, self.result.best_epoch = loss, val_score, epoch
             self.result.best_state = copy.deepcopy({k: v.detach().cpu() for k, v in self.raw.state_dict().items()})
         record = {"epoch": epoch + 1, "step": self.step, "train_loss": train_loss, "val_loss": val_loss,
+                  **({} if val_score is None else {"val_score": val_score}),
                   "lr": self.opt.param_groups[0]["lr"] if self.params else 0.0, "best": improved,
                   "seconds": round(seconds, 3)}
         self.result.history.append(record)
@@ -213,7 +226,7 @@ class _Trainer:
                             [*info.get("history", []), *self.result.history], info.get("extra"))
             self.saved_any = True
         extra = {"optimizer": self.opt.state_dict(), "scheduler": self.sched.state_dict(), "epoch": epoch, "step": self.step, "best_epoch": self.result.best_epoch,
-                 "best_loss": self.result.best_loss}
+                 "best_loss": self.result.best_loss, "best_score": self.result.best_score}
         save_checkpoint(self.last_path, self.raw.state_dict(), info["config"], info["norm_stats"],
                         self.result.history, extra)
 
@@ -231,7 +244,7 @@ class _Trainer:
 def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, *, collate_fn, output: str,
         config: dict, norm_stats: dict, env: distributed.DistEnv | None = None, resume: bool = False,
         history: list | None = None, extra: dict | None = None,
-        progress: Callable = lambda it, **_: it) -> FitResult:
+        progress: Callable = lambda it, **_: it, score_fn: Callable | None = None) -> FitResult:
     """Train ``model`` by minimising ``loss_fn`` and keep the best checkpoint.
 
     Args:
@@ -245,6 +258,9 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
         env: distributed environment (default: single process on CPU).
         resume: continue from ``<stem>.last.pt``.
         progress: wraps an iterable in a progress bar (e.g. tqdm); gets ``desc`` and ``leave``.
+        score_fn: ``score_fn(model) -> float``, a validation score (higher is better, NaN counts as
+            the worst) that selects the best epoch, ties broken by the validation loss; None selects
+            by the loss alone.
 
     Returns:
         :class:`FitResult` (``best_state`` is the best model's CPU state dict).
@@ -269,6 +285,17 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
         val_loss = evaluate(trainer.raw, loss_fn, val_loader, env.device) if val_loader else None
         if val_loss is not None:
             trainer.guard(val_loss, "validation loss", epoch, len(val_loader) - 1)
-        trainer.end_epoch(epoch, train_loss, val_loss, time.perf_counter() - t0)
+        val_score = _score(score_fn, trainer.raw) if score_fn is not None and val_loader else None
+        trainer.end_epoch(epoch, train_loss, val_loss, val_score, time.perf_counter() - t0)
     trainer.finish()
     return trainer.result
+
+
+def _score(score_fn: Callable, model: nn.Module) -> float:
+    """``score_fn(model)`` in evaluation mode, without gradients."""
+    was_training = model.training
+    model.eval()
+    with torch.no_grad():
+        value = float(score_fn(model))
+    model.train(was_training)
+    return value
