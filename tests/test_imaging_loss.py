@@ -42,6 +42,14 @@ def test_alpha_is_inverse_frequency_normalised():
     assert class_weights(y).tolist() == pytest.approx([0.25, 0.75])
 
 
+def test_alpha_power_generalises_inverse_frequency():
+    y = torch.nn.functional.one_hot(torch.tensor([[0, 0, 0, 0, 1, 2]]), 4).movedim(-1, 1).float()
+    # counts 4, 1, 1, 0: power 0.5 -> 1/2, 1, 1 normalised; power 0 -> uniform over present classes
+    assert class_weights(y, 0.5).tolist() == pytest.approx([0.2, 0.4, 0.4, 0.0])
+    assert class_weights(y, 0.0).tolist() == pytest.approx([1 / 3, 1 / 3, 1 / 3, 0.0])
+    assert class_weights(y, 1.0).tolist() == pytest.approx([1 / 9, 4 / 9, 4 / 9, 0.0])
+
+
 def test_alpha_ignores_absent_classes():
     codes = torch.tensor([[0, 0, 0, 1]])
     y2 = torch.nn.functional.one_hot(codes, 2).movedim(-1, 1).float()

@@ -12,7 +12,9 @@ Numerical rules this implementation adds to the published formulation:
 * Logits are upcast to float32 before the softmax and every sum (float16/bfloat16 inputs give the
   float32 result of the same values); ``log p`` comes from ``log_softmax``, never ``log(softmax)``.
 * ``alpha_c`` is the inverse frequency of class c in the batch's truth, over the classes *present* in
-  the truth only, normalised to sum 1. An absent class gets alpha 0 (it has no true voxels, so its focal
+  the truth only, normalised to sum 1 (``alpha_power`` p generalises it to frequency^-p: 1 is the
+  paper's inverse frequency, 0.5 its square root, 0 uniform weights; with eta rescaling the focal term,
+  only these relative weights matter, and p = 1 makes background errors nearly free). An absent class gets alpha 0 (it has no true voxels, so its focal
   term is 0 anyway) and cannot blow up the normalisation and collapse the other weights.
 * Sums run over the whole batch (batch and spatial axes together), like alpha.
 * Empty-class rule: a class absent from both the truth and the argmax prediction of the batch (a
@@ -33,6 +35,7 @@ DICE_EPS = 1e-6     # epsilon in the Dice numerator and denominator (paper value
 ETA_DELTA = 1e-8    # delta in eta = Dice / (Focal + delta) (paper value)
 LAMBDA = 0.5        # weight of the Dice term
 GAMMA = 2.0         # focal focusing parameter
+ALPHA_POWER = 1.0   # alpha_c ~ frequency_c^-ALPHA_POWER (1: inverse class frequency, the paper)
 
 
 @dataclass
@@ -55,18 +58,19 @@ def _one_hot(target: torch.Tensor, n_classes: int) -> torch.Tensor:
     return F.one_hot(codes, n_classes).movedim(-1, 1).to(torch.float32)
 
 
-def class_weights(y: torch.Tensor) -> torch.Tensor:
-    """alpha_c: inverse class frequency over the classes present in ``y``, normalised to sum 1.
+def class_weights(y: torch.Tensor, power: float = ALPHA_POWER) -> torch.Tensor:
+    """alpha_c: inverse class frequency (to ``power``) over the classes present in ``y``, summing to 1.
 
     Args:
         y: (B, C, *S) one-hot truth.
+        power: p in alpha_c ~ count_c^-p (1: inverse frequency; 0: uniform over present classes).
 
     Returns:
         (C,) float32; 0 for a class absent from ``y``.
     """
     counts = y.transpose(0, 1).reshape(y.shape[1], -1).sum(dim=1)
     present = counts > 0
-    inv = torch.where(present, 1.0 / counts.clamp_min(1.0), torch.zeros_like(counts))
+    inv = torch.where(present, counts.clamp_min(1.0).pow(-float(power)), torch.zeros_like(counts))
     return inv / inv.sum().clamp_min(torch.finfo(torch.float32).tiny)
 
 
@@ -119,7 +123,7 @@ def focal_loss(log_probs: torch.Tensor, y: torch.Tensor, alpha: torch.Tensor, ga
 
 
 def imaging_loss(logits: torch.Tensor, target: torch.Tensor, lam: float = LAMBDA, gamma: float = GAMMA,
-                 eps: float = DICE_EPS, delta: float = ETA_DELTA) -> ImagingLoss:
+                 eps: float = DICE_EPS, delta: float = ETA_DELTA, alpha_power: float = ALPHA_POWER) -> ImagingLoss:
     """lambda Dice + (1 - lambda) eta Focal for a batch of label images or volumes.
 
     Args:
@@ -129,6 +133,7 @@ def imaging_loss(logits: torch.Tensor, target: torch.Tensor, lam: float = LAMBDA
         gamma: focal focusing parameter.
         eps: Dice smoothing constant.
         delta: eta's denominator guard.
+        alpha_power: exponent p of the class weights alpha_c ~ frequency_c^-p.
 
     Returns:
         ImagingLoss with the total (differentiable) and its detached terms.
@@ -140,7 +145,7 @@ def imaging_loss(logits: torch.Tensor, target: torch.Tensor, lam: float = LAMBDA
     log_probs = F.log_softmax(logits32, dim=1)
     probs = log_probs.exp()
     y = _one_hot(target, logits.shape[1])
-    alpha = class_weights(y)
+    alpha = class_weights(y, alpha_power)
     dice = dice_loss(probs, y, eps)
     focal = focal_loss(log_probs, y, alpha, gamma)
     eta = dice.detach() / (focal.detach() + delta)

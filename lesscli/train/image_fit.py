@@ -21,7 +21,7 @@ from lesscli.data.image_labels import AUTO_SLICE, ImageDataset, collate_images, 
 from lesscli.io.labels import INCLUSION, N_CLASSES
 from lesscli.io.scans import ScanSet
 from lesscli.models.imager import DECODERS, DEFAULT_DECODER, Imager, grid_to_dict
-from lesscli.models.imaging_loss import GAMMA, LAMBDA, imaging_loss
+from lesscli.models.imaging_loss import ALPHA_POWER, GAMMA, LAMBDA, imaging_loss
 from lesscli.models.registry import lookup
 from lesscli.train import distributed
 from lesscli.train.checkpoint import load_representation
@@ -48,6 +48,7 @@ class ImageModelConfig:
 class LossConfig:
     lam: float = LAMBDA
     gamma: float = GAMMA
+    alpha_power: float = ALPHA_POWER   # class weights ~ frequency^-p: 1 inverse (paper), 0.5 sqrt, 0 uniform
 
 
 @dataclass
@@ -61,6 +62,7 @@ _RULES = [("image.dim", lambda v: v in (2, 3), "2 or 3"), ("image.width", lambda
           ("image.patch_px", lambda v: v >= 4 and (v // 4) & (v // 4 - 1) == 0 and v % 4 == 0, "4 * 2^k"),
           ("image.stitch", lambda v: v in ("sum", "mean"), "sum or mean"),
           ("image.select", lambda v: v in ("f1", "loss"), "f1 or loss"), ("loss.lam", lambda v: 0 <= v <= 1, "in [0, 1]"), ("loss.gamma", lambda v: v == 0 or v >= 1, "0 or >= 1"),
+          ("loss.alpha_power", lambda v: 0 <= v <= 2, "in [0, 2]"),
           ("train.epochs", lambda v: v >= 1, ">= 1"), ("train.batch_size", lambda v: v >= 1, ">= 1"),
           ("train.lr", lambda v: v > 0, "> 0")]
 
@@ -96,10 +98,11 @@ def build_decoder(settings: dict, seed: int | None = None) -> torch.nn.Module:
         return cls(**kwargs)
 
 
-def image_loss_fn(lam: float, gamma: float):
+def image_loss_fn(cfg: LossConfig):
     """Loss callable for the loop: forward the inputs, score the logits against the targets."""
     def loss_fn(model, batch, generator) -> torch.Tensor:
-        return imaging_loss(model(batch.inputs), batch.target, lam=lam, gamma=gamma).total
+        return imaging_loss(model(batch.inputs), batch.target, lam=cfg.lam, gamma=cfg.gamma,
+                            alpha_power=cfg.alpha_power).total
     return loss_fn
 
 
@@ -169,7 +172,7 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
               "representation": {"path": rep_path, "config": rep.get("config", {})}}
     model, train_set, val_set, collate = fit_inputs(model, train_set, val_set, cfg.train.batch_size, env.device,
                                                     cache and not cfg.image.finetune)
-    result: FitResult = fit(model, image_loss_fn(cfg.loss.lam, cfg.loss.gamma), train_set, val_set, cfg.train,
+    result: FitResult = fit(model, image_loss_fn(cfg.loss), train_set, val_set, cfg.train,
                             collate_fn=collate, output=output, config=config, norm_stats=stats, env=env,
                             resume=resume, history=[*(h for h in rep.get("history", []) if "epoch" not in h),
                                                     *(history or [])],
