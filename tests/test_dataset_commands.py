@@ -87,6 +87,14 @@ def test_cli_concat_checks_and_deduplicates(run_less, tmp_path):
     proc = run_less("concat", "a.npz", "b.npz", "-o", "ab.npz")
     assert proc.returncode == 1 and b"b.npz: 'units' differs" in proc.stderr
     assert not (tmp_path / "ab.npz").exists()
+    c = random_scanset(n_scans=1, seed=2)
+    c.meta = {**c.meta, "sample_rate_hz": 10.0}
+    save_scans(str(tmp_path / "c.npz"), c)
+    run_less("concat", "a.npz", "c.npz", "-o", "ac.npz", check=True)
+    mixed = load_scans(str(tmp_path / "ac.npz"))
+    assert mixed.n_scans == 3 and mixed.meta["sample_rate_hz"] is None
+    assert np.array_equal(mixed.time_s[-c.n_steps:], c.time_s)
+    assert both.meta["sample_rate_hz"] == a.meta["sample_rate_hz"]
 
 
 @pytest.fixture(scope="module")

@@ -326,13 +326,18 @@ def save_scans(path: str, scans: ScanSet, compress: bool = True) -> None:
 
 
 def concat(parts: list[ScanSet], names: list[str] | None = None) -> ScanSet:
-    """Concatenate scan sets whose sensor and units agree; identical label volumes are stored once."""
+    """Concatenate scan sets whose sensor and units agree; identical label volumes are stored once.
+
+    Sample rates may differ (the paper trains on pokes subsampled 1:50 together with primitives
+    subsampled 1:10): the result then has ``sample_rate_hz`` None, and each step's ``time_s`` is the
+    authority on timing.
+    """
     if not parts:
         raise DataError("nothing to concatenate")
     names = names or [f"input {i + 1}" for i in range(len(parts))]
     first = parts[0].meta
     for part, name in zip(parts[1:], names[1:]):
-        for key in ("sensor", "units", "sample_rate_hz"):
+        for key in ("sensor", "units"):
             if part.meta.get(key) != first.get(key):
                 raise DataError(f"{name}: '{key}' differs from {names[0]}; cannot concatenate "
                                 f"({part.meta.get(key)} vs {first.get(key)})")
@@ -361,4 +366,10 @@ def concat(parts: list[ScanSet], names: list[str] | None = None) -> ScanSet:
     return ScanSet(cat("pose"), cat("force"), cat("time_s"), np.concatenate(traj_offsets), np.concatenate(traj_scan),
                    cat("scan_insert"), cat("scan_orientation"), np.concatenate(scan_label), labels,
                    {k: np.concatenate([p.traj_attrs[k] for p in parts]) for k in TRAJ_ATTRS},
-                   {**first, "history": history})
+                   {**first, "history": history, "sample_rate_hz": _common_rate(parts)})
+
+
+def _common_rate(parts: list[ScanSet]) -> float | None:
+    """The parts' ``sample_rate_hz`` when they all agree, else None (mixed rates)."""
+    rates = {p.meta.get("sample_rate_hz") for p in parts}
+    return rates.pop() if len(rates) == 1 else None
