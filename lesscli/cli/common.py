@@ -67,6 +67,65 @@ def output_option(required: bool = True, help: str = "Output file ('-' for stdou
     return click.option("-o", "--output", "output", type=str, required=required, help=help)
 
 
+def training_options(default_epochs: int, tables: str, set_example: str):
+    """The options every training command shares (``--epochs`` ... ``--resume``); None = not given.
+
+    The command receives them as keyword arguments ``epochs, batch_size, lr, seed, device,
+    config_path, overrides, resume`` (collect them with ``**train_opts``).
+    """
+    options = [
+        click.option("--epochs", type=int, default=None, help=f"Epochs.  [default: {default_epochs}]"),
+        click.option("--batch-size", type=int, default=None, help="Scans per batch.  [default: 2]"),
+        click.option("--lr", type=float, default=None, help="Adam learning rate (cosine decay).  [default: 1e-4]"),
+        click.option("--seed", type=int, default=None, help="Seed for initialisation and sampling.  [default: 0]"),
+        click.option("--device", default=None, help="auto, cpu, cuda or cuda:N.  [default: auto]"),
+        click.option("--config", "config_path", default=None, help=f"TOML file with {tables} tables."),
+        click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+                     help=f"Override a setting, e.g. {set_example} (repeatable)."),
+        click.option("--resume", is_flag=True, help="Continue from <stem>.last.pt with the same settings."),
+    ]
+
+    def decorate(func):
+        for option in reversed(options):
+            func = option(func)
+        return func
+    return decorate
+
+
+def training_config(cls, explicit: dict, train_opts: dict):
+    """``cls`` config from defaults < ``--config`` < ``explicit`` and the shared options < ``--set``."""
+    from lesscli.train.config import load_config
+
+    loop = {f"train.{k}": train_opts[k] for k in ("epochs", "batch_size", "lr", "seed", "device")}
+    return load_config(cls, train_opts["config_path"], train_opts["overrides"], {**explicit, **loop})
+
+
+def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, output: str, fmt: str | None) -> None:
+    """Load DATA and --val, train under torchrun/DDP when launched so, and print the summary on rank 0.
+
+    ``train_fn(train, val, env=, history=, progress=, names=)`` trains and returns a summary record.
+    """
+    from lesscli.io.records import emit_records
+    from lesscli.io.scans import append_history, load_scans
+    from lesscli.train import distributed
+
+    train = load_scans(data)
+    val = load_scans(val_path) if val_path else None
+    env = distributed.setup(cfg.train.device)
+    try:
+        history = append_history({}, seed=cfg.train.seed)["history"]
+        summary = train_fn(train, val, env=env, history=history, names=(data, val_path or ""),
+                           progress=progress if env.is_main else (lambda it, **_: it))
+    finally:
+        distributed.teardown(env)
+    if not env.is_main:
+        return
+    if output == "-":
+        LOG.warning("%s summary: %s", what, summary)
+    else:
+        emit_records([summary], fmt)
+
+
 def seed_option(default: int = 0):
     return click.option("--seed", type=int, default=default, show_default=True, help="Random seed.")
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option, output_option
+from lesscli.cli.common import format_option, output_option, training_options
 
 
 @click.group("image")
@@ -24,18 +24,9 @@ def cli() -> None:
 @click.option("--slice", "slice_index", type=int, default=None,
               help="2D: label slice index (default: through the inclusion centre).")
 @click.option("--decoder", default=None, help="patch or global (default: pairs with the encoder).")
-@click.option("--epochs", type=int, default=None, help="Epochs.  [default: 300]")
-@click.option("--batch-size", type=int, default=None, help="Scans per batch.  [default: 2]")
-@click.option("--lr", type=float, default=None, help="Adam learning rate (cosine decay).  [default: 1e-4]")
-@click.option("--seed", type=int, default=None, help="Seed for initialisation and sampling.  [default: 0]")
-@click.option("--device", default=None, help="auto, cpu, cuda or cuda:N.  [default: auto]")
-@click.option("--config", "config_path", default=None, help="TOML file with [image], [train], [loss] tables.")
-@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
-              help="Override a setting, e.g. --set image.width=32 --set loss.gamma=1 (repeatable).")
-@click.option("--resume", is_flag=True, help="Continue from <stem>.last.pt with the same settings.")
+@training_options(300, "[image], [train], [loss]", "--set image.width=32 --set loss.gamma=1")
 @format_option
-def fit_cmd(data, rep_path, output, val_path, select, dim, finetune, slice_index, decoder, epochs, batch_size, lr, seed,
-            device, config_path, overrides, resume, fmt) -> None:
+def fit_cmd(data, rep_path, output, val_path, select, dim, finetune, slice_index, decoder, fmt, **train_opts) -> None:
     """Fit an image decoder on DATA's label volumes with the Dice-Focal loss.
 
     The representation (--rep) is frozen unless --finetune; its normalisation statistics are
@@ -47,33 +38,14 @@ def fit_cmd(data, rep_path, output, val_path, select, dim, finetune, slice_index
 
     Example: less image fit split/train.npz --val split/val.npz --rep rep.pt -o imager.pt --dim 3
     """
-    from lesscli.cli.common import LOG, progress
-    from lesscli.io.records import emit_records
-    from lesscli.io.scans import append_history, load_scans
-    from lesscli.train import distributed
-    from lesscli.train.config import load_config
+    from lesscli.cli.common import run_training, training_config
     from lesscli.train.image_fit import ImageFitConfig, fit_imager
 
-    explicit = {"image.dim": int(dim) if dim else None, "image.finetune": finetune, "image.slice": slice_index, "image.select": select,
-                "image.decoder": decoder, "train.epochs": epochs, "train.batch_size": batch_size,
-                "train.lr": lr, "train.seed": seed, "train.device": device}
-    cfg = load_config(ImageFitConfig, config_path, overrides, explicit)
-    train = load_scans(data)
-    val = load_scans(val_path) if val_path else None
-    env = distributed.setup(cfg.train.device)
-    try:
-        history = append_history({}, seed=cfg.train.seed)["history"]
-        bar = progress if env.is_main else (lambda it, **_: it)
-        summary = fit_imager(train, val, rep_path, cfg, output, env=env, resume=resume, history=history,
-                             progress=bar, names=(data, val_path or ""))
-    finally:
-        distributed.teardown(env)
-    if not env.is_main:
-        return
-    if output == "-":
-        LOG.warning("image fit summary: %s", summary)
-    else:
-        emit_records([summary], fmt)
+    explicit = {"image.dim": int(dim) if dim else None, "image.finetune": finetune, "image.slice": slice_index,
+                "image.select": select, "image.decoder": decoder}
+    cfg = training_config(ImageFitConfig, explicit, train_opts)
+    run_training(lambda train, val, **kw: fit_imager(train, val, rep_path, cfg, output, resume=train_opts["resume"], **kw),
+                 "image fit", data, val_path, cfg, output, fmt)
 
 
 @cli.command("predict")
