@@ -63,9 +63,8 @@ class FitResult:
     best_state: dict | None = None
 
     def criterion(self) -> tuple[float, float]:
-        """What a better epoch must beat: (-score, loss), lexicographically (no score: -inf)."""
-        score = -math.inf if self.best_score is None else self.best_score
-        return (-score if self.best_epoch >= 0 else math.inf, self.best_loss)
+        """What a better epoch must beat, lexicographically: (-score, loss); no score counts as -inf."""
+        return (math.inf if self.best_score is None else -self.best_score, self.best_loss)
 
 
 def side_paths(output: str) -> tuple[str, str]:
@@ -199,8 +198,7 @@ class _Trainer:
         loss = val_loss if val_loss is not None else train_loss
         if val_score is not None and not math.isfinite(val_score):
             val_score = None                                     # undefined (NaN): never better
-        score = -math.inf if val_score is None else val_score
-        improved = (-score, loss) < self.result.criterion()
+        improved = (math.inf if val_score is None else -val_score, loss) < self.result.criterion()
         if improved:
             self.result.best_loss, self.result.best_score, self.result.best_epoch = loss, val_score, epoch
             self.result.best_state = copy.deepcopy({k: v.detach().cpu() for k, v in self.raw.state_dict().items()})
