@@ -87,3 +87,14 @@ def test_bench_tradeoff_tiny_run_end_to_end(tmp_path, run_less):
 def test_bench_tradeoff_rejects_an_unknown_knob(run_less):
     proc = run_less("bench", "tradeoff", "--quick", "--knob", "recptive_field")
     assert proc.returncode == 2 and b"receptive_field" in proc.stderr
+
+
+@pytest.mark.parametrize("args, message", [
+    (("--values", "dim=16,wide"), b"--values dim"),
+    (("--values", "receptive=5"), b"KNOB=V1,V2"),
+    (("--knob", "dim", "--knob", "epochs", "--knob-plot", "k.png"), b"exactly one --knob"),
+])
+def test_bench_tradeoff_checks_its_options_before_training(run_less, tmp_path, args, message):
+    proc = run_less("bench", "tradeoff", "--quick", "--work-dir", "w", *args)
+    assert proc.returncode == 2 and message in proc.stderr
+    assert not (tmp_path / "w").exists(), "a bad option must be caught before anything is simulated"

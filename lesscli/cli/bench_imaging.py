@@ -15,8 +15,6 @@ from lesscli.cli.common import format_option, seed_option
 SPACING_MM = (0.9, 0.4774, 0.4774)
 
 
-
-
 def loop_placement(patches, xy_mm, grid):
     """Baseline: one particle at a time, same rounding rule as ``place_patches``."""
     import torch

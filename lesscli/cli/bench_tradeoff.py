@@ -4,24 +4,21 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option, seed_option
+from lesscli.cli.common import comma_list, format_option, seed_option
 
 TABLE_COLUMNS = ["knob", "value", "sim_s", "pretrain_s", "fit_s", "train_s", "train_s_ratio", "latency_ms_per_scan",
                  "f1_single", "f1_multiple", "f1_single_delta", "f1_multiple_delta"]
 
 
-def _parse_values(items: tuple[str, ...], knobs: dict) -> dict[str, tuple]:
+def _parse_values(items: tuple[str, ...], knobs: dict, base) -> dict[str, tuple]:
+    """``KNOB=V1,V2`` items -> knob -> values, typed like the base setting's field."""
     out = {}
     for item in items:
         knob, _, text = item.partition("=")
         if knob not in knobs or not text:
             raise click.BadParameter(f"'{item}': expected KNOB=V1,V2 with KNOB in {', '.join(knobs)}",
                                      param_hint="--values")
-        kind = str if knob == "tier" else (int if knob in ("dim", "subsample", "epochs") else float)
-        try:
-            out[knob] = tuple(kind(v) for v in text.split(","))
-        except ValueError:
-            raise click.BadParameter(f"'{item}': values of {knob} must be {kind.__name__}s", param_hint="--values")
+        out[knob] = comma_list(text, type(getattr(base, knobs[knob])), f"--values {knob}")
     return out
 
 
@@ -68,19 +65,19 @@ def cli(quick, knobs, inserts, n_traj, epochs, image_epochs, values, work_dir, p
             hint = closest(knob, KNOBS)
             raise click.BadParameter(f"unknown knob '{knob}'" + (f"; did you mean '{hint}'?" if hint else ""),
                                      param_hint="--knob")
+    if knob_plot and len(set(knobs)) != 1:
+        raise click.UsageError("--knob-plot needs exactly one --knob")
     if threads:
         torch.set_num_threads(threads)
     plan = QUICK if quick else FULL
     sizes = {"single_inserts": inserts, "n_traj": n_traj, "image_epochs": image_epochs}
     plan = dataclasses.replace(plan, **{k: v for k, v in sizes.items() if v is not None},
-                               values={**plan.values, **_parse_values(values, KNOBS)})
+                               values={**plan.values, **_parse_values(values, KNOBS, plan.base)})
     if epochs:
         plan = dataclasses.replace(plan, base=dataclasses.replace(plan.base, epochs=epochs))
     with tempfile.TemporaryDirectory(prefix="less-tradeoff-") as tmp:
         run = TradeoffRun(workdir=work_dir or tmp, device=device, seed=seed, progress=progress)
         rows = run_tradeoff(plan, list(knobs) or list(KNOBS), run)
-    if knob_plot and len(set(knobs)) != 1:
-        raise click.UsageError("--knob-plot needs exactly one --knob")
     if plot_path or knob_plot:
         from lesscli.plots.sweeps import line_figure, pareto_figure
 

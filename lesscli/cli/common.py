@@ -126,6 +126,15 @@ def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, outp
         emit_records([summary], fmt)
 
 
+def comma_list(text: str, cast: type, what: str) -> tuple:
+    """``'1,2.5'`` -> values of type ``cast``; click.BadParameter naming ``what`` when one does not parse."""
+    try:
+        return tuple(cast(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise click.BadParameter(f"'{text}' is not a comma-separated list of {cast.__name__} values",
+                                 param_hint=what) from None
+
+
 def seed_option(default: int = 0):
     return click.option("--seed", type=int, default=default, show_default=True, help="Random seed.")
 

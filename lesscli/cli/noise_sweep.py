@@ -4,17 +4,14 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option, seed_option
+from lesscli.cli.common import comma_list, format_option, seed_option
 
 TABLE_COLUMNS = ["pos_mm", "ang_rad", "repeats", "f1_micro", "f1_micro_std", "f1", "f1_std", "com_error_mm",
                  "com_error_mm_std", "diameter_error_mm"]
 
 
 def _levels(text: str, what: str) -> list[float]:
-    try:
-        values = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise click.BadParameter(f"'{text}' is not a comma-separated list of numbers", param_hint=what)
+    values = comma_list(text, float, what)
     if not values or min(values) < 0:
         raise click.BadParameter(f"'{text}': need one or more sigmas >= 0", param_hint=what)
     return list(dict.fromkeys(values))

@@ -20,12 +20,18 @@ PANEL_IN = 3.0          # panel side, inches
 DPI = 100
 
 
-def _canvas(rows: int, cols: int):
+def agg_figure(figsize_in: tuple[float, float]):
+    """A matplotlib Figure on its own Agg canvas (no pyplot, no global backend state)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(PANEL_IN * cols + 1.2, PANEL_IN * rows + 0.9), dpi=DPI, layout="constrained")
+    fig = Figure(figsize=figsize_in, dpi=DPI, layout="constrained")
     FigureCanvasAgg(fig)
+    return fig
+
+
+def _canvas(rows: int, cols: int):
+    fig = agg_figure((PANEL_IN * cols + 1.2, PANEL_IN * rows + 0.9))
     axes = np.asarray(fig.subplots(rows, cols, squeeze=False))
     return fig, axes
 

@@ -10,18 +10,9 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from lesscli.io.atomic import atomic_path
+from lesscli.plots.render import agg_figure
 
-DPI = 100
 FIGSIZE_IN = (6.4, 4.4)
-
-
-def _figure(size=FIGSIZE_IN):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=size, dpi=DPI, layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
 
 
 def _save(fig, path: str) -> None:
@@ -42,7 +33,7 @@ def noise_figure(rows: Sequence[Mapping], path: str, metric: str = "f1", title: 
         metric: the plotted key (F1 values in [0, 1] are drawn in percent).
         title: figure title.
     """
-    fig = _figure()
+    fig = agg_figure(FIGSIZE_IN)
     ax = fig.add_subplot(1, 1, 1)
     scale = 100.0 if metric.startswith("f1") else 1.0
     for ang in sorted({float(r["ang_rad"]) for r in rows}):
@@ -84,7 +75,7 @@ def pareto_figure(rows: Sequence[Mapping], path: str, time_key: str = "train_s",
         scores: the y keys, one panel each (F1 in [0, 1], drawn in percent).
         title: figure title.
     """
-    fig = _figure((5.2 * len(scores), 4.4))
+    fig = agg_figure((5.2 * len(scores), 4.4))
     axes = fig.subplots(1, len(scores), squeeze=False)[0]
     knobs = list(dict.fromkeys(str(r["knob"]) for r in rows))
     markers = "osD^v<>pP*Xh"
@@ -114,7 +105,7 @@ def line_figure(rows: Sequence[Mapping], path: str, x_key: str, y_keys: Sequence
 
     Rows may carry ``<y>_std`` for error bars.
     """
-    fig = _figure()
+    fig = agg_figure(FIGSIZE_IN)
     ax = fig.add_subplot(1, 1, 1)
     line = sorted(rows, key=lambda r: float(r[x_key]))
     x = np.array([float(r[x_key]) for r in line])

@@ -98,37 +98,52 @@ def build_decoder(settings: dict, seed: int | None = None) -> torch.nn.Module:
         return cls(**kwargs)
 
 
+def _loss(logits: torch.Tensor, target: torch.Tensor, cfg: LossConfig) -> torch.Tensor:
+    return imaging_loss(logits, target, lam=cfg.lam, gamma=cfg.gamma, alpha_power=cfg.alpha_power).total
+
+
 def image_loss_fn(cfg: LossConfig):
     """Loss callable for the loop: forward the inputs, score the logits against the targets."""
     def loss_fn(model, batch, generator) -> torch.Tensor:
-        return imaging_loss(model(batch.inputs), batch.target, lam=cfg.lam, gamma=cfg.gamma,
-                            alpha_power=cfg.alpha_power).total
+        return _loss(model(batch.inputs), batch.target, cfg)
     return loss_fn
 
 
-def inclusion_f1(model: torch.nn.Module, dataset, batch_size: int, device: torch.device,
+def _f1(tp: int, fp: int, fn: int) -> float:
+    return 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else float("nan")
+
+
+def validation_pass(model: torch.nn.Module, loader, device: torch.device, cfg: LossConfig) -> dict:
+    """One pass: mean loss (weighted by batch size), micro inclusion F1 (argmax) and its counts."""
+    total, n, tp, fp, fn = 0.0, 0, 0, 0, 0
+    for batch in loader:
+        batch = batch.to(device)
+        logits = model(batch.inputs)
+        total += float(_loss(logits, batch.target, cfg)) * batch.size
+        n += batch.size
+        pred, true = logits.argmax(dim=1) == INCLUSION, batch.target == INCLUSION
+        tp += int((pred & true).sum())
+        fp += int((pred & ~true).sum())
+        fn += int((~pred & true).sum())
+    return {"loss": total / max(1, n), "inclusion_f1": _f1(tp, fp, fn), "true_inclusion": tp + fn > 0}
+
+
+def image_val_fn(cfg: LossConfig, by_f1: bool):
+    """The loop's validation: loss and, when ``by_f1``, the inclusion F1 as the score (one pass)."""
+    def val_fn(model, loader, device) -> tuple[float, float | None]:
+        out = validation_pass(model, loader, device, cfg)
+        return out["loss"], out["inclusion_f1"] if by_f1 else None
+    return val_fn
+
+
+def inclusion_f1(model: torch.nn.Module, dataset, batch_size: int, device: torch.device, cfg: LossConfig,
                  collate_fn: Callable = collate_images) -> dict:
     """Micro inclusion F1 (argmax labels) over a dataset, and the F1 of predicting no inclusion (0)."""
     loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, collate_fn=collate_fn)
-    tp = fp = fn = 0
     model = model.to(device).eval()
     with torch.no_grad():
-        for batch in loader:
-            batch = batch.to(device)
-            pred = model(batch.inputs).argmax(dim=1) == INCLUSION
-            true = batch.target == INCLUSION
-            tp += int((pred & true).sum())
-            fp += int((pred & ~true).sum())
-            fn += int((~pred & true).sum())
-    f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else float("nan")
-    return {"inclusion_f1": f1, "no_inclusion_f1": 0.0 if tp + fn else float("nan")}
-
-
-def _f1_score(dataset, batch_size: int, device: torch.device, collate_fn: Callable) -> Callable:
-    """The loop's validation score: micro inclusion F1 of a model on ``dataset``."""
-    def score(model: torch.nn.Module) -> float:
-        return inclusion_f1(model, dataset, batch_size, device, collate_fn)["inclusion_f1"]
-    return score
+        out = validation_pass(model, loader, device, cfg)
+    return {"inclusion_f1": out["inclusion_f1"], "no_inclusion_f1": 0.0 if out["true_inclusion"] else float("nan")}
 
 
 def fit_inputs(model: Imager, train_set: ImageDataset, val_set: ImageDataset | None, batch_size: int,
@@ -176,8 +191,7 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
                             collate_fn=collate, output=output, config=config, norm_stats=stats, env=env,
                             resume=resume, history=[*(h for h in rep.get("history", []) if "epoch" not in h),
                                                     *(history or [])],
-                            progress=progress, score_fn=_f1_score(val_set, cfg.train.batch_size, env.device, collate)
-                            if by_f1 else None)
+                            progress=progress, val_fn=image_val_fn(cfg.loss, by_f1))
     summary = {"output": output, "dim": cfg.image.dim, "decoder": dec["name"], "encoder": enc_cfg["name"],
                "frozen": not cfg.image.finetune, "trainable_parameters": sum(
                    p.numel() for p in model.parameters() if p.requires_grad),
@@ -186,7 +200,7 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
     if val_set is not None and result.best_state is not None:
         model.load_state_dict(result.best_state)
         summary.update({f"val_{k}": v for k, v in
-                        inclusion_f1(model, val_set, cfg.train.batch_size, env.device, collate).items()})
+                        inclusion_f1(model, val_set, cfg.train.batch_size, env.device, cfg.loss, collate).items()})
     summary["seconds"] = round(time.perf_counter() - t0, 2)
     return summary
 

@@ -36,6 +36,8 @@ from lesscli.train.checkpoint import load_checkpoint, save_checkpoint
 from lesscli.train.config import LoopConfig
 
 LossFn = Callable[[nn.Module, object, torch.Generator], torch.Tensor]
+# val_fn(model, loader, device) -> (mean loss, score or None): one pass over the validation set
+ValFn = Callable[[nn.Module, object, torch.device], tuple[float, float | None]]
 EVAL_SEED = 20_251_120          # validation draws use a fixed stream so epochs are comparable
 RESUME_FREE = {"epochs", "device", "num_workers"}   # settings a resumed run may change
 
@@ -92,18 +94,26 @@ def _loader(dataset, cfg: LoopConfig, collate_fn, env: distributed.DistEnv, shuf
                       num_workers=cfg.num_workers)
 
 
-def evaluate(model: nn.Module, loss_fn: LossFn, loader, device: torch.device) -> float:
-    """Mean loss over a loader with the fixed evaluation stream (no gradients)."""
-    gen = torch.Generator().manual_seed(EVAL_SEED)
-    was_training = model.training
-    model.eval()
-    total, n = 0.0, 0
-    with torch.no_grad():
+def loss_only(loss_fn: LossFn) -> ValFn:
+    """The default validation: mean ``loss_fn`` over the loader with the fixed evaluation stream, no score."""
+    def val_fn(model: nn.Module, loader, device: torch.device) -> tuple[float, None]:
+        gen = torch.Generator().manual_seed(EVAL_SEED)
+        total, n = 0.0, 0
         for batch in loader:
             total += float(loss_fn(model, batch.to(device), gen)) * batch.size
             n += batch.size
+        return total / max(1, n), None
+    return val_fn
+
+
+def validate(val_fn: ValFn, model: nn.Module, loader, device: torch.device) -> tuple[float, float | None]:
+    """``val_fn`` with the model in evaluation mode and without gradients."""
+    was_training = model.training
+    model.eval()
+    with torch.no_grad():
+        loss, score = val_fn(model, loader, device)
     model.train(was_training)
-    return total / max(1, n)
+    return float(loss), None if score is None else float(score)
 
 
 class _Trainer:
@@ -242,7 +252,7 @@ class _Trainer:
 def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, *, collate_fn, output: str,
         config: dict, norm_stats: dict, env: distributed.DistEnv | None = None, resume: bool = False,
         history: list | None = None, extra: dict | None = None,
-        progress: Callable = lambda it, **_: it, score_fn: Callable | None = None) -> FitResult:
+        progress: Callable = lambda it, **_: it, val_fn: ValFn | None = None) -> FitResult:
     """Train ``model`` by minimising ``loss_fn`` and keep the best checkpoint.
 
     Args:
@@ -256,9 +266,9 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
         env: distributed environment (default: single process on CPU).
         resume: continue from ``<stem>.last.pt``.
         progress: wraps an iterable in a progress bar (e.g. tqdm); gets ``desc`` and ``leave``.
-        score_fn: ``score_fn(model) -> float``, a validation score (higher is better, NaN counts as
-            the worst) that selects the best epoch, ties broken by the validation loss; None selects
-            by the loss alone.
+        val_fn: ``val_fn(model, loader, device) -> (mean loss, score)``, one pass over the validation
+            loader (called in evaluation mode without gradients). A score (higher is better; None or
+            NaN: none) selects the best epoch, ties broken by the loss. Default: :func:`loss_only`.
 
     Returns:
         :class:`FitResult` (``best_state`` is the best model's CPU state dict).
@@ -280,20 +290,10 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
     for epoch in range(trainer.start_epoch, cfg.epochs):
         t0 = time.perf_counter()
         train_loss = trainer.run_epoch(train_loader, epoch)
-        val_loss = evaluate(trainer.raw, loss_fn, val_loader, env.device) if val_loader else None
-        if val_loss is not None:
+        val_loss = val_score = None
+        if val_loader:
+            val_loss, val_score = validate(val_fn or loss_only(loss_fn), trainer.raw, val_loader, env.device)
             trainer.guard(val_loss, "validation loss", epoch, len(val_loader) - 1)
-        val_score = _score(score_fn, trainer.raw) if score_fn is not None and val_loader else None
         trainer.end_epoch(epoch, train_loss, val_loss, val_score, time.perf_counter() - t0)
     trainer.finish()
     return trainer.result
-
-
-def _score(score_fn: Callable, model: nn.Module) -> float:
-    """``score_fn(model)`` in evaluation mode, without gradients."""
-    was_training = model.training
-    model.eval()
-    with torch.no_grad():
-        value = float(score_fn(model))
-    model.train(was_training)
-    return value
