@@ -56,6 +56,8 @@ def test_pretrain_fit_predict_beats_no_inclusion_with_honest_entropy(tmp_path, r
     assert fit["frozen"] and fit["decoder"] == "patch" and fit["val_inclusion_f1"] > 0
     log = [json.loads(line) for line in (tmp_path / "img.log.jsonl").read_text().splitlines()]
     assert len(log) == 15 and all(math.isfinite(r["train_loss"]) for r in log)
+    assert fit["selected_by"] == "val_f1" and fit["best_epoch"] == max(
+        (r for r in log if "val_score" in r), key=lambda r: (r["val_score"], -r["val_loss"]))["epoch"]
     (summary,) = _ok(run_less("image", "predict", "img.pt", "test.npz", "-o", "pred.npz", "--device", "cpu",
                               "--format", "jsonl", env=ONE_THREAD))
     assert summary["predictions"] == 3
@@ -131,3 +133,9 @@ def test_resume_finetune_and_errors(tmp_path, run_less, sets):
     save_scans(str(tmp_path / "nolabels.npz"), unlabeled)
     proc = run_less("image", "fit", "nolabels.npz", "--rep", "rep.pt", "-o", "c.pt", "--epochs", "1", *common)
     assert proc.returncode == 1 and b"nolabels.npz: scan 0" in proc.stderr and not (tmp_path / "c.pt").exists()
+    proc = run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "d.pt", "--select", "dice", *common)
+    assert proc.returncode == 2 and b"--select" in proc.stderr
+    proc = run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "d.pt", "--set", "loss.alpha_power=5",
+                    *common)
+    assert proc.returncode == 1 and b"loss.alpha_power" in proc.stderr and not (tmp_path / "d.pt").exists()
+    assert len(proc.stderr.decode().strip().splitlines()) == 1
