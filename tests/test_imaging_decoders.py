@@ -120,3 +120,38 @@ def test_global_decoder_shapes(dim, shape):
     states = _states(z, torch.zeros(1, 2))
     assert dec(states, _grid(shape)).shape == (2, 4, *shape)
     assert dec(states, _grid((shape[0], 64, 64))).shape == (2, 4, shape[0], 64, 64)
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+@pytest.mark.parametrize("keep", [None, 1, 2, 5, 7, 8, 9])
+def test_subpixel_form_equals_the_transposed_convolution(dim, keep):
+    from lesscli.models.patch_decoder import subpixel_conv_t, subpixel_weights
+
+    gen = torch.Generator().manual_seed(dim)
+    conv_t = getattr(torch.nn, f"ConvTranspose{dim}d")(3, 5, kernel_size=4, stride=2, padding=1)
+    x = torch.randn(2, 3, *[4, 3, 5][:dim], generator=gen)
+    with torch.no_grad():
+        want = conv_t(x)
+        got = subpixel_conv_t(x, *subpixel_weights(conv_t), keep=keep)
+    rows = want.shape[2] if keep is None else min(keep, want.shape[2])
+    assert got.shape == (*want.shape[:2], rows, *want.shape[3:])
+    assert float((got - want[:, :, :rows]).abs().max()) <= 1e-6
+
+
+@pytest.mark.parametrize("dim,patch_px,width", [(2, 16, 16), (3, 16, 16), (3, 32, 24)])
+def test_evaluation_decodes_like_training(dim, patch_px, width):
+    """Eval mode runs the sub-pixel form (and crops columns early); same patches as the training path."""
+    dec = PatchDecoder(d_z=6, n_classes=4, dim=dim, patch_px=patch_px, depth_px=13, width=width)
+    z = torch.randn(2, 3, 6, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        trained = dec.train().patches(z)
+        evaluated = dec.eval().patches(z)
+    assert evaluated.shape == trained.shape == (2, 3, 4, 13 if dim == 3 else 1, patch_px, patch_px)
+    assert float((evaluated - trained).abs().max()) <= 1e-5
+
+
+def test_subpixel_form_refuses_other_transposed_convolutions():
+    from lesscli.models.patch_decoder import subpixel_weights
+
+    with pytest.raises(ValueError, match="kernel 4, stride 2, padding 1"):
+        subpixel_weights(torch.nn.ConvTranspose2d(3, 5, kernel_size=3, stride=2, padding=1))

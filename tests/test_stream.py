@@ -220,13 +220,3 @@ def test_prime_then_deferred_pushes_match_batch(case):
     assert stream.dirty.any() or case.get("cap")     # the last pushes are still waiting to be decoded
     assert float((stream.logits() - batch_logits(imager, stats, pose, force, len(pose))).abs().max()) <= LOGIT_TOL
     assert stream.flush() == 0                       # reading the image flushed every deferred decode
-
-
-def test_fast_3d_decode_equals_the_decoders_own():
-    from lesscli.infer.stream import decode_patches
-
-    imager, _, _ = tiny_imager(dim=3)
-    z = torch.randn(1, 5, 8, generator=torch.Generator().manual_seed(0))
-    with torch.no_grad():
-        fast, plain = decode_patches(imager.decoder, z), imager.decoder.patches(z)
-    assert fast.shape == plain.shape and float((fast - plain).abs().max()) <= 1e-5

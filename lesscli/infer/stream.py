@@ -9,8 +9,9 @@ it has seen. A new sample
    (:func:`lesscli.models.particles.in_field`: pad x-y strictly inside the disc);
 3. advances only those particles: their x-y is centred on the particle, encoded by the force-location
    encoder, and one step of the shared GRU runs from their stored hidden state;
-4. re-decodes only their patches and adds (new patch - old patch) into the summed logit canvas, so only
-   the pixels under those patches change. With the decoder's ``stitch="mean"`` a coverage count of the
+4. re-decodes only their patches (the decoder's evaluation path: see
+   :mod:`lesscli.models.patch_decoder`) and adds the new patch and subtracts the old one on the summed
+   logit canvas, one patch-sized slice per particle, so only the pixels under those patches change. With the decoder's ``stitch="mean"`` a coverage count of the
    seen patches per pixel is kept too, and the image is the sum divided by it.
 
 **Step cap.** The batch encoder keeps each particle's *earliest* ``max_steps_per_particle`` in-field
@@ -38,7 +39,7 @@ from lesscli.errors import DataError
 from lesscli.models.encoding import POSE_DIM
 from lesscli.models.global_decoder import GlobalDecoder
 from lesscli.models.particles import in_field
-from lesscli.models.patch_decoder import BASE_PX, ImageGrid, PatchDecoder, resample_patches, target_patch_size
+from lesscli.models.patch_decoder import ImageGrid, PatchDecoder, resample_patches, target_patch_size
 
 # a pixel counts as uncertain above this share of the maximum entropy ln(C)
 UNCERTAIN_SHARE = 0.5
@@ -51,21 +52,6 @@ class _States:
     z: Tensor
     xy_mm: Tensor
     seen: Tensor
-
-
-def decode_patches(decoder: PatchDecoder, z: Tensor) -> Tensor:
-    """``decoder.patches(z)`` (B, P, d_z) -> (B, P, C, Dp, ph, pw), same values, faster for 3D columns.
-
-    A 3D decoder's transposed convolutions run on channels-last (NDHWC) activations, which oneDNN
-    executes about 1.6x faster on CPU for the few-particle batches of streaming; the layers and weights
-    are the decoder's own, so the values agree to float32 rounding. 2D decoders use ``patches`` as is.
-    """
-    if decoder.dim != 3 or z.device.type != "cpu":
-        return decoder.patches(z)
-    b, p, _ = z.shape
-    h = decoder.inp(z.reshape(b * p, -1)).view(b * p, decoder.width, decoder.base_depth, BASE_PX, BASE_PX)
-    out = decoder.up(h.contiguous(memory_format=torch.channels_last_3d))[:, :, :decoder.depth_px]
-    return out.contiguous().reshape(b, p, *out.shape[1:]).to(torch.float32)
 
 
 class PatchCanvas:
@@ -83,49 +69,41 @@ class PatchCanvas:
         d, h, w = grid.shape
         raw = (decoder.depth_px, decoder.patch_px, decoder.patch_px)
         self.size = target_patch_size(raw, decoder.patch_spacing_mm, grid)
-        ph, pw = self.size[1:]
-        # same placement rule as lesscli.models.patch_decoder.place_patches
+        self.ph, self.pw = ph, pw = self.size[1:]
+        # same placement rule as lesscli.models.patch_decoder.place_patches, on a canvas padded by a patch
         pix = grid.pixel_of(xy_mm.to(torch.float64))
-        col0 = torch.round(pix[:, 0] - (pw - 1) / 2).long().clamp(-pw, w)
-        row0 = torch.round(pix[:, 1] - (ph - 1) / 2).long().clamp(-ph, h)
-        self.wide, self.ph, self.pw = w + 2 * pw, ph, pw
-        rows = (row0 + ph)[:, None, None] + torch.arange(ph)[None, :, None]
-        cols = (col0 + pw)[:, None, None] + torch.arange(pw)[None, None, :]
-        self.index = (rows * self.wide + cols).reshape(xy_mm.shape[0], ph * pw).to(device)   # (P, ph * pw)
+        col0 = torch.round(pix[:, 0] - (pw - 1) / 2).long().clamp(-pw, w) + pw
+        row0 = torch.round(pix[:, 1] - (ph - 1) / 2).long().clamp(-ph, h) + ph
+        self.corner = list(zip(row0.tolist(), col0.tolist()))
         c = decoder.n_classes
-        self.canvas = torch.zeros(c, d, (h + 2 * ph) * self.wide, dtype=torch.float64, device=device)
+        self.canvas = torch.zeros(c, d, h + 2 * ph, w + 2 * pw, dtype=torch.float64, device=device)
         self.cache = torch.zeros(xy_mm.shape[0], c, d, ph, pw, dtype=torch.float32, device=device)
         self.mean_stitch = getattr(decoder, "stitch", "sum") == "mean"
-        self.cover = torch.zeros(self.canvas.shape[-1], dtype=torch.float64, device=device)   # seen patches per pixel
-        self.placed = torch.zeros(xy_mm.shape[0], dtype=torch.bool, device=device)
+        self.cover = torch.zeros(h + 2 * ph, w + 2 * pw, dtype=torch.float64, device=device)   # seen patches per pixel
+        self.placed = [False] * xy_mm.shape[0]
 
     def reset(self) -> None:
         self.canvas.zero_()
         self.cache.zero_()
         self.cover.zero_()
-        self.placed.zero_()
+        self.placed = [False] * len(self.placed)
 
     def update(self, particles: Tensor, z: Tensor, hidden: Tensor, seen: Tensor) -> None:
         """Re-decode ``particles`` (k,) from their states ``z`` (k, d_z) and update the canvas."""
-        new = resample_patches(decode_patches(self.decoder, z[None]), self.size)[0]    # (k, C, D, ph, pw)
-        delta = new.to(torch.float64) - self.cache[particles].to(torch.float64)
-        self.cache[particles] = new
-        k, c, d = new.shape[:3]
-        values = delta.permute(1, 2, 0, 3, 4).reshape(c, d, k * self.ph * self.pw)
-        self.canvas.index_add_(2, self.index[particles].reshape(-1), values)
-        fresh = particles[~self.placed[particles]]
-        if fresh.numel():
-            index = self.index[fresh].reshape(-1)
-            self.cover.index_add_(0, index, torch.ones(index.shape[0], dtype=torch.float64, device=index.device))
-            self.placed[fresh] = True
+        new = resample_patches(self.decoder.patches(z[None]), self.size)[0]    # (k, C, D, ph, pw)
+        for j, p in enumerate(particles.tolist()):
+            r, c = self.corner[p]
+            self.canvas[:, :, r:r + self.ph, c:c + self.pw].add_(new[j]).sub_(self.cache[p])
+            self.cache[p].copy_(new[j])
+            if not self.placed[p]:
+                self.cover[r:r + self.ph, c:c + self.pw] += 1.0
+                self.placed[p] = True
 
     def logits(self) -> Tensor:
         """(C, D, H, W) float32 summed logits (0 where no seen particle's patch reaches)."""
-        d, h, w = self.grid.shape
-        c = self.canvas.shape[0]
+        _, h, w = self.grid.shape
         canvas = self.canvas / self.cover.clamp_min(1.0) if self.mean_stitch else self.canvas
-        full = canvas.view(c, d, h + 2 * self.ph, self.wide)
-        return full[..., self.ph:self.ph + h, self.pw:self.pw + w].to(torch.float32)
+        return canvas[..., self.ph:self.ph + h, self.pw:self.pw + w].to(torch.float32)
 
 
 class WholeImage:
@@ -153,7 +131,7 @@ class StreamingImager:
     """Incremental imaging with a trained :class:`lesscli.models.imager.Imager`.
 
     Args:
-        imager: encoder (a ParticleEncoder or GlobalEncoder) + decoder, eval mode.
+        imager: encoder (a ParticleEncoder or GlobalEncoder) + decoder; put in evaluation mode.
         norm_stats: the checkpoint's force normalisation statistics.
         grid: output grid (default: the imager's training grid).
         device: torch device (default: where the imager's parameters are).
@@ -164,6 +142,7 @@ class StreamingImager:
 
     def __init__(self, imager: torch.nn.Module, norm_stats: dict, grid: ImageGrid | None = None,
                  device: torch.device | str | None = None, defer_decode: bool = False) -> None:
+        imager.eval()                  # batch prediction's path: exactly local states, fast decoding
         self.encoder, self.decoder = imager.encoder, imager.decoder
         self.grid = grid or imager.grid
         self.device = torch.device(device) if device is not None else next(imager.parameters()).device
