@@ -9,18 +9,19 @@ it has seen. A new sample
    (:func:`lesscli.models.particles.in_field`: pad x-y strictly inside the disc);
 3. advances only those particles: their x-y is centred on the particle, encoded by the force-location
    encoder, and one step of the shared GRU runs from their stored hidden state;
-4. re-decodes only their patches (the decoder's evaluation path: see
-   :mod:`lesscli.models.patch_decoder`) and adds the new patch and subtracts the old one on the summed
-   logit canvas, one patch-sized slice per particle, so only the pixels under those patches change. With the decoder's ``stitch="mean"`` a coverage count of the
-   seen patches per pixel is kept too, and the image is the sum divided by it.
+4. re-decodes only their patches (the decoder's evaluation path, see
+   :mod:`lesscli.models.patch_decoder`), adds each new patch to and subtracts its old one from the
+   summed logit canvas (one patch-sized slice per particle), so only the pixels under those patches
+   change. With the decoder's ``stitch="mean"`` a coverage count of the seen patches per pixel is kept
+   too, and the image is the sum divided by it.
 
 **Step cap.** The batch encoder keeps each particle's *earliest* ``max_steps_per_particle`` in-field
 steps and drops later ones. The stream does the same: a particle whose count has reached the cap ignores
 every later sample (its state, patch and pixels stay as they are), so the equivalence with batch
 prediction holds for every prefix, with or without a cap.
 
-**Numerics.** The canvas accumulates patch differences in float64 so that thousands of
-subtract-and-add updates do not drift; :meth:`StreamingImager.logits` returns float32. Batch prediction
+**Numerics.** The canvas is float64 (float32 patches enter it exactly), so thousands of add-and-subtract
+updates do not drift; :meth:`StreamingImager.logits` returns float32. Batch prediction
 sums float32 patches once; the two agree to float32 rounding (~1e-6 for logits of order 10).
 
 Decoders without per-particle patches (the GLOBAL baseline) fall back to decoding the whole image
