@@ -83,3 +83,20 @@ def test_stream_bad_model_is_one_line_error(files, run_less, tmp_path):
     proc = run_less("stream", tmp_path / "junk.pt", folder / "s.npz")
     assert proc.returncode == 1
     assert "junk.pt" in proc.stderr.decode() and "Traceback" not in proc.stderr.decode()
+
+
+def test_bench_stream_tiny_run_and_bad_input(run_less):
+    proc = run_less("bench", "stream", "--steps", "20,40", "--updates", "3", "--full-repeats", "1", "--dim", "2",
+                    "--threads", "1", "--format", "jsonl", check=True)
+    rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
+    assert [r["steps"] for r in rows] == [20, 40]
+    for r in rows:
+        assert r["dim"] == 2 and r["updates"] == 3 and r["threads"] == 1
+        assert 0 < r["incremental_median_ms"] <= r["incremental_p99_ms"]
+        assert r["full_median_ms"] > 0 and r["speedup_median"] == r["full_median_ms"] / r["incremental_median_ms"]
+        assert r["deferred_refresh10_mean_ms"] > 0 and r["particles_per_update"] > 0
+    bad = run_less("bench", "stream", "--steps", "0,5")
+    assert bad.returncode == 2 and ">= 1" in bad.stderr.decode()
+    missing = run_less("bench", "stream", "--model", "nope.pt", "--steps", "5")
+    err = missing.stderr.decode().strip()
+    assert missing.returncode == 1 and "nope.pt" in err and len(err.splitlines()) == 1

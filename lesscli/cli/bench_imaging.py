@@ -19,13 +19,12 @@ def loop_placement(patches, xy_mm, grid):
     """Baseline: one particle at a time, same rounding rule as ``place_patches``."""
     import torch
 
-    b, p, c, d, ph, pw = patches.shape
+    from lesscli.models.patch_decoder import padded_corners
+
+    b, _, c, d, ph, pw = patches.shape
     _, h, w = grid.shape
     out = torch.zeros(b, c, d, h + 2 * ph, w + 2 * pw)
-    pix = grid.pixel_of(xy_mm.to(torch.float64))
-    for i in range(p):
-        col = int(torch.round(pix[i, 0] - (pw - 1) / 2).clamp(-pw, w)) + pw
-        row = int(torch.round(pix[i, 1] - (ph - 1) / 2).clamp(-ph, h)) + ph
+    for i, (row, col) in enumerate(zip(*(t.tolist() for t in padded_corners(xy_mm, grid, ph, pw)))):
         out[..., row:row + ph, col:col + pw] += patches[:, i]
     return out[..., ph:ph + h, pw:pw + w]
 

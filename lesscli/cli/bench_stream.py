@@ -16,7 +16,7 @@ import time
 
 import click
 
-from lesscli.cli.common import format_option, seed_option
+from lesscli.cli.common import comma_list, format_option, seed_option
 
 DEFAULT_STEPS = (100, 1000, 5000)
 PHANTOM_HALF_MM = 28.0          # touches fall inside the 60 mm phantom, 2 mm from its edge
@@ -136,11 +136,9 @@ def cli(quick, steps_text, updates, full_repeats, dim, model_path, threads, seed
 
     if threads:
         torch.set_num_threads(threads)
-    try:
-        steps = [int(s) for s in steps_text.split(",")] if steps_text else \
-            list(DEFAULT_STEPS[:2] if quick else DEFAULT_STEPS)
-    except ValueError:
-        raise click.BadParameter(f"'{steps_text}' is not a comma-separated list of integers", param_hint="--steps")
+    steps = comma_list(steps_text, int, "--steps") if steps_text else DEFAULT_STEPS[:2] if quick else DEFAULT_STEPS
+    if not steps or min(steps) < 1:
+        raise click.BadParameter(f"'{steps_text}': need one or more prefix lengths >= 1", param_hint="--steps")
     updates = updates or (20 if quick else 200)
     full_repeats = full_repeats or (3 if quick else 10)
     if model_path:

@@ -40,7 +40,13 @@ from lesscli.errors import DataError
 from lesscli.models.encoding import POSE_DIM
 from lesscli.models.global_decoder import GlobalDecoder
 from lesscli.models.particles import in_field
-from lesscli.models.patch_decoder import ImageGrid, PatchDecoder, resample_patches, target_patch_size
+from lesscli.models.patch_decoder import (
+    ImageGrid,
+    PatchDecoder,
+    padded_corners,
+    resample_patches,
+    target_patch_size,
+)
 
 # a pixel counts as uncertain above this share of the maximum entropy ln(C)
 UNCERTAIN_SHARE = 0.5
@@ -71,10 +77,7 @@ class PatchCanvas:
         raw = (decoder.depth_px, decoder.patch_px, decoder.patch_px)
         self.size = target_patch_size(raw, decoder.patch_spacing_mm, grid)
         self.ph, self.pw = ph, pw = self.size[1:]
-        # same placement rule as lesscli.models.patch_decoder.place_patches, on a canvas padded by a patch
-        pix = grid.pixel_of(xy_mm.to(torch.float64))
-        col0 = torch.round(pix[:, 0] - (pw - 1) / 2).long().clamp(-pw, w) + pw
-        row0 = torch.round(pix[:, 1] - (ph - 1) / 2).long().clamp(-ph, h) + ph
+        row0, col0 = padded_corners(xy_mm, grid, ph, pw)              # place_patches' placement rule
         self.corner = list(zip(row0.tolist(), col0.tolist()))
         c = decoder.n_classes
         self.canvas = torch.zeros(c, d, h + 2 * ph, w + 2 * pw, dtype=torch.float64, device=device)

@@ -224,6 +224,19 @@ def target_patch_size(patch_shape: tuple[int, int, int], patch_spacing_mm, grid:
     return (depth, *(patch_shape[1:] if same else sizes))
 
 
+def padded_corners(xy_mm: Tensor, grid: ImageGrid, ph: int, pw: int) -> tuple[Tensor, Tensor]:
+    """Top-left (row, col) of each particle's ph x pw patch on ``grid`` padded by a patch on every side.
+
+    The patch is centred on the particle within half a pixel; patches wholly off the grid are clamped
+    into the padding. (P,) long tensors on the CPU.
+    """
+    pix = grid.pixel_of(xy_mm.detach().to("cpu", torch.float64))
+    _, h, w = grid.shape
+    col0 = torch.round(pix[:, 0] - (pw - 1) / 2).long().clamp(-pw, w) + pw
+    row0 = torch.round(pix[:, 1] - (ph - 1) / 2).long().clamp(-ph, h) + ph
+    return row0, col0
+
+
 def place_patches(patches: Tensor, xy_mm: Tensor, grid: ImageGrid,
                   patch_spacing_mm: tuple[float, float, float], seen: Tensor | None = None,
                   stitch: str = "sum") -> Tensor:
@@ -246,12 +259,10 @@ def place_patches(patches: Tensor, xy_mm: Tensor, grid: ImageGrid,
     ph, pw = patches.shape[-2:]
     if seen is not None:
         patches = patches * seen.to(patches.dtype)[:, :, None, None, None, None]
-    pix = grid.pixel_of(xy_mm.detach().to("cpu", torch.float64))        # index arithmetic on the CPU
-    col0 = torch.round(pix[:, 0] - (pw - 1) / 2).long().clamp(-pw, w)
-    row0 = torch.round(pix[:, 1] - (ph - 1) / 2).long().clamp(-ph, h)
+    row0, col0 = padded_corners(xy_mm, grid, ph, pw)
     wide = w + 2 * pw
-    rows = (row0 + ph)[:, None, None] + torch.arange(ph)[None, :, None]
-    cols = (col0 + pw)[:, None, None] + torch.arange(pw)[None, None, :]
+    rows = row0[:, None, None] + torch.arange(ph)[None, :, None]
+    cols = col0[:, None, None] + torch.arange(pw)[None, None, :]
     index = (rows * wide + cols).reshape(-1).to(patches.device)                     # (P * ph * pw,)
     values = patches.permute(0, 2, 3, 1, 4, 5).reshape(b, c, d, p * ph * pw)
     canvas = torch.zeros(b, c, d, (h + 2 * ph) * wide, dtype=values.dtype, device=values.device)

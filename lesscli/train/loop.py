@@ -65,8 +65,13 @@ class FitResult:
     best_state: dict | None = None
 
     def criterion(self) -> tuple[float, float]:
-        """What a better epoch must beat, lexicographically: (-score, loss); no score counts as -inf."""
-        return (math.inf if self.best_score is None else -self.best_score, self.best_loss)
+        """What a better epoch must beat (see :func:`rank`)."""
+        return rank(self.best_score, self.best_loss)
+
+
+def rank(score: float | None, loss: float) -> tuple[float, float]:
+    """Epoch order, lower is better, lexicographically: (-score, loss); no score counts as -inf."""
+    return (math.inf if score is None else -score, loss)
 
 
 def side_paths(output: str) -> tuple[str, str]:
@@ -208,7 +213,7 @@ class _Trainer:
         loss = val_loss if val_loss is not None else train_loss
         if val_score is not None and not math.isfinite(val_score):
             val_score = None                                     # undefined (NaN): never better
-        improved = (math.inf if val_score is None else -val_score, loss) < self.result.criterion()
+        improved = rank(val_score, loss) < self.result.criterion()
         if improved:
             self.result.best_loss, self.result.best_score, self.result.best_epoch = loss, val_score, epoch
             self.result.best_state = copy.deepcopy({k: v.detach().cpu() for k, v in self.raw.state_dict().items()})
