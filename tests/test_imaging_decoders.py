@@ -138,16 +138,35 @@ def test_subpixel_form_equals_the_transposed_convolution(dim, keep):
     assert float((got - want[:, :, :rows]).abs().max()) <= 1e-6
 
 
-@pytest.mark.parametrize("dim,patch_px,width", [(2, 16, 16), (3, 16, 16), (3, 32, 24)])
-def test_evaluation_decodes_like_training(dim, patch_px, width):
-    """Eval mode runs the sub-pixel form (and crops columns early); same patches as the training path."""
-    dec = PatchDecoder(d_z=6, n_classes=4, dim=dim, patch_px=patch_px, depth_px=13, width=width)
+@pytest.mark.parametrize("dim,patch_px,width,depth", [(2, 16, 16, 1), (3, 16, 16, 13), (3, 32, 24, 13),
+                                                     (3, 32, 16, 26), (3, 64, 32, 7)])
+def test_evaluation_decodes_like_training(dim, patch_px, width, depth):
+    """Eval mode runs every layer in sub-pixel form and crops columns early; same patches as training."""
+    dec = PatchDecoder(d_z=6, n_classes=4, dim=dim, patch_px=patch_px, depth_px=depth, width=width)
     z = torch.randn(2, 3, 6, generator=torch.Generator().manual_seed(1))
     with torch.no_grad():
         trained = dec.train().patches(z)
         evaluated = dec.eval().patches(z)
-    assert evaluated.shape == trained.shape == (2, 3, 4, 13 if dim == 3 else 1, patch_px, patch_px)
+    assert evaluated.shape == trained.shape == (2, 3, 4, depth, patch_px, patch_px)
     assert float((evaluated - trained).abs().max()) <= 1e-5
+
+
+def test_evaluation_weights_follow_parameter_updates():
+    """The rearranged sub-pixel weights are reused, and rebuilt after an optimiser step or a load."""
+    from lesscli.models.patch_decoder import eval_weights, subpixel_weights
+
+    dec = PatchDecoder(d_z=6, n_classes=4, dim=2, patch_px=16, width=16).eval()
+    last = dec.up[-1]
+    z = torch.randn(1, 2, 6, generator=torch.Generator().manual_seed(2))
+    first = eval_weights(last)
+    assert eval_weights(last)[0] is first[0]
+    with torch.no_grad():
+        last.weight.mul_(2.0)                           # in place, as an optimiser step is
+        stepped = eval_weights(last)[0]
+        assert torch.equal(stepped, subpixel_weights(last)[0]) and not torch.equal(stepped, first[0])
+        dec.load_state_dict(PatchDecoder(d_z=6, n_classes=4, dim=2, patch_px=16, width=16).state_dict())
+        loaded = dec.patches(z)
+        assert float((loaded - dec.train().patches(z)).abs().max()) <= 1e-5
 
 
 def test_subpixel_form_refuses_other_transposed_convolutions():

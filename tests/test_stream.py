@@ -176,6 +176,21 @@ def test_resampled_grid_matches_batch():
     assert float(diff) <= LOGIT_TOL
 
 
+@pytest.mark.parametrize("dim,stitch", [(2, "sum"), (3, "sum"), (2, "mean")])
+def test_patches_partly_and_wholly_off_the_grid_match_batch(dim, stitch):
+    """A grid covering x, y in [-5, 14] mm: the patches of particles at -18 and -12 mm lie wholly off it,
+    those at -6, 12 and 18 mm partly."""
+    grid = ImageGrid((3 if dim == 3 else 1, 20, 20), (-1.8 if dim == 3 else 0.0, -5.0, -5.0), (0.9, 1.0, 1.0))
+    imager, stats, _ = tiny_imager(dim=dim, grid=grid, stitch=stitch)
+    pose, force = edge_sequence(20, np.random.default_rng(4))
+    stream = StreamingImager(imager, stats)
+    for i in range(len(pose)):
+        stream.push(pose[i], force[i])
+    assert bool(stream.seen[0]) and bool(stream.seen[-1])             # particles at (-18, -18) and (18, 18)
+    diff = (stream.logits() - batch_logits(imager, stats, pose, force, len(pose))).abs().max()
+    assert float(diff) <= LOGIT_TOL
+
+
 def test_reset_and_bad_sizes():
     from lesscli.errors import DataError
 

@@ -87,9 +87,9 @@ def test_stream_bad_model_is_one_line_error(files, run_less, tmp_path):
 
 def test_bench_stream_tiny_run_and_bad_input(run_less):
     proc = run_less("bench", "stream", "--steps", "20,40", "--updates", "3", "--full-repeats", "1", "--dim", "2",
-                    "--threads", "1", "--format", "jsonl", check=True)
+                    "--width", "8,16", "--threads", "1", "--format", "jsonl", check=True)
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
-    assert [r["steps"] for r in rows] == [20, 40]
+    assert [(r["width"], r["steps"]) for r in rows] == [(8, 20), (8, 40), (16, 20), (16, 40)]
     for r in rows:
         assert r["dim"] == 2 and r["updates"] == 3 and r["threads"] == 1
         assert 0 < r["incremental_median_ms"] <= r["incremental_p99_ms"]
@@ -97,6 +97,10 @@ def test_bench_stream_tiny_run_and_bad_input(run_less):
         assert r["deferred_refresh10_mean_ms"] > 0 and r["particles_per_update"] > 0
     bad = run_less("bench", "stream", "--steps", "0,5")
     assert bad.returncode == 2 and ">= 1" in bad.stderr.decode()
+    narrow = run_less("bench", "stream", "--width", "4", "--steps", "5")
+    assert narrow.returncode == 2 and ">= 8" in narrow.stderr.decode()
+    both = run_less("bench", "stream", "--width", "16", "--model", "m.pt", "--steps", "5")
+    assert both.returncode == 2 and "--width" in both.stderr.decode()
     missing = run_less("bench", "stream", "--model", "nope.pt", "--steps", "5")
     err = missing.stderr.decode().strip()
     assert missing.returncode == 1 and "nope.pt" in err and len(err.splitlines()) == 1

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from lesscli.bench import tradeoff
-from lesscli.bench.tradeoff import QUICK, Setting, TradeoffRun, run_tradeoff, settings_of
+from lesscli.bench.tradeoff import FULL, KNOBS, QUICK, Setting, TradeoffRun, run_tradeoff, settings_of
 from lesscli.plots.sweeps import line_figure, noise_figure, pareto_figure, pareto_front
 
 ONE_THREAD = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -33,6 +33,15 @@ def test_settings_vary_one_knob_around_the_base():
                                               ("receptive_field", 20.0), ("tier", "winkler"), ("tier", "green")]
     assert found[0][2] == Setting(receptive_field_mm=5.0) and found[4][2] == Setting(tier="green")
     assert found[1][2] == QUICK.base == found[3][2]
+
+
+def test_every_knob_has_values_including_the_base_in_both_plans(run_less):
+    for plan in (QUICK, FULL):
+        assert set(plan.values) == set(KNOBS)
+        for knob, values in plan.values.items():
+            assert getattr(plan.base, KNOBS[knob]) in values, (knob, values)
+    helptext = run_less("bench", "tradeoff", "--help").stdout.decode()
+    assert all(knob in helptext for knob in KNOBS)
 
 
 def test_a_setting_shared_by_two_knobs_is_trained_once_and_ratios_use_the_base(monkeypatch, tmp_path):

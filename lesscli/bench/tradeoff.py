@@ -1,7 +1,7 @@
 """Accuracy against time: one knob at a time around a base setting, all on the same simulated data.
 
 Knobs (``KNOBS``): simulator contact tier, receptive field beta (the paper's ablation), particle
-spacing, state width d_z, subsampling rate and SSL training epochs. For each setting the run
+spacing, state width d_z, image decoder width, subsampling rate and SSL training epochs. For each setting the run
 simulates (once per tier, cached), subsamples, pretrains a LESS representation, fits a 3D image
 decoder, predicts the held-out ``single`` inserts and the ``multiple`` set, and scores the inclusion
 class. Each row holds the times (simulation, pretraining, image fitting, inference latency per scan)
@@ -19,7 +19,7 @@ import numpy as np
 
 # knob name -> Setting field it varies
 KNOBS: dict[str, str] = {"tier": "tier", "receptive_field": "receptive_field_mm", "spacing": "spacing_mm",
-                         "dim": "dim", "subsample": "every", "epochs": "epochs"}
+                         "dim": "dim", "width": "width", "subsample": "every", "epochs": "epochs"}
 
 
 @dataclass(frozen=True)
@@ -30,6 +30,7 @@ class Setting:
     receptive_field_mm: float = 10.0
     spacing_mm: float = 6.0
     dim: int = 32
+    width: int = 16             # channels of the image decoder's first feature map
     every: int = 50
     epochs: int = 10
 
@@ -62,20 +63,20 @@ class TradeoffPlan:
     image_lr: float = 1e-2
     test_share: float = 0.25
     patch_px: int = 16
-    image_width: int = 16
 
 
 QUICK = TradeoffPlan(
     base=Setting(),
     values={"tier": ("winkler", "green"), "receptive_field": (5.0, 10.0, 20.0), "spacing": (6.0, 10.0),
-            "dim": (16, 32), "subsample": (25, 50), "epochs": (4, 10)})
+            "dim": (16, 32), "width": (8, 16, 32), "subsample": (25, 50), "epochs": (4, 10)})
 FULL = TradeoffPlan(
-    base=Setting(tier="green", dim=128, epochs=100),
+    base=Setting(tier="green", dim=128, width=64, epochs=100),
     values={"tier": ("winkler", "green", "fem"), "receptive_field": (5.0, 7.5, 10.0, 15.0, 20.0, 30.0),
-            "spacing": (4.0, 6.0, 8.0, 10.0), "dim": (64, 128, 256, 512, 1024), "subsample": (10, 25, 50, 100),
+            "spacing": (4.0, 6.0, 8.0, 10.0), "dim": (64, 128, 256, 512, 1024), "width": (16, 32, 64),
+            "subsample": (10, 25, 50, 100),
             "epochs": (25, 50, 100, 200)},
     single_inserts=30, multiple_inserts=10, orientations=(0, 2, 4, 6), n_traj=100, label_shape=(26, 128, 128),
-    label_spacing_mm=(0.9, 0.4774, 0.4774), image_epochs=100, lr=1e-4, image_lr=1e-4, patch_px=32, image_width=64)
+    label_spacing_mm=(0.9, 0.4774, 0.4774), image_epochs=100, lr=1e-4, image_lr=1e-4, patch_px=32)
 
 
 @dataclass
@@ -151,7 +152,7 @@ def train_setting(plan: TradeoffPlan, s: Setting, data: BenchData, run: Tradeoff
     pretrain(train, None, pcfg, rep, env=env)
     t1 = time.perf_counter()
     icfg = load_config(ImageFitConfig, None, (), {
-        "image.dim": 3, "image.patch_px": plan.patch_px, "image.width": plan.image_width,
+        "image.dim": 3, "image.patch_px": plan.patch_px, "image.width": s.width,
         "train.epochs": plan.image_epochs, "train.lr": plan.image_lr, "train.seed": run.seed,
         "train.device": run.device})
     fit_imager(train, None, rep, icfg, img, env=env)

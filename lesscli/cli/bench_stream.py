@@ -25,8 +25,11 @@ CPU_TICK_S = 1e-6                # floor for CPU-time ratios (process_time resol
 REFRESH_EVERY = 10              # deferred decoding: one image refresh per 10 samples (10 Hz at 100 Hz)
 
 
-def default_imager(dim: int, seed: int):
-    """The default-size model (``less pretrain`` + ``less image fit`` defaults), randomly initialised."""
+def default_imager(dim: int, seed: int, width: int | None = None):
+    """The default-size model (``less pretrain`` + ``less image fit`` defaults), randomly initialised.
+
+    ``width`` replaces the image decoder's default width (channels of its first feature map).
+    """
     import torch
 
     from lesscli.io.labels import N_CLASSES
@@ -44,7 +47,7 @@ def default_imager(dim: int, seed: int):
         torch.manual_seed(seed)
         enc = ParticleEncoder(N_TAXELS * 3, dim=m.dim, spacing_mm=m.spacing_mm, grid_extent_mm=m.grid_extent_mm,
                               receptive_field_mm=m.receptive_field_mm, n_freq=m.n_freq)
-        dec = PatchDecoder(m.dim, N_CLASSES, dim, im.patch_px, shape[0], spacing, im.width)
+        dec = PatchDecoder(m.dim, N_CLASSES, dim, im.patch_px, shape[0], spacing, width or im.width)
     stats = {"force_mean": [0.0] * (N_TAXELS * 3), "force_std": [1.0] * (N_TAXELS * 3)}
     return Imager(enc, dec, grid).eval(), stats
 
@@ -123,11 +126,13 @@ def measure(imager, stats, steps: int, updates: int, full_repeats: int, rng) -> 
 @click.option("--full-repeats", type=click.IntRange(1), default=None, help="Timed full passes (default 10, quick 3).")
 @click.option("--dim", type=click.Choice(["2", "3"]), default="3", show_default=True,
               help="Image dimension of the default model (3 = the 'image fit' default).")
+@click.option("--width", "width_text", default=None,
+              help="Comma-separated decoder widths of the default model to time side by side (default: image fit's).")
 @click.option("--model", "model_path", default=None, help="Imaging checkpoint to time instead of the default model.")
 @click.option("--threads", type=click.IntRange(1), default=None, help="torch CPU threads (default: torch's choice).")
 @seed_option()
 @format_option
-def cli(quick, steps_text, updates, full_repeats, dim, model_path, threads, seed, fmt) -> None:
+def cli(quick, steps_text, updates, full_repeats, dim, width_text, model_path, threads, seed, fmt) -> None:
     """Per-update latency (median, p99) of incremental imaging vs full recomputation, as a table."""
     import numpy as np
     import torch
@@ -139,18 +144,26 @@ def cli(quick, steps_text, updates, full_repeats, dim, model_path, threads, seed
     steps = comma_list(steps_text, int, "--steps") if steps_text else DEFAULT_STEPS[:2] if quick else DEFAULT_STEPS
     if not steps or min(steps) < 1:
         raise click.BadParameter(f"'{steps_text}': need one or more prefix lengths >= 1", param_hint="--steps")
+    widths = comma_list(width_text, int, "--width") if width_text else [None]
+    if width_text and (not widths or min(widths) < 8):
+        raise click.BadParameter(f"'{width_text}': need one or more widths >= 8", param_hint="--width")
+    if width_text and model_path:
+        raise click.UsageError("--width sizes the default model; a --model checkpoint has its own")
     updates = updates or (20 if quick else 200)
     full_repeats = full_repeats or (3 if quick else 10)
     if model_path:
         from lesscli.infer.predict import load_imager
 
         imager, ckpt = load_imager(model_path)
-        stats = ckpt["norm_stats"]
+        models = [(imager, ckpt["norm_stats"], model_path)]
     else:
-        imager, stats = default_imager(int(dim), seed)
-    rng = np.random.default_rng(seed)
-    rows = [measure(imager, stats, n, updates, full_repeats, rng) for n in steps]
-    for row in rows:
-        row.update({"dim": int(imager.grid.shape[0] > 1) + 2, "threads": torch.get_num_threads(),
-                    "model": model_path or "default (random init)"})
+        models = [(*default_imager(int(dim), seed, w), "default (random init)") for w in widths]
+    rows = []
+    for imager, stats, name in models:
+        rng = np.random.default_rng(seed)
+        for n in steps:
+            row = measure(imager, stats, n, updates, full_repeats, rng)
+            row.update({"dim": int(imager.grid.shape[0] > 1) + 2, "width": getattr(imager.decoder, "width", None),
+                        "threads": torch.get_num_threads(), "model": name})
+            rows.append(row)
     emit_records(rows, fmt)

@@ -62,7 +62,10 @@ class _States:
 
 
 class PatchCanvas:
-    """Summed per-particle logit patches on a padded canvas, updated one particle set at a time.
+    """Summed per-particle logit patches on the image grid, updated one particle set at a time.
+
+    Each particle's patch is placed by :func:`place_patches`' rule; only its part on the grid is added
+    (a patch wholly off the grid adds nothing), so the canvas is the image itself.
 
     Args:
         decoder: the imaging model's PatchDecoder.
@@ -76,14 +79,20 @@ class PatchCanvas:
         d, h, w = grid.shape
         raw = (decoder.depth_px, decoder.patch_px, decoder.patch_px)
         self.size = target_patch_size(raw, decoder.patch_spacing_mm, grid)
-        self.ph, self.pw = ph, pw = self.size[1:]
+        ph, pw = self.size[1:]
         row0, col0 = padded_corners(xy_mm, grid, ph, pw)              # place_patches' placement rule
-        self.corner = list(zip(row0.tolist(), col0.tolist()))
+        self.place: list[tuple[tuple, tuple] | None] = []             # per particle: (grid, patch) index
+        for r, c in zip((row0 - ph).tolist(), (col0 - pw).tolist()):  # top-left on the grid, may be outside
+            rows, cols = (max(r, 0), min(r + ph, h)), (max(c, 0), min(c + pw, w))
+            on_grid = rows[0] < rows[1] and cols[0] < cols[1]
+            self.place.append(((..., slice(*rows), slice(*cols)),
+                               (..., slice(rows[0] - r, rows[1] - r), slice(cols[0] - c, cols[1] - c)))
+                              if on_grid else None)
         c = decoder.n_classes
-        self.canvas = torch.zeros(c, d, h + 2 * ph, w + 2 * pw, dtype=torch.float64, device=device)
+        self.canvas = torch.zeros(c, d, h, w, dtype=torch.float64, device=device)
         self.cache = torch.zeros(xy_mm.shape[0], c, d, ph, pw, dtype=torch.float32, device=device)
         self.mean_stitch = getattr(decoder, "stitch", "sum") == "mean"
-        self.cover = torch.zeros(h + 2 * ph, w + 2 * pw, dtype=torch.float64, device=device)   # seen patches per pixel
+        self.cover = torch.zeros(h, w, dtype=torch.float64, device=device)       # seen patches per pixel
         self.placed = [False] * xy_mm.shape[0]
 
     def reset(self) -> None:
@@ -96,18 +105,19 @@ class PatchCanvas:
         """Re-decode ``particles`` (k,) from their states ``z`` (k, d_z) and update the canvas."""
         new = resample_patches(self.decoder.patches(z[None]), self.size)[0]    # (k, C, D, ph, pw)
         for j, p in enumerate(particles.tolist()):
-            r, c = self.corner[p]
-            self.canvas[:, :, r:r + self.ph, c:c + self.pw].add_(new[j]).sub_(self.cache[p])
-            self.cache[p].copy_(new[j])
+            if self.place[p] is None:
+                continue
+            on_grid, part = self.place[p]
+            self.canvas[on_grid].add_(new[j][part]).sub_(self.cache[p][part])
+            self.cache[p][part] = new[j][part]
             if not self.placed[p]:
-                self.cover[r:r + self.ph, c:c + self.pw] += 1.0
+                self.cover[on_grid[1:]] += 1.0
                 self.placed[p] = True
 
     def logits(self) -> Tensor:
         """(C, D, H, W) float32 summed logits (0 where no seen particle's patch reaches)."""
-        _, h, w = self.grid.shape
         canvas = self.canvas / self.cover.clamp_min(1.0) if self.mean_stitch else self.canvas
-        return canvas[..., self.ph:self.ph + h, self.pw:self.pw + w].to(torch.float32)
+        return canvas.to(torch.float32)
 
 
 class WholeImage:
@@ -161,6 +171,7 @@ class StreamingImager:
         self.hidden = torch.zeros(n, d, device=self.device)
         self.count = torch.zeros(n, dtype=torch.long, device=self.device)
         self.dirty = torch.zeros(n, dtype=torch.bool, device=self.device)
+        self._valid = torch.ones(1, 1, dtype=torch.bool, device=self.device)     # in_field's step mask
         self.defer_decode = defer_decode
         self.n_steps = 0
         self.reset()
@@ -207,23 +218,24 @@ class StreamingImager:
     def push_normalised(self, pose: Tensor, force: Tensor) -> Tensor:
         """Add one sample already in model units: pose (6,) float32, force (F,) float32 normalised."""
         self.n_steps += 1
-        inside = in_field(pose[None, None, :2], torch.ones(1, 1, dtype=torch.bool, device=self.device),
-                          self.xy_mm, self.radius_mm)[0, :, 0]                     # (P,)
+        inside = in_field(pose[None, None, :2], self._valid, self.xy_mm, self.radius_mm)[0, :, 0]   # (P,)
         if self.cap is not None:
             inside &= self.count < self.cap
         particles = inside.nonzero()[:, 0]
         if particles.numel() == 0:
             return particles
-        shift = torch.zeros(particles.shape[0], POSE_DIM, device=self.device)
-        shift[:, :2] = self.xy_mm[particles]
-        centred = pose[None] - shift                                               # (k, 6)
-        x = self.encoder.fle(centred, force[None].expand(particles.shape[0], -1))  # (k, d)
-        _, h = self.encoder.gru(x[:, None, :], self.hidden[particles][None])
-        self.hidden[particles] = h[0]
-        self.count[particles] += 1
-        self.dirty[particles] = True
-        if not self.defer_decode:
-            self.flush()
+        centred = pose.repeat(particles.shape[0], 1)
+        centred[:, :2] -= self.xy_mm[particles]                                    # (k, 6), as batch centres
+        x = self.encoder.fle(centred, force[None])                                 # (k, d): one force MLP row
+        gru = self.encoder.gru                                                     # batch evaluation's cell
+        h = torch.gru_cell(x, self.hidden[particles], gru.weight_ih_l0, gru.weight_hh_l0, gru.bias_ih_l0,
+                           gru.bias_hh_l0)
+        self.hidden[particles] = h
+        self.count += inside
+        if self.defer_decode:
+            self.dirty |= inside
+        else:
+            self.canvas.update(particles, h, self.hidden, self.seen)
         return particles
 
     @torch.no_grad()

@@ -12,12 +12,11 @@ honestly uncertain.
 Placement is one ``index_add`` over all particles (no Python loop). On a grid with another spacing
 (e.g. the ``large`` set) patches are resampled to the same physical size first.
 
-In evaluation mode (:func:`run_eval`) the activations are channels-last in memory and the last
-transposed convolution (few output channels: the classes) runs in its sub-pixel form
+In evaluation mode (:func:`run_eval`) every transposed convolution runs in its sub-pixel form
 (:func:`subpixel_conv_t`): the same linear map as one stride-1 convolution with 2^dim times the output
-channels and one interleaving copy, which oneDNN runs several times faster on CPU, computing only the
-rows a 3D column keeps. Training uses the transposed convolutions as they are; both give the same
-values to float32 rounding.
+channels and one interleaving copy, on channels-last memory, which oneDNN runs faster on CPU than the
+transposed convolution, computing only the rows a 3D column keeps. Training uses the transposed
+convolutions as they are; both give the same values to float32 rounding.
 """
 
 from __future__ import annotations
@@ -93,48 +92,110 @@ def subpixel_weights(conv_t: nn.Module) -> tuple[Tensor, Tensor]:
     return w.contiguous(), conv_t.bias.repeat(2**dim)
 
 
+def zero_shell(x: Tensor) -> Tensor:
+    """(N, C, L_0, ...) -> (N, C, L_0 + 2, ...): x inside one row of zeros on both ends of every spatial axis,
+    in channels-last memory (the input a :func:`subpixel_weights` convolution reads)."""
+    n, c, *lengths = x.shape
+    out = x.new_zeros(n, *[k + 2 for k in lengths], c)
+    out[(slice(None),) + (slice(1, -1),) * len(lengths)] = x.movedim(1, -1)
+    return out.movedim(-1, 1)
+
+
+def _phases(xp: Tensor, weight: Tensor, bias: Tensor, padding: int = 0) -> Tensor:
+    """Sub-pixel convolution of a zero-shelled map (N, C_in, L_0 + 2, ...) (or, with ``padding=1``, of
+    the map itself, which oneDNN pads).
+
+    Returns:
+        (N, L_0 + 1, ..., 2, ..., C_out): window m of phase block s per axis, which is output 2m + s - 1
+        of the transposed convolution (outputs -1 and 2L, which it crops, included).
+    """
+    dim = xp.dim() - 2
+    y = _CONV[dim](xp, weight, bias, padding=padding)
+    return y.movedim(1, -1).reshape(*y.shape[:1], *y.shape[2:], *[2] * dim, weight.shape[0] // 2**dim)
+
+
+def _interleaved(ph: Tensor, windows0: int, channels_last: bool) -> Tensor:
+    """Phases (N, w_0, ..., 2, ..., C) -> (N, C, 2 windows0, 2 w_1, ...), one copy of the first windows0
+    into channels-last (the next convolution's) or plain (the canvas's) memory."""
+    dim = (ph.dim() - 2) // 2
+    n, windows, c = ph.shape[0], [windows0, *ph.shape[2:1 + dim]], ph.shape[-1]
+    spatial = [v for w in windows for v in (w, 2)]
+    order = [v for a in range(dim) for v in (1 + a, 1 + dim + a)]           # (window, phase) per axis
+    if channels_last:
+        out = ph.new_empty(n, *[2 * w for w in windows], c)
+        out.view(n, *spatial, c).copy_(ph[:, :windows0].permute(0, *order, -1))
+        return out.movedim(-1, 1)
+    out = ph.new_empty(n, c, *[2 * w for w in windows])
+    out.view(n, c, *spatial).copy_(ph[:, :windows0].permute(0, -1, *order))
+    return out
+
+
+def _hidden_layer(xp: Tensor, conv_t: nn.Module, act: nn.Module, rows: int | None, padding: int) -> Tensor:
+    """act(conv_t(x)) for x given zero-shelled (or as it is, ``padding=1``); returns its output
+    zero-shelled (first ``rows`` rows along axis 0 or more, None: all), channels-last."""
+    ph = act(_phases(xp, *eval_weights(conv_t), padding))                   # elementwise: before the shuffle
+    windows = ph.shape[1]
+    out = _interleaved(ph, windows if rows is None else min(windows, -(-rows // 2)), channels_last=True)
+    for axis in range(2, out.dim()):                                         # the rows conv_t crops -> 0
+        out.select(axis, 0).zero_()
+        if axis > 2 or out.shape[2] == 2 * windows:
+            out.select(axis, -1).zero_()
+    return out
+
+
+def _last_layer(xp: Tensor, weight: Tensor, bias: Tensor, keep: int | None) -> Tensor:
+    """conv_t(x)[:, :, :keep] for x given zero-shelled (any rows beyond those the kept outputs read ignored)."""
+    ph = _phases(xp, weight, bias)
+    lengths = [w - 1 for w in ph.shape[1:ph.dim() // 2]]                    # input rows read, per axis
+    rows = 2 * lengths[0] if keep is None else min(keep, 2 * lengths[0])
+    out = _interleaved(ph, min(ph.shape[1], rows // 2 + 1), channels_last=False)
+    return out[(slice(None), slice(None), slice(1, 1 + rows)) + tuple(slice(1, -1) for _ in lengths[1:])]
+
+
 def subpixel_conv_t(x: Tensor, weight: Tensor, bias: Tensor, keep: int | None = None) -> Tensor:
     """Apply a transposed convolution given by :func:`subpixel_weights` to x (N, C_in, L_0, ...).
 
-    The convolution runs on channels-last memory (oneDNN's fast layout for a few channels); one
-    permuting copy interleaves the phases into an (N, C_out, ...) result.
+    The convolution runs on channels-last memory (oneDNN's fast layout for a few channels) over x
+    inside a shell of zeros; one permuting copy interleaves the phases into an (N, C_out, ...) result.
 
     Args:
-        keep: output rows to compute along the first spatial axis (None or >= 2 * L_0: all 2 * L_0).
+        keep: output rows to keep along the first spatial axis (None or >= 2 * L_0: all 2 * L_0).
 
     Returns:
         (N, C_out, min(keep, 2 * L_0), 2 * L_1, ...), the transposed convolution's output (cropped).
     """
-    dim = x.dim() - 2
-    n, c_in, lengths = x.shape[0], x.shape[1], list(x.shape[2:])
-    rows = 2 * lengths[0] if keep is None else min(keep, 2 * lengths[0])
-    c_out = weight.shape[0] // 2**dim
-    m = [-(-rows // 2)] + lengths[1:]                        # outputs per phase and axis
-    used = min(lengths[0], m[0] + 1)                         # input rows the kept outputs read
-    xp = x.new_zeros(n, m[0] + 2, *[k + 2 for k in m[1:]], c_in)         # zero-padded, channels last
-    xp[(slice(None), slice(1, 1 + used)) + (slice(1, -1),) * (dim - 1)] = x[:, :, :used].movedim(1, -1)
-    y = _CONV[dim](xp.movedim(-1, 1), weight, bias).movedim(1, -1)      # (N, m_0 + 1, ..., 2^dim C_out)
-    y = y.reshape(n, *[k + 1 for k in m], *[2] * dim, c_out)
-    spatial = [v for a in range(dim) for v in (1 + a, 1 + dim + a)]     # (window, phase) per axis
-    out = y.permute(0, 2 * dim + 1, *spatial).reshape(n, c_out, *[2 * (k + 1) for k in m])
-    return out[(slice(None), slice(None), slice(1, 1 + rows)) + tuple(slice(1, 1 + 2 * k) for k in m[1:])]
+    return _last_layer(zero_shell(x), weight, bias, keep)
 
 
 _CONV = {1: F.conv1d, 2: F.conv2d, 3: F.conv3d}
 
 
+def eval_weights(conv_t: nn.Module) -> tuple[Tensor, Tensor]:
+    """:func:`subpixel_weights` of ``conv_t``, kept until its parameters change (in place or replaced)."""
+    key = tuple((t.data_ptr(), t._version, t.dtype, t.device) for t in (conv_t.weight, conv_t.bias))
+    cached = conv_t.__dict__.get("_subpixel")
+    if cached is None or cached[0] != key:
+        cached = conv_t.__dict__["_subpixel"] = (key, *subpixel_weights(conv_t))
+    return cached[1], cached[2]
+
+
 def run_eval(stack: nn.Sequential, x: Tensor, keep: int | None = None) -> Tensor:
     """``stack(x)[:, :, :keep]`` for an :func:`upsampling_stack`, in its faster evaluation form.
 
-    The hidden layers run as transposed convolutions on channels-last memory; the last one (few output
-    channels: the classes) in its sub-pixel form, computing only the kept rows. On CPU this decodes
-    default 3D columns ~1.5x faster than the plain stack.
+    Every layer runs in sub-pixel form (a stride-1 convolution, weights rearranged once, see
+    :func:`eval_weights`) on channels-last memory: each hidden layer's output is interleaved straight
+    into the zero-shelled input of the next, with the activation applied before the shuffle, and the
+    layer before the last keeps only the rows the kept outputs read. On CPU this decodes default 3D
+    columns ~2x faster than the plain stack.
     """
     *hidden, last = list(stack)
-    x = x.contiguous(memory_format=torch.channels_last if x.dim() == 4 else torch.channels_last_3d)
-    for block in hidden:
-        x = block(x)
-    return subpixel_conv_t(x, *subpixel_weights(last), keep=keep)
+    if not hidden:
+        return subpixel_conv_t(x, *eval_weights(last), keep)
+    xp = x.contiguous(memory_format=torch.channels_last if x.dim() == 4 else torch.channels_last_3d)
+    for i, (conv_t, act) in enumerate(hidden):
+        rows = -(-keep // 2) + 2 if keep is not None and i == len(hidden) - 1 else None
+        xp = _hidden_layer(xp, conv_t, act, rows, padding=int(i == 0))     # the first pads its input itself
+    return _last_layer(xp, *eval_weights(last), keep)
 
 
 def upsampling_stack(dim: int, width: int, n_classes: int, strides: list[tuple[int, ...]]) -> nn.Sequential:
