@@ -139,7 +139,8 @@ def test_subpixel_form_equals_the_transposed_convolution(dim, keep):
 
 
 @pytest.mark.parametrize("dim,patch_px,width,depth", [(2, 16, 16, 1), (3, 16, 16, 13), (3, 32, 24, 13),
-                                                     (3, 32, 16, 26), (3, 64, 32, 7)])
+                                                     (3, 32, 16, 26), (3, 64, 32, 7), (2, 64, 16, 1),
+                                                     (3, 64, 16, 64)])
 def test_evaluation_decodes_like_training(dim, patch_px, width, depth):
     """Eval mode runs every layer in sub-pixel form and crops columns early; same patches as training."""
     dec = PatchDecoder(d_z=6, n_classes=4, dim=dim, patch_px=patch_px, depth_px=depth, width=width)

@@ -92,25 +92,16 @@ def subpixel_weights(conv_t: nn.Module) -> tuple[Tensor, Tensor]:
     return w.contiguous(), conv_t.bias.repeat(2**dim)
 
 
-def zero_shell(x: Tensor) -> Tensor:
-    """(N, C, L_0, ...) -> (N, C, L_0 + 2, ...): x inside one row of zeros on both ends of every spatial axis,
-    in channels-last memory (the input a :func:`subpixel_weights` convolution reads)."""
-    n, c, *lengths = x.shape
-    out = x.new_zeros(n, *[k + 2 for k in lengths], c)
-    out[(slice(None),) + (slice(1, -1),) * len(lengths)] = x.movedim(1, -1)
-    return out.movedim(-1, 1)
-
-
-def _phases(xp: Tensor, weight: Tensor, bias: Tensor, padding: int = 0) -> Tensor:
-    """Sub-pixel convolution of a zero-shelled map (N, C_in, L_0 + 2, ...) (or, with ``padding=1``, of
-    the map itself, which oneDNN pads).
+def _phases(x: Tensor, weight: Tensor, bias: Tensor, padding: int) -> Tensor:
+    """Sub-pixel convolution of x (N, C_in, L_0, ...) given with one zero row on both ends of every
+    spatial axis (``padding=0``) or without (``padding=1``: the convolution pads).
 
     Returns:
         (N, L_0 + 1, ..., 2, ..., C_out): window m of phase block s per axis, which is output 2m + s - 1
         of the transposed convolution (outputs -1 and 2L, which it crops, included).
     """
-    dim = xp.dim() - 2
-    y = _CONV[dim](xp, weight, bias, padding=padding)
+    dim = x.dim() - 2
+    y = _CONV[dim](x, weight, bias, padding=padding)
     return y.movedim(1, -1).reshape(*y.shape[:1], *y.shape[2:], *[2] * dim, weight.shape[0] // 2**dim)
 
 
@@ -130,10 +121,11 @@ def _interleaved(ph: Tensor, windows0: int, channels_last: bool) -> Tensor:
     return out
 
 
-def _hidden_layer(xp: Tensor, conv_t: nn.Module, act: nn.Module, rows: int | None, padding: int) -> Tensor:
-    """act(conv_t(x)) for x given zero-shelled (or as it is, ``padding=1``); returns its output
-    zero-shelled (first ``rows`` rows along axis 0 or more, None: all), channels-last."""
-    ph = act(_phases(xp, *eval_weights(conv_t), padding))                   # elementwise: before the shuffle
+def _hidden_layer(x: Tensor, conv_t: nn.Module, act: nn.Module, rows: int | None, padding: int) -> Tensor:
+    """act(conv_t(x)) for x with its zero rows (``padding=0``) or without (1); returns the output with
+    one zero row on both ends of every axis (only its first ``rows`` rows along axis 0 or more, None:
+    all), channels-last."""
+    ph = act(_phases(x, *eval_weights(conv_t), padding))                    # elementwise: before the shuffle
     windows = ph.shape[1]
     out = _interleaved(ph, windows if rows is None else min(windows, -(-rows // 2)), channels_last=True)
     for axis in range(2, out.dim()):                                         # the rows conv_t crops -> 0
@@ -143,10 +135,11 @@ def _hidden_layer(xp: Tensor, conv_t: nn.Module, act: nn.Module, rows: int | Non
     return out
 
 
-def _last_layer(xp: Tensor, weight: Tensor, bias: Tensor, keep: int | None) -> Tensor:
-    """conv_t(x)[:, :, :keep] for x given zero-shelled (any rows beyond those the kept outputs read ignored)."""
-    ph = _phases(xp, weight, bias)
-    lengths = [w - 1 for w in ph.shape[1:ph.dim() // 2]]                    # input rows read, per axis
+def _last_layer(x: Tensor, weight: Tensor, bias: Tensor, keep: int | None, padding: int) -> Tensor:
+    """conv_t(x)[:, :, :keep] for x with its zero rows (``padding=0``; rows beyond those the kept
+    outputs read are ignored) or without (1)."""
+    ph = _phases(x, weight, bias, padding)
+    lengths = [w - 1 for w in ph.shape[1:ph.dim() // 2]]                    # input rows, per axis
     rows = 2 * lengths[0] if keep is None else min(keep, 2 * lengths[0])
     out = _interleaved(ph, min(ph.shape[1], rows // 2 + 1), channels_last=False)
     return out[(slice(None), slice(None), slice(1, 1 + rows)) + tuple(slice(1, -1) for _ in lengths[1:])]
@@ -155,8 +148,8 @@ def _last_layer(xp: Tensor, weight: Tensor, bias: Tensor, keep: int | None) -> T
 def subpixel_conv_t(x: Tensor, weight: Tensor, bias: Tensor, keep: int | None = None) -> Tensor:
     """Apply a transposed convolution given by :func:`subpixel_weights` to x (N, C_in, L_0, ...).
 
-    The convolution runs on channels-last memory (oneDNN's fast layout for a few channels) over x
-    inside a shell of zeros; one permuting copy interleaves the phases into an (N, C_out, ...) result.
+    The convolution runs on channels-last memory (oneDNN's fast layout for a few channels), padding x
+    by one zero on each side; one permuting copy interleaves the phases into an (N, C_out, ...) result.
 
     Args:
         keep: output rows to keep along the first spatial axis (None or >= 2 * L_0: all 2 * L_0).
@@ -164,10 +157,16 @@ def subpixel_conv_t(x: Tensor, weight: Tensor, bias: Tensor, keep: int | None = 
     Returns:
         (N, C_out, min(keep, 2 * L_0), 2 * L_1, ...), the transposed convolution's output (cropped).
     """
-    return _last_layer(zero_shell(x), weight, bias, keep)
+    return _last_layer(_channels_last(x), weight, bias, keep, padding=1)
 
 
 _CONV = {1: F.conv1d, 2: F.conv2d, 3: F.conv3d}
+
+
+def _channels_last(x: Tensor) -> Tensor:
+    """x (N, C, ...) in channels-last memory (2D and 3D maps; a 1D map as it is)."""
+    fmt = {4: torch.channels_last, 5: torch.channels_last_3d}.get(x.dim())
+    return x if fmt is None else x.contiguous(memory_format=fmt)
 
 
 def eval_weights(conv_t: nn.Module) -> tuple[Tensor, Tensor]:
@@ -182,20 +181,24 @@ def eval_weights(conv_t: nn.Module) -> tuple[Tensor, Tensor]:
 def run_eval(stack: nn.Sequential, x: Tensor, keep: int | None = None) -> Tensor:
     """``stack(x)[:, :, :keep]`` for an :func:`upsampling_stack`, in its faster evaluation form.
 
-    Every layer runs in sub-pixel form (a stride-1 convolution, weights rearranged once, see
-    :func:`eval_weights`) on channels-last memory: each hidden layer's output is interleaved straight
-    into the zero-shelled input of the next, with the activation applied before the shuffle, and the
-    layer before the last keeps only the rows the kept outputs read. On CPU this decodes default 3D
-    columns ~2x faster than the plain stack.
+    The first hidden layer runs as a transposed convolution (its sub-pixel form would compute the
+    output rows it crops too: (L + 1)^dim windows for L^dim inputs, nearly twice the work on the 4 x 4
+    x 4 first map), every later layer in sub-pixel form (a stride-1 convolution, weights rearranged once,
+    see :func:`eval_weights`), all on channels-last memory: each sub-pixel hidden layer's output is
+    interleaved straight into the zero-bordered input of the next, with the activation applied before
+    the shuffle, and the layer before the last keeps only the rows the kept outputs read. On CPU this
+    decodes default 3D columns 1.6-2.7x faster than the plain stack (widths 64-32).
     """
     *hidden, last = list(stack)
-    if not hidden:
-        return subpixel_conv_t(x, *eval_weights(last), keep)
-    xp = x.contiguous(memory_format=torch.channels_last if x.dim() == 4 else torch.channels_last_3d)
-    for i, (conv_t, act) in enumerate(hidden):
+    x = _channels_last(x)
+    padding = 1                                                  # x carries no zero rows yet
+    for i, block in enumerate(hidden):
+        if i == 0:
+            x = block(x)
+            continue
         rows = -(-keep // 2) + 2 if keep is not None and i == len(hidden) - 1 else None
-        xp = _hidden_layer(xp, conv_t, act, rows, padding=int(i == 0))     # the first pads its input itself
-    return _last_layer(xp, *eval_weights(last), keep)
+        x, padding = _hidden_layer(x, *block, rows, padding), 0
+    return _last_layer(x, *eval_weights(last), keep, padding)
 
 
 def upsampling_stack(dim: int, width: int, n_classes: int, strides: list[tuple[int, ...]]) -> nn.Sequential:
