@@ -8,11 +8,12 @@ it has seen. A new sample
 2. is tested against every particle's receptive field with the encoder's own rule
    (:func:`lesscli.models.particles.in_field`: pad x-y strictly inside the disc);
 3. advances only those particles: their x-y is centred on the particle, encoded by the force-location
-   encoder, and one step of the shared GRU runs from their stored hidden state;
+   encoder, and one step of the shared GRU cell (as batch evaluation steps it) runs from their stored
+   hidden state;
 4. re-decodes only their patches (the decoder's evaluation path, see
    :mod:`lesscli.models.patch_decoder`), adds each new patch to and subtracts its old one from the
-   summed logit canvas (one patch-sized slice per particle), so only the pixels under those patches
-   change. With the decoder's ``stitch="mean"`` a coverage count of the seen patches per pixel is kept
+   summed logit canvas (one slice per particle: the patch's part on the image grid), so only the
+   pixels under those patches change. With the decoder's ``stitch="mean"`` a coverage count of the seen patches per pixel is kept
    too, and the image is the sum divided by it.
 
 **Step cap.** The batch encoder keeps each particle's *earliest* ``max_steps_per_particle`` in-field
@@ -224,8 +225,9 @@ class StreamingImager:
         particles = inside.nonzero()[:, 0]
         if particles.numel() == 0:
             return particles
-        centred = pose.repeat(particles.shape[0], 1)
-        centred[:, :2] -= self.xy_mm[particles]                                    # (k, 6), as batch centres
+        shift = torch.zeros(particles.shape[0], POSE_DIM, device=self.device)
+        shift[:, :2] = self.xy_mm[particles]
+        centred = pose[None] - shift                                               # (k, 6), as batch centres
         x = self.encoder.fle(centred, force[None])                                 # (k, d): one force MLP row
         gru = self.encoder.gru                                                     # batch evaluation's cell
         h = torch.gru_cell(x, self.hidden[particles], gru.weight_ih_l0, gru.weight_hh_l0, gru.bias_ih_l0,
