@@ -1,10 +1,10 @@
 """Accuracy against time: one knob at a time around a base setting, all on the same simulated data.
 
 Knobs (``KNOBS``): simulator contact tier, receptive field beta (the paper's ablation), particle
-spacing, state width d_z, image decoder width, subsampling rate and SSL training epochs. For each setting the run
-simulates (once per tier, cached), subsamples, pretrains a LESS representation, fits a 3D image
-decoder, predicts the held-out ``single`` inserts and the ``multiple`` set, and scores the inclusion
-class. Each row holds the times (simulation, pretraining, image fitting, inference latency per scan)
+spacing, state width d_z, image decoder width, subsampling rate and SSL training epochs. For each
+setting the run simulates (once per tier, cached), subsamples, pretrains a LESS representation, fits
+a 3D image decoder, predicts the held-out ``single`` inserts and the ``multiple`` set, and scores the
+inclusion class. Each row holds the times (simulation, pretraining, image fitting, inference latency per scan)
 and the micro F1 on both sets, plus ratios against the base setting measured in the same run.
 """
 
@@ -70,7 +70,7 @@ QUICK = TradeoffPlan(
     values={"tier": ("winkler", "green"), "receptive_field": (5.0, 10.0, 20.0), "spacing": (6.0, 10.0),
             "dim": (16, 32), "width": (8, 16, 32), "subsample": (25, 50), "epochs": (4, 10)})
 FULL = TradeoffPlan(
-    base=Setting(tier="green", dim=128, width=64, epochs=100),
+    base=Setting(tier="green", dim=128, width=32, epochs=100),
     values={"tier": ("winkler", "green", "fem"), "receptive_field": (5.0, 7.5, 10.0, 15.0, 20.0, 30.0),
             "spacing": (4.0, 6.0, 8.0, 10.0), "dim": (64, 128, 256, 512, 1024), "width": (16, 32, 64),
             "subsample": (10, 25, 50, 100),

@@ -24,7 +24,7 @@ def cli() -> None:
 @click.option("--slice", "slice_index", type=int, default=None,
               help="2D: label slice index (default: through the inclusion centre).")
 @click.option("--decoder", default=None, help="patch or global (default: pairs with the encoder).")
-@training_options(300, "[image], [train], [loss]", "--set image.width=32 --set loss.gamma=1")
+@training_options(300, "[image], [train], [loss]", "--set image.width=64 --set loss.gamma=1")
 @format_option
 def fit_cmd(data, rep_path, output, val_path, select, dim, finetune, slice_index, decoder, fmt, **train_opts) -> None:
     """Fit an image decoder on DATA's label volumes with the Dice-Focal loss.

@@ -36,7 +36,7 @@ class ImageModelConfig:
 
     dim: int = 3                  # 2: image (slice), 3: volume
     decoder: str = ""             # patch | global; "" pairs with the encoder (less -> patch, global -> global)
-    width: int = 64               # channels of the decoder's first feature map
+    width: int = 32               # channels of the decoder's first feature map (README: `less image fit`)
     patch_px: int = 32            # patch side in label pixels (4 * 2^k)
     stitch: str = "sum"           # overlapping patch logits: sum (paper) or mean
     finetune: bool = False        # train the representation too
