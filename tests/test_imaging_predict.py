@@ -60,6 +60,7 @@ def test_grow_covers_a_larger_phantom(tmp_path):
         results[grow] = predict(imager, ckpt, large, PredictOptions(grow=grow))
     small, grown = results[False], results[True]
     assert small.meta["particles"] == 121 and grown.meta["particles"] > 121
+    assert small.meta["width"] == 8                    # the decoder's width: metrics can --group-by width
     assert grown.scans[0].probs.shape == (4, 1, 32, 32)
     (_, _, x0), (_, _, dx) = grown.scans[0].origin_mm, grown.scans[0].spacing_mm
     far = x0 + dx * np.arange(32) < -40                    # columns beyond the 60 mm grid, touched

@@ -128,7 +128,7 @@ def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, de
                 insert=str(scans.scan_insert[s]), orientation=int(scans.scan_orientation[s]), steps=int(k),
                 label=labels_from_probs(probs, opts.threshold)))
     meta = {"dim": dim, "threshold": opts.threshold, "model": cfg["encoder"]["name"],
-            "decoder": cfg["decoder"]["name"], "grown": bool(opts.grow),
+            "decoder": cfg["decoder"]["name"], "width": cfg["decoder"].get("width"), "grown": bool(opts.grow),
             "particles": int(getattr(imager.encoder, "n_particles", 1)), "seed": cfg.get("train", {}).get("seed")}
     return PredictionSet(preds, meta)
 
