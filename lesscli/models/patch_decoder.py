@@ -187,7 +187,7 @@ def run_eval(stack: nn.Sequential, x: Tensor, keep: int | None = None) -> Tensor
     see :func:`eval_weights`), all on channels-last memory: each sub-pixel hidden layer's output is
     interleaved straight into the zero-bordered input of the next, with the activation applied before
     the shuffle, and the layer before the last keeps only the rows the kept outputs read. On CPU this
-    decodes default 3D columns 1.6-2.7x faster than the plain stack (widths 64-32).
+    decodes 9 default 3D columns 2.1-2.4x faster than the plain stack (widths 64 and 32).
     """
     *hidden, last = list(stack)
     x = _channels_last(x)
