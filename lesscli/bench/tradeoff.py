@@ -4,8 +4,8 @@ Knobs (``KNOBS``): simulator contact tier, receptive field beta (the paper's abl
 spacing, state width d_z, image decoder width, subsampling rate and SSL training epochs. For each
 setting the run simulates (once per tier, cached), subsamples, pretrains a LESS representation, fits
 a 3D image decoder, predicts the held-out ``single`` inserts and the ``multiple`` set, and scores the
-inclusion class. Each row holds the times (simulation, pretraining, image fitting, inference latency per scan)
-and the micro F1 on both sets, plus ratios against the base setting measured in the same run.
+inclusion class. Each row holds the times (simulation, pretraining, image fitting, inference latency
+per scan) and the micro F1 on both sets, plus ratios against the base setting measured in the same run.
 """
 
 from __future__ import annotations

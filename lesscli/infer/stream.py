@@ -13,8 +13,8 @@ it has seen. A new sample
 4. re-decodes only their patches (the decoder's evaluation path, see
    :mod:`lesscli.models.patch_decoder`), adds each new patch to and subtracts its old one from the
    summed logit canvas (one slice per particle: the patch's part on the image grid), so only the
-   pixels under those patches change. With the decoder's ``stitch="mean"`` a coverage count of the seen patches per pixel is kept
-   too, and the image is the sum divided by it.
+   pixels under those patches change. With the decoder's ``stitch="mean"`` a coverage count of the
+   seen patches per pixel is kept too, and the image is the sum divided by it.
 
 **Step cap.** The batch encoder keeps each particle's *earliest* ``max_steps_per_particle`` in-field
 steps and drops later ones. The stream does the same: a particle whose count has reached the cap ignores
@@ -109,8 +109,9 @@ class PatchCanvas:
             if self.place[p] is None:
                 continue
             on_grid, part = self.place[p]
-            self.canvas[on_grid].add_(new[j][part]).sub_(self.cache[p][part])
-            self.cache[p][part] = new[j][part]
+            patch, old = new[j][part], self.cache[p][part]
+            self.canvas[on_grid].add_(patch).sub_(old)
+            old.copy_(patch)
             if not self.placed[p]:
                 self.cover[on_grid[1:]] += 1.0
                 self.placed[p] = True
@@ -229,9 +230,7 @@ class StreamingImager:
         shift[:, :2] = self.xy_mm[particles]
         centred = pose[None] - shift                                               # (k, 6), as batch centres
         x = self.encoder.fle(centred, force[None])                                 # (k, d): one force MLP row
-        gru = self.encoder.gru                                                     # batch evaluation's cell
-        h = torch.gru_cell(x, self.hidden[particles], gru.weight_ih_l0, gru.weight_hh_l0, gru.bias_ih_l0,
-                           gru.bias_hh_l0)
+        h = self.encoder.gru_step(x, self.hidden[particles])                      # as batch evaluation steps
         self.hidden[particles] = h
         self.count += inside
         if self.defer_decode:

@@ -200,13 +200,16 @@ class ParticleEncoder(nn.Module):
         shift[:, :2] = xy
         scan = torch.arange(b, device=batch.pose.device)[:, None]
         h = batch.pose.new_zeros(b * p, self.dim)
-        gru = self.gru
         for slot in range(c):
             step = g.index[:, :, slot]                                           # (B, P)
             x = self.fle(batch.pose[scan, step] - shift, batch.force[scan, step]).reshape(b * p, -1)
-            new = torch.gru_cell(x, h, gru.weight_ih_l0, gru.weight_hh_l0, gru.bias_ih_l0, gru.bias_hh_l0)
-            h = torch.where(g.mask[:, :, slot].reshape(-1, 1), new, h)
+            h = torch.where(g.mask[:, :, slot].reshape(-1, 1), self.gru_step(x, h), h)
         return ParticleStates(z=h.view(b, p, self.dim), xy_mm=xy, seen=g.seen)
+
+    def gru_step(self, x: Tensor, h: Tensor) -> Tensor:
+        """One step of the shared GRU as a cell: inputs x and states h, (N, d_z) each -> new states."""
+        gru = self.gru
+        return torch.gru_cell(x, h, gru.weight_ih_l0, gru.weight_hh_l0, gru.bias_ih_l0, gru.bias_hh_l0)
 
     def forward(self, batch: Batch) -> ParticleStates:
         """Batch -> ParticleStates with z (B, P, d_z) (packed in training, fixed-shape in evaluation)."""
