@@ -118,6 +118,23 @@ def test_average_baseline_rows(run_less, tmp_path):
     assert groups == [("less", "St10C5", 2), ("less", "St11C5", 2), ("average", "St10C5", 1), ("average", "St11C5", 1)]
 
 
+def test_several_models_make_one_table_with_the_baseline(run_less, tmp_path):
+    train = tmp_path / "train.npz"
+    save_scans(str(train), random_scanset(n_scans=2))
+    paths = [write_preds(tmp_path / f"{m}.npz", shifts, model=m) for m, shifts in (("less", [0, 1]), ("fm", [2, 2]))]
+    args = ("metrics", *paths, "--baseline-from", train, "--group-by", "model", "--summary-only")
+    files = [r for r in jsonl(run_less(*args)) if r["row"] == "file"]
+    assert [(r["model"], r["n"]) for r in files] == [("less", 2), ("fm", 2), ("average", 2)]
+    assert [r["com_error_mm_3d"] for r in files[:2]] == pytest.approx([0.25, 1.0])
+    proc = run_less(*args, "--format", "table")
+    assert proc.returncode == 0, proc.stderr.decode()
+    lines = proc.stdout.decode().splitlines()                       # header, rule, one row per model
+    assert len(lines) == 5 and [line.split()[1] for line in lines[2:]] == ["less", "fm", "average"]
+    seeds = [write_preds(tmp_path / f"s{i}.npz", [0, 1], seed=i) for i in range(2)]   # groups pooling files stay
+    out = run_less("metrics", *seeds, "--group-by", "model", "--summary-only", "--format", "table").stdout.decode()
+    assert len(out.split("\n\n")) == 2 and "(n=2)" in out
+
+
 def test_prediction_file_from_stdin(run_less, tmp_path):
     path = write_preds(tmp_path / "p.npz", [0, 2])
     rows = jsonl(run_less("metrics", "-", input=path.read_bytes()))

@@ -8,7 +8,7 @@ from factories import sphere_labels
 
 from lesscli.io.predictions import PredictionSet, ScanPrediction, save_predictions
 from lesscli.plots.palette import CLASS_RGBA
-from lesscli.plots.render import group_scans, scan_figure, strip_figure
+from lesscli.plots.render import compare_figure, group_scans, scan_figure, strip_figure
 
 SHAPE, SPACING = (6, 32, 32), (2.0, 1.9, 1.9)
 
@@ -69,3 +69,25 @@ def test_cli_render(tmp_path, run_less):
         assert _read(str(tmp_path / r["figure"])).std() > 0.05
     proc = run_less("render", "p.npz", "-o", "out2", "--scan", "5")
     assert proc.returncode == 1 and b"scan 5" in proc.stderr and not (tmp_path / "out2").exists()
+
+
+def test_compare_figure_has_a_column_per_model(tmp_path):
+    preds = [_prediction(3, seed=k) for k in range(2)]
+    one = _read(compare_figure(preds[:1], ["a"], str(tmp_path / "one.png")))
+    two = _read(compare_figure(preds, ["a", "b"], str(tmp_path / "two.png")))
+    assert two.shape[1] > one.shape[1] * 1.3 and two.std() > 0.05 and _has_colour(two, CLASS_RGBA[3])
+
+
+def test_cli_render_compares_files_of_the_same_scans(tmp_path, run_less):
+    for name, seed in (("a", 0), ("b", 1)):
+        preds = [_prediction(3, steps=k, seed=seed) for k in (5, 10)] + [_prediction(2, steps=7, seed=seed)]
+        save_predictions(str(tmp_path / f"{name}.npz"), PredictionSet(preds, {"dim": 3, "model": f"m{name}"}))
+    save_predictions(str(tmp_path / "c.npz"), PredictionSet([_prediction(3)], {"dim": 3}))
+    proc = run_less("render", "a.npz", "b.npz", "-o", "cmp", "--format", "jsonl")
+    assert proc.returncode == 0, proc.stderr.decode()
+    rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
+    assert [(r["scan"], r["kind"], r["models"]) for r in rows] == [(0, "compare", ["ma", "mb"]),
+                                                                   (1, "compare", ["ma", "mb"])]
+    assert all(_read(str(tmp_path / r["figure"])).std() > 0.05 for r in rows)
+    proc = run_less("render", "a.npz", "c.npz", "-o", "bad")
+    assert proc.returncode == 1 and b"c.npz" in proc.stderr and not (tmp_path / "bad").exists()

@@ -1,4 +1,5 @@
-"""``less image fit|predict``: train an image decoder on a representation; predict label images."""
+"""``less image fit|predict``: train an image decoder on a representation (or calibrate the force-map
+reference); predict label images."""
 
 from __future__ import annotations
 
@@ -14,7 +15,10 @@ def cli() -> None:
 
 @cli.command("fit")
 @click.argument("data")
-@click.option("--rep", "rep_path", required=True, help="Representation checkpoint from 'less pretrain'.")
+@click.option("--model", "model", type=click.Choice(["less", "forcemap"]), default="less", show_default=True,
+              help="less: a learned decoder on --rep; forcemap: calibrate the classical force-map reference.")
+@click.option("--rep", "rep_path", default=None,
+              help="Representation checkpoint from 'less pretrain' (required for learned models).")
 @output_option(help="Best imaging checkpoint (.pt); beside it <stem>.last.pt (--resume) and <stem>.log.jsonl.")
 @click.option("--val", "val_path", default=None, help="Validation scan set: selects the best epoch.")
 @click.option("--select", type=click.Choice(["f1", "loss"]), default=None,
@@ -26,7 +30,8 @@ def cli() -> None:
 @click.option("--decoder", default=None, help="patch or global (default: pairs with the encoder).")
 @training_options(300, "[image], [train], [loss]", "--set image.width=64 --set loss.gamma=1")
 @format_option
-def fit_cmd(data, rep_path, output, val_path, select, dim, finetune, slice_index, decoder, fmt, **train_opts) -> None:
+def fit_cmd(data, model, rep_path, output, val_path, select, dim, finetune, slice_index, decoder, fmt,
+            **train_opts) -> None:
     """Fit an image decoder on DATA's label volumes with the Dice-Focal loss.
 
     The representation (--rep) is frozen unless --finetune; its normalisation statistics are
@@ -36,8 +41,16 @@ def fit_cmd(data, rep_path, output, val_path, select, dim, finetune, slice_index
     the same command trains with DistributedDataParallel; rank 0 writes. A summary record goes to
     stdout.
 
+    --model forcemap calibrates the classical force-map imager instead (smoothing width, threshold,
+    size and depth rules, class prior; README: 'less image fit'), the reference for learned results.
+
     Example: less image fit split/train.npz --val split/val.npz --rep rep.pt -o imager.pt --dim 3
     """
+    if model == "forcemap":
+        return _fit_forcemap(data, output, dim, slice_index, fmt, rep=rep_path, val=val_path,
+                             finetune=finetune, decoder=decoder, select=select, resume=train_opts["resume"])
+    if not rep_path:
+        raise click.UsageError("--rep is required for learned models (--model less)")
     from lesscli.cli.common import run_training, training_config
     from lesscli.train.image_fit import ImageFitConfig, fit_imager
 
@@ -46,6 +59,23 @@ def fit_cmd(data, rep_path, output, val_path, select, dim, finetune, slice_index
     cfg = training_config(ImageFitConfig, explicit, train_opts)
     run_training(lambda train, val, **kw: fit_imager(train, val, rep_path, cfg, output, resume=train_opts["resume"], **kw),
                  "image fit", data, val_path, cfg, output, fmt)
+
+
+def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
+    given = [f"--{k}" for k, v in learned_only.items() if v]
+    if given:
+        raise click.UsageError(f"{', '.join(given)} only apply to learned models, not --model forcemap")
+    from lesscli.cli.common import LOG
+    from lesscli.io.records import emit_records
+    from lesscli.io.scans import append_history, load_scans
+    from lesscli.train.forcemap_fit import fit_forcemap
+
+    history = append_history({})["history"]
+    summary = fit_forcemap(load_scans(data), output, int(dim or 3), slice_index, data, history)
+    if output == "-":
+        LOG.warning("image fit summary: %s", summary)
+    else:
+        emit_records([summary], fmt)
 
 
 @cli.command("predict")
@@ -79,18 +109,15 @@ def predict_cmd(model, data, output, threshold, steps, every, grow, slice_index,
     import numpy as np
 
     from lesscli.cli.common import LOG, progress
-    from lesscli.infer.predict import PredictOptions, load_imager, predict, write_nifti
+    from lesscli.infer.predict import PredictOptions, predict_file, write_nifti
     from lesscli.io.predictions import save_predictions
     from lesscli.io.records import emit_records
-    from lesscli.io.scans import append_history, load_scans
+    from lesscli.io.scans import append_history
     from lesscli.train.distributed import resolve_device
 
     t0 = time.perf_counter()
-    dev = resolve_device(device)
-    imager, ckpt = load_imager(model, dev)
-    scans = load_scans(data)
     opts = PredictOptions(threshold, steps, every, grow, batch_size, slice_index)
-    preds = predict(imager, ckpt, scans, opts, dev, name=data, progress=progress)
+    preds, ckpt, scans = predict_file(model, data, opts, resolve_device(device), progress=progress)
     preds.meta.update({"imager": model, "set": data,
                        "history": append_history({"history": [
         h for h in ckpt.get("history", []) if "epoch" not in h]})["history"]})

@@ -12,6 +12,7 @@ from lesscli.cli.common import LOG, closest, format_option
 SCAN_COLUMNS = ("file", "model", "scan", "insert", "orientation", "f1_3d", "com_error_mm_3d", "arse_3d",
                 "diameter_error_mm_3d", "volume_error_mm3", "f1_2d", "com_error_mm_2d", "arse_2d",
                 "diameter_error_mm_2d", "area_error_mm2")
+FILE_TABLE_KEYS = ("file", "model")   # identity columns of the per-file table
 SUMMARY_METRICS = ("f1_micro_3d", "f1_3d", "com_error_mm_3d", "arse_3d", "diameter_error_mm_3d", "volume_error_mm3",
                    "f1_micro_2d", "f1_2d", "com_error_mm_2d", "arse_2d", "diameter_error_mm_2d", "area_error_mm2")
 
@@ -40,6 +41,12 @@ def _check_group_keys(keys: tuple[str, ...], known: set[str]) -> None:
                                      param_hint="--group-by")
 
 
+def _groups_repeat_files(report) -> bool:
+    """True when each group summary is one file's summary under keys the per-file table shows already
+    (e.g. ``--group-by model`` with one file per model): the table then shows the per-file rows only."""
+    return set(report.group_by) <= set(FILE_TABLE_KEYS) and all(g["n"] == 1 for g in report.groups)
+
+
 def _emit_tables(report, fmt: str, summary_only: bool) -> None:
     from lesscli.io.records import emit_records
     from lesscli.metrics.summary import pm_cells
@@ -48,7 +55,8 @@ def _emit_tables(report, fmt: str, summary_only: bool) -> None:
     if not summary_only and report.scans:
         cols = [c for c in SCAN_COLUMNS if any(c in r for r in report.scans)]
         blocks.append((report.scans, cols))
-    for rows, keys in ((report.files, ("file", "model")), (report.groups, report.group_by)):
+    groups = [] if _groups_repeat_files(report) else report.groups
+    for rows, keys in ((report.files, FILE_TABLE_KEYS), (groups, report.group_by)):
         if rows:
             metrics = [m for m in SUMMARY_METRICS if any(r.get(m) is not None or r.get(f"{m}_n") for r in rows)]
             shown = [{**{k: r.get(k) for k in (*keys, "n")}, **pm_cells(r, metrics)} for r in rows]
@@ -80,13 +88,18 @@ def cli(preds, truth_path, pred_nifti, cls, threshold, baseline_from, diameter_p
     """Score predictions against their truth: F1/precision/recall, centroid error (mm), ARSE,
     diameter error (mm), area/volume error (mm^2/mm^3), in 3D and on the largest true slice (2D).
 
-    Output: one row per scan, one summary row per file (mean over scans and micro F1 over the set),
-    and, for several files or with --group-by, one row per group with mean +- std (ddof=1) over
-    files and the count of valid values. Undefined values are null and not counted.
+    Output: one row per scan, one summary row per file and model (mean over scans and micro F1 over
+    the set), and, for several files or with --group-by, one row per group with mean +- std (ddof=1)
+    over files and the count of valid values. Undefined values are null and not counted.
+    --baseline-from adds the baseline (model 'average') once per distinct set of truths. Several
+    models of one test set (one file each) with --group-by model make one table in the human
+    formats: a row per model plus 'average' (the group rows would repeat them).
 
     Examples:
 
       less metrics pred_s0.npz pred_s1.npz pred_s2.npz --summary-only --format table
+
+      less metrics pred_less.npz pred_forcemap.npz --baseline-from train.npz --group-by model --summary-only
 
       less metrics --truth ref.nii.gz --pred seg.nii.gz
     """

@@ -50,7 +50,7 @@ class Batch:
         return int(self.pose.shape[0])
 
 
-NORM_MODES = ("global", "feature")
+NORM_MODES = ("global", "feature", "scale")
 
 
 def compute_norm_stats(scans: ScanSet, mode: str = "global") -> dict:
@@ -61,7 +61,10 @@ def compute_norm_stats(scans: ScanSet, mode: str = "global") -> dict:
         mode: ``global`` (default): one standard deviation pooled over all features, so the
             normalised MSE stays proportional to the physical squared error and channels that only
             carry sensor noise (e.g. shear of a shear-free sensor) keep their small weight;
-            ``feature``: one standard deviation per feature.
+            ``feature``: one standard deviation per feature; ``scale``: no centring, one scale per
+            taxel (the root mean square of its normal force, axis 2) for its three axes: zero force
+            stays 0, and each taxel's own gain and place in the pad's pressure profile (rim taxels of
+            a flat pad read many times the centre ones) is divided out, a flat field.
 
     Returns:
         ``{"force_mean": [F floats], "force_std": [F floats], "mode": str, "n_steps": int,
@@ -73,9 +76,12 @@ def compute_norm_stats(scans: ScanSet, mode: str = "global") -> dict:
     if scans.n_steps == 0:
         raise DataError("training scan set has no steps: cannot compute normalisation statistics")
     flat = scans.force.reshape(scans.n_steps, -1).astype(np.float64)
-    mean = flat.mean(axis=0)
-    var = flat.var(axis=0)
-    std = np.sqrt(var) if mode == "feature" else np.full_like(var, np.sqrt(var.mean()))
+    if mode == "scale":
+        normal = scans.force[..., 2].astype(np.float64)
+        mean, var = np.zeros(flat.shape[1]), np.repeat((normal * normal).mean(axis=0), 3)
+    else:
+        mean, var = flat.mean(axis=0), flat.var(axis=0)
+    std = np.sqrt(var) if mode in ("feature", "scale") else np.full_like(var, np.sqrt(var.mean()))
     std = np.where(std > STD_FLOOR, std, 1.0)
     units = scans.meta.get("units", {}).get("force", "") if isinstance(scans.meta, dict) else ""
     return {"force_mean": mean.tolist(), "force_std": std.tolist(), "mode": mode,

@@ -4,6 +4,8 @@ Each scan is imaged on its own label grid when it has one (3D: the volume's grid
 through the inclusion centre, or the trained slice index), else on the training grid. ``steps``/
 ``every`` image prefixes of the scan's sequence (the image developing over time); ``grow`` extends
 the particle grid over the largest label grid at the same particle spacing (weights are shared).
+A force-map calibration (``less image fit --model forcemap``) predicts on the same grids
+(:func:`predict_forcemap`); :func:`predict_file` tells the two checkpoint kinds apart.
 """
 
 from __future__ import annotations
@@ -19,8 +21,9 @@ import torch
 from lesscli.data.batching import ScanDataset, collate
 from lesscli.data.image_labels import AUTO_SLICE, grid_of, target_volume
 from lesscli.errors import DataError
+from lesscli.infer import forcemap
 from lesscli.io.predictions import PredictionSet, ScanPrediction, labels_from_probs
-from lesscli.io.scans import ScanSet
+from lesscli.io.scans import ScanSet, load_scans
 from lesscli.models.imager import Imager, grid_from_dict
 from lesscli.models.patch_decoder import ImageGrid
 from lesscli.train.checkpoint import load_checkpoint
@@ -47,13 +50,20 @@ class PredictOptions:
     slice_index: int | None = None
 
 
-def load_imager(path: str, map_location: str | torch.device = "cpu") -> tuple[Imager, dict]:
-    """Rebuild an imaging model from its checkpoint (eval mode); DataError names the file."""
+def load_imager(path: str, map_location: str | torch.device = "cpu",
+                ckpt: dict | None = None) -> tuple[Imager, dict]:
+    """Rebuild an imaging model from its checkpoint (eval mode); DataError names the file.
+
+    ``ckpt``: the checkpoint already loaded from ``path`` (None: load it).
+    """
     from lesscli.models.registry import build_encoder
     from lesscli.train.image_fit import build_decoder
 
-    ckpt = load_checkpoint(path, map_location)
+    ckpt = load_checkpoint(path, map_location) if ckpt is None else ckpt
     cfg = ckpt.get("config", {})
+    if cfg.get("model") == forcemap.MODEL:
+        raise DataError(f"{path}: a force-map calibration, not a learned imager; "
+                        "only 'less image predict' reads it")
     missing = [k for k in ("encoder", "decoder", "grid", "image") if k not in cfg]
     if missing:
         raise DataError(f"{path}: not an imaging checkpoint (config lacks {', '.join(missing)}); "
@@ -105,6 +115,14 @@ def predict_scan(imager: Imager, item: dict, lengths: list[int], grid: ImageGrid
     return out
 
 
+def _scan_prediction(scans: ScanSet, s: int, probs: np.ndarray, grid: ImageGrid, truth: np.ndarray | None,
+                     steps: int, threshold: float | None) -> ScanPrediction:
+    return ScanPrediction(probs=probs, origin_mm=np.array(grid.origin_mm),
+                          spacing_mm=np.array(grid.spacing_mm), truth=truth, insert=str(scans.scan_insert[s]),
+                          orientation=int(scans.scan_orientation[s]), steps=int(steps),
+                          label=labels_from_probs(probs, threshold))
+
+
 def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, device: torch.device | str = "cpu",
             name: str = "scan set", progress: Callable = lambda it, **_: it) -> PredictionSet:
     """Predict every scan of ``scans`` (see the module docstring)."""
@@ -123,14 +141,52 @@ def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, de
         grid, truth = grids[s]
         lengths = prefix_lengths(int(offsets[s + 1] - offsets[s]), opts.steps, opts.every)
         for k, probs in zip(lengths, predict_scan(imager, data[s], lengths, grid, opts.batch_size, device)):
-            preds.append(ScanPrediction(
-                probs=probs, origin_mm=np.array(grid.origin_mm), spacing_mm=np.array(grid.spacing_mm), truth=truth,
-                insert=str(scans.scan_insert[s]), orientation=int(scans.scan_orientation[s]), steps=int(k),
-                label=labels_from_probs(probs, opts.threshold)))
+            preds.append(_scan_prediction(scans, s, probs, grid, truth, k, opts.threshold))
     meta = {"dim": dim, "threshold": opts.threshold, "model": cfg["encoder"]["name"],
             "decoder": cfg["decoder"]["name"], "width": cfg["decoder"].get("width"), "grown": bool(opts.grow),
             "particles": int(getattr(imager.encoder, "n_particles", 1)), "seed": cfg.get("train", {}).get("seed")}
     return PredictionSet(preds, meta)
+
+
+def predict_forcemap(ckpt: dict, scans: ScanSet, opts: PredictOptions, path: str, name: str = "scan set",
+                     progress: Callable = lambda it, **_: it) -> PredictionSet:
+    """Force-map predictions (:mod:`lesscli.infer.forcemap`) of every scan and prefix, on the grids
+    :func:`predict` uses; ``path`` names the checkpoint in errors, ``name`` the scan set."""
+    cfg = ckpt["config"]
+    cal = forcemap.calibration_from_dict(cfg.get("forcemap") or {}, path)
+    try:
+        dim, default = int(cfg["image"]["dim"]), grid_from_dict(cfg["grid"])
+        slice_index = int(cfg["image"]["slice"]) if opts.slice_index is None else opts.slice_index
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DataError(f"{path}: malformed force-map checkpoint (config 'image'/'grid': {exc!r})") from None
+    taxel_xy = forcemap.taxel_layout(scans.meta, name)
+    offsets, preds = scans.scan_step_offsets(), []
+    for s in progress(range(scans.n_scans), desc="predict", leave=False):
+        grid, truth = scan_grid(scans, s, dim, slice_index, default)
+        for k in prefix_lengths(int(offsets[s + 1] - offsets[s]), opts.steps, opts.every):
+            probs = forcemap.scan_probs(cal, forcemap.scan_touches(scans, s, taxel_xy, k), grid.shape,
+                                        grid.origin_mm, grid.spacing_mm)
+            preds.append(_scan_prediction(scans, s, probs, grid, truth, k, opts.threshold))
+    meta = {"dim": dim, "threshold": opts.threshold, "model": forcemap.MODEL, "decoder": None, "width": None,
+            "grown": False, "particles": None, "seed": None}
+    return PredictionSet(preds, meta)
+
+
+def predict_file(path: str, data: str, opts: PredictOptions, device: torch.device | str = "cpu",
+                 progress: Callable = lambda it, **_: it) -> tuple[PredictionSet, dict, ScanSet]:
+    """Load the checkpoint at ``path`` and the scan set ``data`` and predict: the one place that tells a
+    force-map calibration (``config['model'] == 'forcemap'``) from a learned imager.
+
+    Returns:
+        (predictions, checkpoint, scans).
+    """
+    ckpt = load_checkpoint(path, device)
+    if ckpt.get("config", {}).get("model") == forcemap.MODEL:
+        scans = load_scans(data)
+        return predict_forcemap(ckpt, scans, opts, path, data, progress), ckpt, scans
+    imager, ckpt = load_imager(path, device, ckpt)
+    scans = load_scans(data)
+    return predict(imager, ckpt, scans, opts, device, data, progress), ckpt, scans
 
 
 def prediction_scans(preds: list[ScanPrediction]) -> list[int]:

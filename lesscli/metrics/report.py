@@ -64,9 +64,11 @@ def load_baseline(path: str, cls: str, points: str) -> AverageBaseline:
 def score_files(paths: Sequence[str], cls: str = "inclusion", threshold: float | None = None,
                 points: str = "centres", baseline: AverageBaseline | None = None, baseline_source: str = "",
                 extra_keys: tuple[str, ...] = (), report: Report | None = None) -> Report:
-    """Score prediction files into ``report.scans`` (baseline rows once per distinct test set)."""
+    """Score prediction files into ``report.scans`` (baseline rows once per distinct test set, after the
+    rows of every file, so the baseline follows the models in the summaries)."""
     report = report or Report()
     seen_truths: set[str] = set()
+    baseline_rows: list[dict] = []
     for path in paths:
         preds = load_predictions(path)
         report.meta_keys.update(k for k, v in preds.meta.items()
@@ -81,7 +83,8 @@ def score_files(paths: Sequence[str], cls: str = "inclusion", threshold: float |
         fingerprint = truth_fingerprint(preds)
         if baseline is not None and fingerprint not in seen_truths:
             seen_truths.add(fingerprint)
-            report.scans.extend(score_baseline_set(preds, baseline, path, cls, points, baseline_source))
+            baseline_rows.extend(score_baseline_set(preds, baseline, path, cls, points, baseline_source))
+    report.scans.extend(baseline_rows)
     return report
 
 

@@ -115,6 +115,7 @@ class ParticleEncoder(nn.Module):
     """
 
     name = "less"
+    force_norm = "global"        # the force normalisation it is trained with by default (data.batching)
 
     def __init__(self, force_dim: int, dim: int = 128, spacing_mm: float = 6.0, grid_extent_mm: float = 60.0,
                  receptive_field_mm: float = 10.0, max_steps_per_particle: int | None = None, n_freq: int = 16,
@@ -153,6 +154,12 @@ class ParticleEncoder(nn.Module):
         other.load_state_dict(self.state_dict())
         other.train(self.training)
         return other.to(device=self.xy_mm.device, dtype=next(self.parameters()).dtype)
+
+    def force_decoder(self) -> nn.Module:
+        """The SSL force decoder that pairs with this encoder (a fresh one)."""
+        from lesscli.models.force_decoder import ForceDecoder
+
+        return ForceDecoder(self.force_dim, self.dim, self.settings["n_freq"])
 
     @property
     def n_particles(self) -> int:

@@ -21,6 +21,8 @@ class ForceDecoder(nn.Module):
         n_freq: wavelengths per pose coordinate.
     """
 
+    name = "mlp"
+
     def __init__(self, force_dim: int, dim: int, n_freq: int = 16) -> None:
         super().__init__()
         self.settings = {"force_dim": int(force_dim), "dim": int(dim), "n_freq": int(n_freq)}

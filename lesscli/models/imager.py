@@ -16,7 +16,7 @@ from lesscli.models.patch_decoder import ImageGrid, PatchDecoder
 
 DECODERS: dict[str, type] = {"patch": PatchDecoder, "global": GlobalDecoder}
 # the decoder each encoder pairs with by default
-DEFAULT_DECODER: dict[str, str] = {"less": "patch", "global": "global"}
+DEFAULT_DECODER: dict[str, str] = {"less": "patch", "less-taxel": "patch", "global": "global"}
 
 
 def grid_to_dict(grid: ImageGrid) -> dict:

@@ -7,8 +7,10 @@ import difflib
 from lesscli.errors import LessError
 from lesscli.models.encoders import GlobalEncoder, ParticleEncoder
 from lesscli.models.force_decoder import ForceDecoder
+from lesscli.models.taxel import TaxelParticleEncoder
 
-ENCODERS: dict[str, type] = {"less": ParticleEncoder, "global": GlobalEncoder}
+# "less" is the paper's encoder; "less-taxel" adds a per-particle taxel stiffness map (models/taxel.py)
+ENCODERS: dict[str, type] = {"less": ParticleEncoder, "less-taxel": TaxelParticleEncoder, "global": GlobalEncoder}
 FORCE_DECODERS: dict[str, type] = {"mlp": ForceDecoder}
 
 

@@ -39,9 +39,11 @@ def select(phantoms: list[Phantom], names: list[str] | None, limit: int | None, 
     return phantoms[:limit] if limit else phantoms
 
 
-def write_set(out_dir: str, set_name: str, orientations, shape, spacing_mm, limit=None, names=None) -> list[dict]:
-    """Labels and specs for a catalogue or phantom file; returns one record per volume."""
-    phantoms = select(resolve_set(set_name), names, limit, set_name)
+def write_set(out_dir: str, set_name: str, orientations, shape, spacing_mm, limit=None, names=None,
+              phantoms: list[Phantom] | None = None) -> list[dict]:
+    """Labels and specs for a catalogue or phantom file (or the given ``phantoms``, ``set_name`` then
+    naming their source, e.g. ``random``); returns one record per volume."""
+    phantoms = select(resolve_set(set_name) if phantoms is None else phantoms, names, limit, set_name)
     rows = []
     with atomic_dir(out_dir) as tmp:
         for base in phantoms:

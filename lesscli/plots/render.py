@@ -1,4 +1,5 @@
-"""Figures of predictions: truth | prediction | uncertainty side by side, and strips over time.
+"""Figures of predictions: truth | prediction | uncertainty side by side, strips over time, and
+truth | model A | model B ... for several imagers of the same scans.
 
 Images are drawn in phantom-frame millimetres (x right, y up). 3D volumes show a top view (the
 highest class code along depth, i.e. inclusion over pillar over insert; entropy averaged over
@@ -142,6 +143,32 @@ def strip_figure(preds: list[ScanPrediction], path: str, title: str = "") -> str
         for c in range(int(has_truth and r == 1), cols):
             _label_axes(axes[r, c], r, c, 2)
     fig.colorbar(image, ax=axes[1, :].tolist(), label="entropy (nats)")
+    _legend(fig)
+    fig.suptitle(title)
+    fig.savefig(path, format="png")
+    return path
+
+
+def compare_figure(preds: list[ScanPrediction], names: list[str], path: str, title: str = "") -> str:
+    """Truth | one prediction per model for the same scan on the same grid; writes a PNG at ``path``.
+
+    Args:
+        preds: the predictions of one scan by each model (the truth is taken from the first).
+        names: column titles, one per prediction (e.g. the models).
+    """
+    rows = views(preds[0])
+    fig, axes = _canvas(len(rows), 1 + len(preds))
+    ext, truth = extent_mm(preds[0]), preds[0].truth
+    for r, (name, sel) in enumerate(rows):
+        if truth is not None:
+            _draw_labels(axes[r, 0], _codes(truth, sel), ext)
+        else:
+            _blank(axes[r, 0], "no truth")
+        for c, pred in enumerate(preds, start=1):
+            _draw_labels(axes[r, c], _codes(pred.label, sel), ext)
+        for c, head in enumerate(("truth", *names)):
+            axes[r, c].set_title(f"{head}{' - ' + name if name else ''}", fontsize=9)
+            _label_axes(axes[r, c], r, c, len(rows))
     _legend(fig)
     fig.suptitle(title)
     fig.savefig(path, format="png")

@@ -5,9 +5,11 @@ Example::
     name = "poke"
     seed = 0
     [phantoms]
-    set = "single"            # single | multiple | large | a .toml/.json phantom file
+    set = "single"            # single | multiple | large | random | a .toml/.json phantom file
     limit = 4                 # first N inserts (or names = ["St12C13"])
     orientations = [0, 4]     # default: all 8
+    [phantoms.random]         # only with set = "random": the randomised training family
+    count = 48                # (lesscli.phantom.randomised; ranges [low, high], a number v means [v, v])
     [sensor]
     layout = "xela"           # or taxel_xy_mm = [[x, y], ...] and pad_size_mm = [w, h]
     [contact]
@@ -18,6 +20,15 @@ Example::
     n_traj = 100
     [effects.noise]           # one table per enabled effect; absent = off
     white_n = 0.01
+
+``set = "random"`` draws single-inclusion inserts named ``R<index>s<seed>`` from the ranges of
+``[phantoms.random]`` (defaults): ``count`` (32), ``seed`` (the scene's ``seed``), ``empty_share``
+(0.15, probability of an insert without inclusion), ``diameter_mm`` ([6, 16]), ``gap_below_skin_mm``
+([0.5, 6], sphere top under the skin), ``edge_margin_mm`` (1.0, sphere to the octagon's flats and the
+base), ``filling_kpa`` ([10, 40]), ``inclusion_kpa`` ([150, 600]), ``skin_kpa`` ([70, 130]) and
+``width_mm`` (60). The same file always gives the same family; ``--set phantoms.random.seed=3`` (or
+another scene seed) gives another. ``names``, ``limit`` and ``orientations`` apply as for the catalogues;
+``[phantoms.random]`` is ignored for other sets (so ``--set phantoms.set=single`` works on a random scene).
 
 Unknown keys are errors that name the closest valid key. ``--set a.b=value`` overrides apply to the
 document before validation (values parse as TOML, else as strings).
@@ -34,15 +45,18 @@ from lesscli.errors import DataError
 from lesscli.io.sensor import xela_uscu
 from lesscli.phantom.catalogue import CATALOGUES, load_phantom_file
 from lesscli.phantom.geometry import DEFAULT_LABEL_SHAPE, Phantom, default_label_spacing
+from lesscli.phantom.randomised import RandomRanges, random_set
 from lesscli.sim.effects import EFFECTS, load_effect
 from lesscli.sim.motion import CONTROLS, MOTION_DEFAULTS
 
 SENSOR_LAYOUTS = {"xela": xela_uscu}
+RANDOM_SET = "random"                         # phantoms.set drawing the randomised family
+RANDOM_KEYS = set(RandomRanges().to_dict())   # the keys of [phantoms.random]
 ON_INVALID = ("keep", "drop", "error")
 DEFAULT_TIER = "green"
 TOP_KEYS = {"name", "seed", "description", "phantoms", "sensor", "contact", "motion", "labels", "effects"}
 SECTION_KEYS = {
-    "phantoms": {"set", "names", "limit", "orientations"},
+    "phantoms": {"set", "names", "limit", "orientations", "random"},
     "sensor": {"layout", "name", "taxel_xy_mm", "pad_size_mm", "pitch_mm"},
     "contact": {"tier", "cache_dir", "on_invalid", "params"},
     "labels": {"shape", "spacing_mm"},
@@ -136,16 +150,24 @@ def apply_overrides(doc: dict, overrides: list[str], where: str) -> dict:
     return out
 
 
-def _phantoms(table: dict, where: str, base_dir: str) -> tuple[list[Phantom], tuple[int, ...]]:
+def _random_phantoms(table, where: str, seed: int) -> list[Phantom]:
+    """The random family of ``[phantoms.random]``; its seed defaults to the scene's."""
+    check_keys(table, RANDOM_KEYS, where, "phantoms.random.")
+    return random_set(RandomRanges.from_dict({"seed": seed, **table}, f"{where}: phantoms.random"))
+
+
+def _phantoms(table: dict, where: str, base_dir: str, seed: int) -> tuple[list[Phantom], tuple[int, ...]]:
     check_keys(table, SECTION_KEYS["phantoms"], where, "phantoms.")
     which = str(table.get("set", "single"))
     if which in CATALOGUES:
         phantoms = CATALOGUES[which]()
+    elif which == RANDOM_SET:
+        phantoms = _random_phantoms(table.get("random", {}), where, seed)
     elif which.endswith((".toml", ".json")):
         path = which if os.path.isabs(which) or os.path.exists(which) else os.path.join(base_dir, which)
         phantoms = load_phantom_file(path)
     else:
-        _fail_value(where, "phantoms.set", which, CATALOGUES)
+        _fail_value(where, "phantoms.set", which, [*CATALOGUES, RANDOM_SET])
     if "names" in table:
         known = {p.name: p for p in phantoms}
         for name in table["names"]:
@@ -248,10 +270,10 @@ def parse_scene(doc: dict, where: str = "<scene>", base_dir: str = ".") -> Scene
     for key in ("phantoms", "sensor", "contact", "motion", "labels", "effects"):
         if not isinstance(doc.get(key, {}), dict):
             raise DataError(f"{where}: '{key}' must be a table")
-    phantoms, orientations = _phantoms(doc.get("phantoms", {}), where, base_dir)
     seed = doc.get("seed", 0)
-    if not isinstance(seed, int) or seed < 0:
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise DataError(f"{where}: seed must be a non-negative integer, got {seed!r}")
+    phantoms, orientations = _phantoms(doc.get("phantoms", {}), where, base_dir, seed)
     return Scene(name=str(doc.get("name", os.path.splitext(os.path.basename(where))[0])), seed=seed,
                  phantoms=phantoms, orientations=orientations, sensor=_sensor(doc.get("sensor", {}), where),
                  contact=_contact(doc.get("contact", {}), where), motion=_motion(doc.get("motion", {}), where),

@@ -22,14 +22,15 @@ from lesscli.errors import LessError
 class ModelConfig:
     """Encoder and decoder sizes (lengths in mm)."""
 
-    name: str = "less"                  # "less" or "global"
+    name: str = "less"                  # "less" (paper), "less-taxel" (taxel-aware) or "global"
     dim: int = 128                      # d_z (paper: 1024)
     spacing_mm: float = 6.0
     grid_extent_mm: float = 60.0        # side of the square covered by particles
     receptive_field_mm: float = 10.0    # beta
     max_steps_per_particle: int = 0     # cap on steps each particle sees (earliest kept); 0 = no cap
     n_freq: int = 16                    # wavelengths per pose coordinate in the positional encoding
-    force_norm: str = "global"          # force scale: "global" (one pooled std) or "feature" (per feature)
+    force_norm: str = ""                # force scale: "global" (one pooled std), "feature" (per feature),
+                                        # "scale" (no centring); "" = the encoder's own (less: global)
 
 
 @dataclass

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
+import inspect
 import time
 from collections.abc import Callable
 
 import torch
 
 from lesscli.data.batching import ScanDataset, collate, compute_norm_stats, force_dim
+from lesscli.errors import DataError
 from lesscli.io.scans import ScanSet
-from lesscli.models.force_decoder import ForceDecoder
 from lesscli.models.registry import ENCODERS, lookup
 from lesscli.models.ssl_loss import ForcePredictor
 from lesscli.train import distributed
@@ -17,21 +18,37 @@ from lesscli.train.config import PretrainConfig, check_pretrain_config, to_dict
 from lesscli.train.loop import EVAL_SEED, FitResult, fit
 
 
-def encoder_kwargs(cfg: PretrainConfig, n_force: int) -> dict:
-    """Constructor arguments of the configured encoder."""
+def encoder_kwargs(cfg: PretrainConfig, n_force: int, taxel_xy_mm: list | None = None) -> dict:
+    """Constructor arguments of the configured encoder (``taxel_xy_mm`` for encoders that take it)."""
     m = cfg.model
-    return {"force_dim": n_force, "dim": m.dim, "spacing_mm": m.spacing_mm, "grid_extent_mm": m.grid_extent_mm,
-            "receptive_field_mm": m.receptive_field_mm, "n_freq": m.n_freq,
-            "max_steps_per_particle": m.max_steps_per_particle or None}
+    kwargs = {"force_dim": n_force, "dim": m.dim, "spacing_mm": m.spacing_mm, "grid_extent_mm": m.grid_extent_mm,
+              "receptive_field_mm": m.receptive_field_mm, "n_freq": m.n_freq,
+              "max_steps_per_particle": m.max_steps_per_particle or None}
+    if "taxel_xy_mm" in inspect.signature(lookup(ENCODERS, m.name, "encoder")).parameters:
+        if taxel_xy_mm is None:
+            raise DataError(f"encoder '{m.name}' needs the sensor's taxel layout (meta sensor.taxel_xy_mm)")
+        kwargs["taxel_xy_mm"] = taxel_xy_mm
+    return kwargs
 
 
-def build_model(cfg: PretrainConfig, n_force: int) -> ForcePredictor:
-    """Encoder + force decoder, initialised from ``cfg.train.seed`` (the global RNG is restored after)."""
+def taxel_layout(scans: ScanSet, name: str = "scan set") -> list | None:
+    """The scan set's taxel centres in the pad frame (meta sensor.taxel_xy_mm), None when not recorded."""
+    sensor = scans.meta.get("sensor") if isinstance(scans.meta, dict) else None
+    xy = sensor.get("taxel_xy_mm") if isinstance(sensor, dict) else None
+    if xy is None:
+        return None
+    if len(xy) != scans.n_taxels or any(not isinstance(v, list) or len(v) != 2 for v in xy):
+        raise DataError(f"{name}: meta sensor.taxel_xy_mm must hold {scans.n_taxels} [x, y] pairs")
+    return [[float(a), float(b)] for a, b in xy]
+
+
+def build_model(cfg: PretrainConfig, n_force: int, taxel_xy_mm: list | None = None) -> ForcePredictor:
+    """Encoder + its force decoder, initialised from ``cfg.train.seed`` (the global RNG is restored after)."""
     cls = lookup(ENCODERS, cfg.model.name, "encoder")
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(cfg.train.seed)
-        encoder = cls(**encoder_kwargs(cfg, n_force))
-        decoder = ForceDecoder(n_force, cfg.model.dim, cfg.model.n_freq)
+        encoder = cls(**encoder_kwargs(cfg, n_force, taxel_xy_mm))
+        decoder = encoder.force_decoder()
     return ForcePredictor(encoder, decoder, cfg.ssl.k_input, cfg.ssl.k_query)
 
 
@@ -74,12 +91,13 @@ def pretrain(train: ScanSet, val: ScanSet | None, cfg: PretrainConfig, output: s
     env = env or distributed.DistEnv()
     check_pretrain_config(cfg)
     t0 = time.perf_counter()
-    stats = compute_norm_stats(train, cfg.model.force_norm)
+    norm = cfg.model.force_norm or lookup(ENCODERS, cfg.model.name, "encoder").force_norm
+    stats = compute_norm_stats(train, norm)
     train_set = ScanDataset(train, stats, names[0])
     val_set = ScanDataset(val, stats, names[1]) if val is not None else None
-    model = build_model(cfg, force_dim(stats))
+    model = build_model(cfg, force_dim(stats), taxel_layout(train, names[0]))
     config = {**to_dict(cfg), "encoder": model.encoder.config(),
-              "decoder": {"name": "mlp", **model.decoder.settings}}
+              "decoder": {"name": model.decoder.name, **model.decoder.settings}}
     result: FitResult = fit(model, ssl_loss_fn, train_set, val_set, cfg.train, collate_fn=collate, output=output,
                             config=config, norm_stats=stats, env=env, resume=resume, history=history,
                             progress=progress)
