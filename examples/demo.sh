@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The main pipeline on the built-in simulator, a few minutes on a laptop CPU:
 # simulate -> subsample -> split -> pretrain -> image fit -> predict -> metrics -> render.
-# Training data: examples/scenes/quick.toml, 48 randomised single-inclusion inserts (one orientation, 30
+# Training data: examples/scenes/quick.toml, 120 randomised single-inclusion inserts (one orientation, 30
 # pokes each, the fast contact tier, 13 x 64 x 64 label volumes), a validation share split off by insert.
 # Evaluation: 16 catalogue inserts x 2 orientations simulated with the same scene, never seen in training.
 # LESS is reported next to the classical force-map imager and the average-prediction baseline.
@@ -14,8 +14,8 @@
 set -euo pipefail
 
 : "${LESS_MODEL:=less-taxel}"
-: "${PRETRAIN_ARGS:=--dim 32 --epochs 20 --lr 3e-3 --set ssl.k_input=8 --set ssl.k_query=8}"
-: "${FIT_ARGS:=--epochs 60 --lr 1e-2 --set image.patch_px=16 --set image.width=16}"
+: "${PRETRAIN_ARGS:=--dim 16 --epochs 8 --lr 3e-3 --batch-size 4 --set ssl.k_input=8 --set ssl.k_query=8}"
+: "${FIT_ARGS:=--epochs 40 --lr 1e-2 --batch-size 4 --set image.patch_px=16 --set image.width=16 --set loss.alpha_power=0.5}"
 : "${TRAIN_SET_ARGS:=}"
 HELDOUT_NAMES='["St8C5","St8C9","St8D13","St10C9","St10D5","St10D13","St12C5","St12C13","St12D9","St14C5","St14D9","St14D13","St16C9","St16C13","St16D5","St16D9"]'
 
@@ -60,9 +60,9 @@ less metrics "${PREDS[@]}" --baseline-from "$OUT/split/train.npz" --group-by mod
   > "$OUT/metrics.txt"
 less metrics "${PREDS[@]}" --baseline-from "$OUT/split/train.npz" --group-by model --format jsonl \
   > "$OUT/metrics.jsonl"
-step "9/9 render truth | LESS | classical per held-out scan; LESS's uncertainty and image over time for 8"
+step "9/9 render truth | LESS | classical, LESS uncertainty and the image over time, for 8 held-out scans"
 mkdir -p "$OUT/figures"
-less render "${PREDS[@]}" -o "$OUT/figures/compare" --format jsonl > "$OUT/figures_compare.jsonl"
+less render "${PREDS[@]}" -o "$OUT/figures/compare" "${FIGURE_SCANS[@]}" --format jsonl > "$OUT/figures_compare.jsonl"
 less render "$OUT/pred_steps.npz" -o "$OUT/figures/less" "${FIGURE_SCANS[@]}" --format jsonl > "$OUT/figures.jsonl"
 
 printf '\ndemo done in %ds. Held-out catalogue inserts, never seen in training:\n\n' "$((SECONDS - t0))"

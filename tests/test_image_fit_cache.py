@@ -64,3 +64,27 @@ def test_best_epoch_is_the_best_validation_f1_or_loss(tmp_path, select):
         assert summary["selected_by"] == "val_loss" and all("val_score" not in h for h in history)
         best = min(history, key=lambda h: h["val_loss"])
     assert summary["best_epoch"] == best["epoch"]
+
+
+def test_threshold_is_chosen_on_validation_voxels():
+    """Inclusion voxels at p = 0.95, false ones at p = 0.65: any threshold in [0.65, 0.95) scores F1 = 1,
+    argmax and 0.5 / 0.6 do not, and ties keep the lowest threshold (0.7)."""
+    from lesscli.train.image_fit import choose_threshold
+
+    class Item:
+        def __init__(self, logits, target):
+            self.inputs, self.target = logits, target
+
+        def to(self, device):
+            return self
+
+    target = torch.zeros(1, 1, 2, 2, dtype=torch.long)
+    target[0, 0, 0, 0] = 3
+    probs = torch.full((1, 4, 1, 2, 2), 0.35 / 3)
+    probs[:, 3] = 0.65
+    probs[0, 3, 0, 0, 0] = 0.95
+    probs[0, :3, 0, 0, 0] = 0.05 / 3
+    logits = probs.log()
+    threshold, scores = choose_threshold(torch.nn.Identity(), [Item(logits, target)], 1, torch.device("cpu"),
+                                         collate_fn=lambda items: items[0])
+    assert threshold == 0.7 and scores["0.7"] == 1.0 and scores["None"] < 1.0

@@ -95,11 +95,12 @@ def test_map_peaks_where_the_taxels_felt_the_stiff_spot(spot):
     centre = int(((states.xy_mm - 0) ** 2).sum(-1).argmin())                       # the particle at 0, 0
     z = states.z[0, centre]
     g, m = enc.gru_dim, enc.cells
-    mean, evidence = z[g:g + m], z[g + m:]
+    evidence = z[g + 2 * m:]
     covered = evidence > evidence.max() * 0.2
-    best = int(torch.where(covered, mean, torch.full_like(mean, -1e9)).argmax())
     axis = (np.arange(7) - 3) * 2.5
-    assert (axis[best % 7], axis[best // 7]) == pytest.approx(spot)
+    for channel in (z[g:g + m], z[g + m:g + 2 * m]):            # mean log stiffness, contrast within a step
+        best = int(torch.where(covered, channel, torch.full_like(channel, -1e9)).argmax())
+        assert (axis[best % 7], axis[best // 7]) == pytest.approx(spot)
 
 
 def test_training_evaluation_and_streaming_steps_agree():
@@ -157,7 +158,7 @@ def test_registry_round_trip_and_grown_grid_keep_outputs():
     torch.testing.assert_close(a.z, b.z, atol=0, rtol=0)
     inner = [i for i, xy in enumerate(grown.xy_mm.tolist()) if max(abs(v) for v in xy) <= 16.0]
     torch.testing.assert_close(grown.z[:, inner], a.z, atol=1e-6, rtol=0)
-    assert ENCODERS["less-taxel"] is TaxelParticleEncoder and enc.dim == 8 + 2 * 49
+    assert ENCODERS["less-taxel"] is TaxelParticleEncoder and enc.dim == 8 + 3 * 49
 
 
 def test_layout_must_match_force_features():
@@ -190,3 +191,4 @@ def test_less_taxel_without_layout_is_a_clear_error():
     cfg.model.name = "less-taxel"
     with pytest.raises(DataError, match="taxel layout"):
         build_model(cfg, 90, None)
+

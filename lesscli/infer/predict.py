@@ -34,7 +34,8 @@ class PredictOptions:
     """How to predict.
 
     Attributes:
-        threshold: pillar/inclusion only above this probability (None: plain argmax).
+        threshold: pillar/inclusion only above this probability (None: the checkpoint's
+            ``config['image']['threshold']``, chosen on validation data by ``image fit``; else argmax).
         steps: image this many evenly spaced prefixes per scan (None: the whole sequence only).
         every: image every K-th prefix (and the whole sequence); exclusive with ``steps``.
         grow: extend the particle grid over larger label grids.
@@ -134,6 +135,7 @@ def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, de
     if opts.grow and grids:
         imager.encoder = imager.encoder.with_grid(grow_extent_mm([g for g, _ in grids]))
     imager = imager.to(device).eval()
+    threshold = opts.threshold if opts.threshold is not None else cfg["image"].get("threshold")
     data = ScanDataset(scans, ckpt["norm_stats"], name)
     offsets = scans.scan_step_offsets()
     preds = []
@@ -141,8 +143,8 @@ def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, de
         grid, truth = grids[s]
         lengths = prefix_lengths(int(offsets[s + 1] - offsets[s]), opts.steps, opts.every)
         for k, probs in zip(lengths, predict_scan(imager, data[s], lengths, grid, opts.batch_size, device)):
-            preds.append(_scan_prediction(scans, s, probs, grid, truth, k, opts.threshold))
-    meta = {"dim": dim, "threshold": opts.threshold, "model": cfg["encoder"]["name"],
+            preds.append(_scan_prediction(scans, s, probs, grid, truth, k, threshold))
+    meta = {"dim": dim, "threshold": threshold, "model": cfg["encoder"]["name"],
             "decoder": cfg["decoder"]["name"], "width": cfg["decoder"].get("width"), "grown": bool(opts.grow),
             "particles": int(getattr(imager.encoder, "n_particles", 1)), "seed": cfg.get("train", {}).get("seed")}
     return PredictionSet(preds, meta)

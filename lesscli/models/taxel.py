@@ -19,10 +19,13 @@ its own typical force, which flat-fields its gain and its place in the pad's pre
 The map has ``map_cells x map_cells`` cells at ``map_pitch_mm`` around the particle; cell j
 collects Gaussian weights ``w_j(r_t)`` (sigma = ``SIGMA_PER_PITCH`` pitches) and keeps
 
-    M_j = sum w_j(r_t) log k_t / (W_j + MAP_EPS),   c_j = log(1 + W_j),   W_j = sum w_j(r_t)
+    M_j = sum w_j(r_t) log k_t / (W_j + MAP_EPS),   W_j = sum w_j(r_t)
+    Q_j = sum w_j(r_t) (log k_t - mean_t' log k_t') / (W_j + MAP_EPS),   c_j = log(1 + W_j)
 
 over every step seen so far: a weighted mean of log stiffness (ratios of stiffness become
-differences, which linear layers read) and the evidence behind it. The update from one step is a
+differences, which linear layers read), the same of each taxel's contrast to the other pressing
+taxels of its step (a per-touch detrending: it does not depend on the gel's overall stiffness, the
+pad's depth calibration or the total force) and the evidence behind both. The update from one step is a
 pure function of the state and the step, so the state stays exactly local and streams like the
 GRU's (:meth:`gru_step`). The map has no parameters; self-supervision trains the GRU part, the image
 decoder reads both.
@@ -41,6 +44,7 @@ DEPTH_FLOOR_MM = 0.5          # k = f / (indentation + this): finite at zero and
 STIFFNESS_FLOOR = 1e-3        # log k is taken of max(k, this)
 MAP_EPS = 1e-6                # M = S / (W + MAP_EPS): 0 where a cell has no evidence
 SIGMA_PER_PITCH = 0.8         # Gaussian width of a map cell, in cell pitches
+MAP_CHANNELS = 3              # per cell: mean log stiffness, mean contrast within the step, evidence
 
 
 def taxel_xy(pose: Tensor, taxel_xy_mm: Tensor) -> Tensor:
@@ -72,8 +76,8 @@ def map_axis(cells: int, pitch_mm: float) -> Tensor:
 class TaxelParticleEncoder(ParticleEncoder):
     """LESS with a per-particle taxel stiffness map beside the GRU state (registry name ``less-taxel``).
 
-    States are ``z = [h_gru (dim), M (m), c (m)]`` with m = map_cells^2, so ``self.dim`` (the state
-    width decoders read) is ``dim + 2 m``. Particles, receptive fields and evaluation paths are those
+    States are ``z = [h_gru (dim), M (m), Q (m), c (m)]`` with m = map_cells^2, so ``self.dim`` (the
+    state width decoders read) is ``dim + 3 m``. Particles, receptive fields and evaluation paths are those
     of :class:`ParticleEncoder`.
 
     Args:
@@ -102,11 +106,11 @@ class TaxelParticleEncoder(ParticleEncoder):
         self.sigma_mm = SIGMA_PER_PITCH * float(map_pitch_mm)
         self.gru_dim = self.dim
         self.cells = int(map_cells) ** 2
-        self.dim = self.gru_dim + 2 * self.cells
+        self.dim = self.gru_dim + MAP_CHANNELS * self.cells
         self.paper_fle = self._modules.pop("fle")           # the paper's FLE feeds the GRU; fle() adds the map
 
     def fle(self, pose: Tensor, force: Tensor) -> Tensor:
-        """Step inputs ``[FLE(pose, force) (gru_dim), sum w log k (m), sum w (m)]`` for centred poses."""
+        """Step inputs ``[FLE(pose, force) (gru_dim), sum w log k, sum w contrast, sum w (m each)]``."""
         taxels = self.taxel_xy_mm.shape[0]
         normal = force.unflatten(-1, (taxels, AXES))[..., 2]                     # (..., T)
         depth = torch.clamp(-pose[..., 2:3], min=0.0)
@@ -116,28 +120,29 @@ class TaxelParticleEncoder(ParticleEncoder):
         d = taxel_xy(pose, self.taxel_xy_mm)[..., None, :] - self.axis_mm.to(pose.dtype)[:, None]  # (..., T, n, 2)
         wx, wy = torch.exp(-(d * d) / (2 * self.sigma_mm**2)).unbind(-1)
         on = presses.to(pose.dtype)
-        s = torch.einsum("...t,...ty,...tx->...yx", on * log_k, wy, wx).flatten(-2)
-        w = torch.einsum("...t,...ty,...tx->...yx", on, wy, wx).flatten(-2)
-        return torch.cat([self.paper_fle(pose, force), s, w], dim=-1)
+        step_mean = (on * log_k).sum(-1, keepdim=True) / on.sum(-1, keepdim=True).clamp(min=1.0)
+        values = torch.stack([on * log_k, on * (log_k - step_mean), on], dim=-2)          # (..., 3, T)
+        maps = torch.einsum("...vt,...ty,...tx->...vyx", values, wy, wx).flatten(-3)      # (..., 3 m)
+        return torch.cat([self.paper_fle(pose, force), maps], dim=-1)
 
     def gru_step(self, x: Tensor, h: Tensor) -> Tensor:
         """One step: the GRU cell on the first ``gru_dim`` inputs, the exact map update on the rest."""
-        g = self.gru_dim
+        g, m = self.gru_dim, self.cells
         gru = self.gru
         h_gru = torch.gru_cell(x[:, :g], h[:, :g], gru.weight_ih_l0, gru.weight_hh_l0, gru.bias_ih_l0,
                                gru.bias_hh_l0)
-        s, w = x[:, g:g + self.cells], x[:, g + self.cells:]
-        mean, weight = h[:, g:g + self.cells], torch.expm1(h[:, g + self.cells:])
+        s, w = x[:, g:g + 2 * m], x[:, g + 2 * m:]
+        mean, weight = h[:, g:g + 2 * m], torch.expm1(h[:, g + 2 * m:])
         total = weight + w
-        mean = (mean * (weight + MAP_EPS) + s) / (total + MAP_EPS)
+        mean = (mean * (weight + MAP_EPS).repeat(1, 2) + s) / (total + MAP_EPS).repeat(1, 2)
         return torch.cat([h_gru, mean, torch.log1p(total)], dim=-1)
 
     def _run_gru(self, x: Tensor, count: Tensor) -> Tensor:
         """(N, C, gru_dim + 2m) inputs -> (N, C, dim) states after each real step (zeros past ``count``)."""
-        g = self.gru_dim
+        g, m = self.gru_dim, self.cells
         h_gru = super()._run_gru(x[..., :g], count)
         real = (torch.arange(x.shape[1], device=x.device) < count[:, None].to(x.device))[..., None].to(x.dtype)
-        s = torch.cumsum(x[..., g:g + self.cells] * real, dim=1)
-        w = torch.cumsum(x[..., g + self.cells:] * real, dim=1)
-        return torch.cat([h_gru, s / (w + MAP_EPS) * real, torch.log1p(w) * real], dim=-1)
+        s = torch.cumsum(x[..., g:g + 2 * m] * real, dim=1)
+        w = torch.cumsum(x[..., g + 2 * m:] * real, dim=1)
+        return torch.cat([h_gru, s / (w + MAP_EPS).repeat(1, 1, 2) * real, torch.log1p(w) * real], dim=-1)
 

@@ -24,7 +24,7 @@ from lesscli.models.imager import DECODERS, DEFAULT_DECODER, Imager, grid_to_dic
 from lesscli.models.imaging_loss import ALPHA_POWER, GAMMA, LAMBDA, imaging_loss
 from lesscli.models.registry import lookup
 from lesscli.train import distributed
-from lesscli.train.checkpoint import load_representation
+from lesscli.train.checkpoint import load_checkpoint, load_representation, save_checkpoint
 from lesscli.train.config import LoopConfig, check_rules, to_dict
 from lesscli.train.loop import FitResult, fit
 from lesscli.train.state_cache import CachedImager, cache_states, collate_states
@@ -42,6 +42,7 @@ class ImageModelConfig:
     finetune: bool = False        # train the representation too
     slice: int = AUTO_SLICE       # 2D label slice; -1 = through the inclusion centre
     select: str = "f1"            # best epoch on --val: inclusion "f1" (ties: loss) or "loss"
+    threshold: float | None = None  # inclusion only above this probability at predict; None: chosen on --val
 
 
 @dataclass
@@ -146,6 +147,37 @@ def inclusion_f1(model: torch.nn.Module, dataset, batch_size: int, device: torch
     return {"inclusion_f1": out["inclusion_f1"], "no_inclusion_f1": 0.0 if out["true_inclusion"] else float("nan")}
 
 
+# Inclusion thresholds tried on the validation set (None: argmax); the best micro F1 is kept.
+THRESHOLD_CHOICES = (None, 0.5, 0.6, 0.7, 0.8, 0.9)
+
+
+def choose_threshold(model: torch.nn.Module, dataset, batch_size: int, device: torch.device,
+                     collate_fn: Callable = collate_images) -> tuple[float | None, dict]:
+    """The inclusion threshold of THRESHOLD_CHOICES with the best micro F1 over ``dataset`` (validation).
+
+    A voxel is inclusion when inclusion is its most likely class and, with a threshold, its probability
+    exceeds it (the rule of ``less image predict --threshold``). Ties keep the lower threshold.
+
+    Returns:
+        (threshold, {str(threshold): F1}).
+    """
+    loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, collate_fn=collate_fn)
+    counts = torch.zeros(len(THRESHOLD_CHOICES), 3, dtype=torch.long)      # tp, fp, fn
+    model = model.to(device).eval()
+    with torch.no_grad():
+        for batch in loader:
+            batch = batch.to(device)
+            probs = torch.softmax(model(batch.inputs).float(), dim=1)
+            top = probs.argmax(dim=1) == INCLUSION
+            true = batch.target == INCLUSION
+            for i, th in enumerate(THRESHOLD_CHOICES):
+                pred = top if th is None else top & (probs[:, INCLUSION] > th)
+                counts[i] += torch.stack([(pred & true).sum(), (pred & ~true).sum(), (~pred & true).sum()]).cpu()
+    scores = [_f1(*map(int, c)) for c in counts]
+    best = max(range(len(scores)), key=lambda i: (scores[i] if scores[i] == scores[i] else -1.0, -i))
+    return THRESHOLD_CHOICES[best], {str(th): f for th, f in zip(THRESHOLD_CHOICES, scores)}
+
+
 def fit_inputs(model: Imager, train_set: ImageDataset, val_set: ImageDataset | None, batch_size: int,
                device: torch.device, cache: bool) -> tuple:
     """(model, train set, val set, collate) for the loop: cached encoder states when ``cache``."""
@@ -201,6 +233,18 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
         model.load_state_dict(result.best_state)
         summary.update({f"val_{k}": v for k, v in
                         inclusion_f1(model, val_set, cfg.train.batch_size, env.device, cfg.loss, collate).items()})
+        if by_f1 and cfg.image.threshold is None and env.is_main:
+            threshold, scores = choose_threshold(model, val_set, cfg.train.batch_size, env.device, collate)
+            store_threshold(output, threshold)
+            summary.update({"threshold": threshold, "val_f1_by_threshold": scores})
     summary["seconds"] = round(time.perf_counter() - t0, 2)
     return summary
 
+
+
+def store_threshold(path: str, threshold: float | None) -> None:
+    """Record the chosen inclusion threshold in the imaging checkpoint's ``config['image']``."""
+    ckpt = load_checkpoint(path)
+    ckpt["config"]["image"]["threshold"] = threshold
+    save_checkpoint(path, ckpt["model_state"], ckpt["config"], ckpt["norm_stats"], ckpt["history"],
+                    ckpt.get("extra"))
