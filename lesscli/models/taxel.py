@@ -128,9 +128,7 @@ class TaxelParticleEncoder(ParticleEncoder):
     def gru_step(self, x: Tensor, h: Tensor) -> Tensor:
         """One step: the GRU cell on the first ``gru_dim`` inputs, the exact map update on the rest."""
         g, m = self.gru_dim, self.cells
-        gru = self.gru
-        h_gru = torch.gru_cell(x[:, :g], h[:, :g], gru.weight_ih_l0, gru.weight_hh_l0, gru.bias_ih_l0,
-                               gru.bias_hh_l0)
+        h_gru = super().gru_step(x[:, :g], h[:, :g])
         s, w = x[:, g:g + 2 * m], x[:, g + 2 * m:]
         mean, weight = h[:, g:g + 2 * m], torch.expm1(h[:, g + 2 * m:])
         total = weight + w
@@ -138,7 +136,8 @@ class TaxelParticleEncoder(ParticleEncoder):
         return torch.cat([h_gru, mean, torch.log1p(total)], dim=-1)
 
     def _run_gru(self, x: Tensor, count: Tensor) -> Tensor:
-        """(N, C, gru_dim + 2m) inputs -> (N, C, dim) states after each real step (zeros past ``count``)."""
+        """(N, C, gru_dim + 3m) inputs (:meth:`fle`) -> (N, C, dim) states after each real step (zeros
+        past ``count``): the packed GRU on the first ``gru_dim``, running sums for the map."""
         g, m = self.gru_dim, self.cells
         h_gru = super()._run_gru(x[..., :g], count)
         real = (torch.arange(x.shape[1], device=x.device) < count[:, None].to(x.device))[..., None].to(x.dtype)
