@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -192,3 +193,26 @@ def test_less_taxel_without_layout_is_a_clear_error():
     with pytest.raises(DataError, match="taxel layout"):
         build_model(cfg, 90, None)
 
+
+
+def test_cli_less_taxel_pretrain_fit_predict_round_trip(run_less, tmp_path):
+    """Through the CLI: pretrain --model less-taxel, image fit --val (threshold chosen and stored), predict."""
+    from imaging_factory import learnable_scanset
+    from lesscli.io.scans import save_scans
+
+    save_scans(str(tmp_path / "tr.npz"), learnable_scanset(3, seed=1))
+    save_scans(str(tmp_path / "va.npz"), learnable_scanset(2, seed=2))
+    env = {"OMP_NUM_THREADS": "1"}
+    run_less("pretrain", "tr.npz", "-o", "rep.pt", "--model", "less-taxel", "--epochs", "1", "--dim", "8",
+             "--spacing-mm", "10", "--set", "n_freq=2", "--device", "cpu", check=True, env=env)
+    fit = json.loads(run_less("image", "fit", "tr.npz", "--val", "va.npz", "--rep", "rep.pt", "-o", "img.pt",
+                              "--epochs", "2", "--set", "image.patch_px=8", "--set", "image.width=8",
+                              "--device", "cpu", "--format", "jsonl", check=True, env=env).stdout)
+    stored = torch.load(str(tmp_path / "img.pt"), weights_only=True)["config"]
+    assert stored["encoder"]["name"] == "less-taxel" and stored["image"]["threshold"] == fit["threshold"]
+    run_less("image", "predict", "img.pt", "va.npz", "-o", "pred.npz", "--device", "cpu", check=True, env=env)
+    from lesscli.io.predictions import load_predictions
+
+    preds = load_predictions(str(tmp_path / "pred.npz"))
+    assert preds.meta["model"] == "less-taxel" and preds.meta["threshold"] == fit["threshold"]
+    assert all(np.isfinite(p.probs.astype(np.float32)).all() for p in preds.scans)
