@@ -48,7 +48,8 @@ def fit_cmd(data, model, rep_path, output, val_path, select, dim, finetune, slic
     """
     if model == "forcemap":
         return _fit_forcemap(data, output, dim, slice_index, fmt, rep=rep_path, val=val_path,
-                             finetune=finetune, decoder=decoder, select=select, resume=train_opts["resume"])
+                             finetune=finetune, decoder=decoder, select=select, resume=train_opts["resume"],
+                             tensorboard=train_opts["tensorboard"])
     if not rep_path:
         raise click.UsageError("--rep is required for learned models (--model less)")
     from lesscli.cli.common import run_training, training_config
@@ -58,7 +59,7 @@ def fit_cmd(data, model, rep_path, output, val_path, select, dim, finetune, slic
                 "image.select": select, "image.decoder": decoder}
     cfg = training_config(ImageFitConfig, explicit, train_opts)
     run_training(lambda train, val, **kw: fit_imager(train, val, rep_path, cfg, output, resume=train_opts["resume"], **kw),
-                 "image fit", data, val_path, cfg, output, fmt)
+                 "image fit", data, val_path, cfg, output, fmt, train_opts["tensorboard"])
 
 
 def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:

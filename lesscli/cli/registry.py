@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "image": ("image", "Tactile imaging: fit a 2D/3D image decoder on a representation, predict label images."),
     "stream": ("stream", "Real-time incremental imaging of a replayed scan set or live JSON-line samples."),
     "guide": ("guide", "Next touch locations that most reduce the image's uncertainty, from a partial scan."),
+    "plot": ("plot", "Figures from files: training curves of one or more runs (plot log)."),
     "render": ("render", "PNG figures of predictions: truth | prediction | uncertainty, and time strips."),
     "mesh": ("mesh", "Per-class surface meshes (GLB/STL/PLY, mm) from a prediction or label NIfTI."),
     "mri-label": ("mri_label", "MRI scan of an insert -> label NIfTI (insert, pillar, inclusion); --synth makes test scans."),

@@ -28,6 +28,7 @@ from lesscli.train.checkpoint import load_checkpoint, load_representation, save_
 from lesscli.train.config import LoopConfig, check_rules, to_dict
 from lesscli.train.loop import FitResult, fit
 from lesscli.train.state_cache import CachedImager, cache_states, collate_states
+from lesscli.train.watch import Watch
 
 
 @dataclass
@@ -190,7 +191,7 @@ def fit_inputs(model: Imager, train_set: ImageDataset, val_set: ImageDataset | N
 
 def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFitConfig, output: str, *,
                env: distributed.DistEnv | None = None, resume: bool = False, history: list | None = None,
-               progress: Callable = lambda it, **_: it, names: tuple[str, str] = ("train", "val"),
+               watch: Watch | None = None, names: tuple[str, str] = ("train", "val"),
                cache: bool = True) -> dict:
     """Train an imaging model on ``train`` (best by ``val``) and write it to ``output``.
 
@@ -223,7 +224,7 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
                             collate_fn=collate, output=output, config=config, norm_stats=stats, env=env,
                             resume=resume, history=[*(h for h in rep.get("history", []) if "epoch" not in h),
                                                     *(history or [])],
-                            progress=progress, val_fn=image_val_fn(cfg.loss, by_f1))
+                            watch=watch, val_fn=image_val_fn(cfg.loss, by_f1))
     summary = {"output": output, "dim": cfg.image.dim, "decoder": dec["name"], "encoder": enc_cfg["name"],
                "frozen": not cfg.image.finetune, "trainable_parameters": sum(
                    p.numel() for p in model.parameters() if p.requires_grad),
