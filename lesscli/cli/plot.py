@@ -14,7 +14,7 @@ def cli() -> None:
 
 @cli.command("log")
 @click.argument("logs", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="PNG to write.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="PNG to write ('-': stdout).")
 @click.option("--label", "labels", multiple=True, metavar="NAME",
               help="Name of each run in the legend, in the order of the logs (default: the path without .log.jsonl).")
 @format_option
@@ -25,11 +25,13 @@ def log_cmd(logs: tuple[str, ...], output: str, labels: tuple[str, ...], fmt: st
     error against the predict-the-mean baseline (pretrain with --val), and the validation imaging F1
     of the inclusion (image fit). Runs are overlaid, one colour each, so the seeds of an experiment
     compare in one picture. One summary record per run goes to stdout (epochs, last training loss,
-    best validation loss, F1 and force ratio).
+    best validation loss, F1 and force ratio; to stderr with -o -).
 
     Example: less plot log runs/rep_s0.log.jsonl runs/rep_s1.log.jsonl -o curves.png
     """
+    import sys
+
     from lesscli.io.records import emit_records
     from lesscli.plots.curves import plot_logs
 
-    emit_records(plot_logs(logs, output, labels), fmt)
+    emit_records(plot_logs(logs, output, labels), fmt, stream=sys.stderr if output == "-" else None)

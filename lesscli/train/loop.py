@@ -231,9 +231,9 @@ class _Trainer:
         distributed.barrier(self.env)
         return record
 
-    def best_record(self) -> dict:
-        """The epoch record of the best epoch so far."""
-        return next(r for r in self.result.history if r["epoch"] == self.result.best_epoch + 1)
+    def best_record(self, latest: dict) -> dict:
+        """The epoch record of the best epoch so far (``latest`` when it is not in the history)."""
+        return next((r for r in self.result.history if r["epoch"] == self.result.best_epoch + 1), latest)
 
     def _write(self, record: dict, improved: bool, epoch: int) -> None:
         info = self.ckpt_info
@@ -314,7 +314,7 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
             trainer.guard(val_loss, "validation loss", epoch, len(val_loader) - 1)
         record = trainer.end_epoch(epoch, train_loss, val_loss, val_score, time.perf_counter() - t0, record_extra)
         if hasattr(bar, "set_postfix"):
-            bar.set_postfix(bar_postfix(record, trainer.best_record()))
+            bar.set_postfix(bar_postfix(record, trainer.best_record(record)))
     if hasattr(bar, "close"):
         bar.close()
     trainer.finish()
