@@ -16,6 +16,7 @@ once into memory (about half the speed of the plain file; memory use is one scan
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import struct
@@ -86,8 +87,8 @@ class FolderSource:
         return os.path.isfile(self.where(rel))
 
     def open(self, rel: str):
-        """A binary file object (path-backed: h5py and np.load read it directly)."""
-        return open(self.where(rel), "rb")
+        """A context giving what h5py.File and np.load open: here the file's path (HDF5's own driver)."""
+        return contextlib.nullcontext(self.where(rel))
 
     def close(self) -> None:
         pass
@@ -118,7 +119,7 @@ class ZipSource:
         return self.prefix + rel in self._members
 
     def open(self, rel: str):
-        """A seekable binary file object over one member (see the module docstring)."""
+        """A seekable binary file object over one member (see the module docstring); a context too."""
         info = self._members[self.prefix + rel]
         if info.flag_bits & 0x1:
             raise DataError(f"{self.where(rel)}: encrypted zip members are not supported")
