@@ -131,6 +131,8 @@ def test_dead_link_and_unknown_record_are_one_line_errors(archive, run_less, tmp
     assert proc.returncode == 1 and "/api/records/999: HTTP 404" in proc.stderr.decode()
     proc = run_less("fetch", "pokes", "-o", tmp_path / "data", "--base-url", base)
     assert proc.returncode == 1 and "record 'pokes'" in proc.stderr.decode()
+    proc = run_less("fetch", GOOD, "--file", "other.zip", "-o", tmp_path / "data", "--base-url", base)
+    assert proc.returncode == 1 and "other.zip: not a file of record(s) 101" in proc.stderr.decode()
     assert not list((tmp_path / "data").glob("*"))
 
 

@@ -9,8 +9,8 @@ from lesscli.data.archive import DEFAULT_BASE_URL
 
 
 @click.command("fetch")
-@click.argument("records", nargs=-1, required=True)
-@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+@click.argument("records", nargs=-1, required=True, metavar="RECORD...")
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), metavar="DIR",
               help="Folder for the downloaded files (created if missing).")
 @click.option("--base-url", default=DEFAULT_BASE_URL, show_default=True, metavar="URL",
               help="The archive to ask (its /api/records/<id> describes a record).")
@@ -51,6 +51,8 @@ def cli(records: tuple[str, ...], out_dir: str, base_url: str, only: tuple[str, 
     def fetched():
         for rid, remote in listed:
             if not only or remote.name in only:
+                if remote.md5 is None:
+                    LOG.warning("%s: record %s publishes no checksum; only the size is checked", remote.name, rid)
                 row = download(remote, os.path.join(out_dir, remote.name), progress, retries=retries)
                 LOG.info("%s: %s (%d bytes)", remote.name, row["status"], row["bytes"])
                 yield {"record": rid, **row}

@@ -13,7 +13,7 @@ def cli() -> None:
 
 
 @cli.command("log")
-@click.argument("logs", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("logs", nargs=-1, required=True, type=click.Path(dir_okay=False), metavar="RUN.log.jsonl...")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="PNG to write ('-': stdout).")
 @click.option("--label", "labels", multiple=True, metavar="NAME",
               help="Name of each run in the legend, in the order of the logs (default: the path without .log.jsonl).")
