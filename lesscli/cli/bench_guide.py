@@ -25,7 +25,7 @@ import os
 
 import click
 
-from lesscli.cli.common import format_option, seed_option
+from lesscli.cli.common import checked_output, format_option, seed_option
 
 TEST_INSERTS = ("St12C9", "St14D13", "St16C5")
 POOL_SPACING_MM = 3.0
@@ -225,7 +225,7 @@ def plot_curves(path: str, means: dict[str, list[tuple]], title: str) -> None:
 @click.option("--seeds", type=click.IntRange(1), default=None, help="Seeds per phantom (default 3, quick 1).")
 @click.option("--eval-every", type=click.IntRange(1), default=3, show_default=True)
 @click.option("--batch", type=click.IntRange(1), default=3, show_default=True, help="Guided touches per round.")
-@click.option("--plot", "plot_path", default=None, help="F1 vs touches PNG.")
+@click.option("--plot", "plot_path", default=None, callback=checked_output(), help="F1 vs touches PNG.")
 @seed_option()
 @format_option
 def cli(quick, model_path, work, budget, n_start, seeds, eval_every, batch, plot_path, seed, fmt) -> None:

@@ -62,9 +62,22 @@ def format_option(func):
     )(func)
 
 
-def output_option(required: bool = True, help: str = "Output file ('-' for stdout)."):
-    """``-o/--output PATH``."""
-    return click.option("-o", "--output", "output", type=str, required=required, help=help)
+def checked_output(folder: bool = False):
+    """A click callback that checks an output path (see lesscli.io.atomic.check_output) at parse time,
+    before the command does any work."""
+    def callback(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+        from lesscli.io.atomic import check_output
+
+        if value is not None:
+            check_output(value, folder=folder, option=param.opts[0] if param.opts else "-o")
+        return value
+    return callback
+
+
+def output_option(required: bool = True, help: str = "Output file ('-' for stdout).", folder: bool = False):
+    """``-o/--output PATH``, checked before the command starts (``folder``: the output is a folder)."""
+    return click.option("-o", "--output", "output", type=str, required=required, help=help,
+                        callback=checked_output(folder))
 
 
 def training_options(default_epochs: int, tables: str, set_example: str):

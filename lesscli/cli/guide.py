@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option
+from lesscli.cli.common import checked_output, format_option
 
 
 @click.command("guide")
@@ -13,7 +13,7 @@ from lesscli.cli.common import format_option
 @click.option("--k", "k", type=click.IntRange(min=1), default=5, show_default=True, help="Touch locations to suggest.")
 @click.option("--scan", "scan_index", type=click.IntRange(min=0), default=None,
               help="Only this scan of PARTIAL (default: every scan).")
-@click.option("--plot", "plot_path", default=None,
+@click.option("--plot", "plot_path", default=None, callback=checked_output(),
               help="Overlay PNG (image | uncertainty + suggestions | touches); needs one scan.")
 @click.option("--radius-mm", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Disc a touch resolves (default: the model's receptive field).")

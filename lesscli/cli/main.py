@@ -2,8 +2,10 @@
 
 Exit codes: 0 ok, 1 runtime/data error (one line on stderr, traceback with ``-v``), 2 usage error,
 130 interrupted. A closed stdout pipe (``| head``) ends quietly with 0. Started as a pager (no
-subcommand with piped stdin, or a first argument that is not a subcommand) it hands over to the next
-``less`` on PATH so ``git log`` and ``man`` keep working inside the virtual environment.
+subcommand with piped stdin, or a first argument that is an existing file or a pager option) it hands
+over to the next ``less`` on PATH so ``git log`` and ``man`` keep working inside the virtual
+environment; an unknown first word is a usage error naming the closest subcommand. Started as
+``lesscli`` it never pages.
 """
 
 from __future__ import annotations
@@ -49,7 +51,8 @@ class LazyGroup(click.Group):
         name = args[0] if args else ""
         if name and name not in COMMANDS and not name.startswith("-"):
             hint = common.closest(name, COMMANDS)
-            ctx.fail(f"no such command '{name}'." + (f" Did you mean '{hint}'?" if hint else ""))
+            ctx.fail(f"no such command '{name}' (and no such file)." +
+                     (f" Did you mean '{hint}'?" if hint else " See 'less --help' for the commands."))
         return super().resolve_command(ctx, args)
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
@@ -119,9 +122,10 @@ def _silence_stdout() -> None:
 
 
 def entry() -> None:
-    """Console-script entry: pager hand-over first, then the CLI."""
+    """Console-script entry: pager hand-over first (never for the ``lesscli`` alias), then the CLI."""
     args = sys.argv[1:]
-    if wants_pager(args, set(COMMANDS), stdin_is_tty=sys.stdin.isatty()):
+    as_pager = os.path.basename(sys.argv[0]) == "less"
+    if as_pager and wants_pager(args, set(COMMANDS), stdin_is_tty=sys.stdin.isatty()):
         hand_over_to_pager(args)
         return
     main(args)

@@ -60,7 +60,7 @@ def _floats(text: str | None, what: str) -> tuple[float, float, float] | None:
 @click.option("--stl-frame", type=click.Choice(["auto", "phantom"]), default="auto", show_default=True,
               help="auto: centre the insert's bounding box in x-y, top at z = 0; phantom: use file coordinates.")
 @click.option("--name", default=None, help="Insert name for --stl (default: the file name).")
-@output_option(help="Output folder.")
+@output_option(help="Output folder.", folder=True)
 @click.option("--orientations", default="0,1,2,3,4,5,6,7", show_default=True, help="Orientations k (x 45 deg).")
 @click.option("--limit", type=click.IntRange(1), default=None, help="Only the first N inserts of the set.")
 @click.option("--names", default=None, help="Only these inserts (comma-separated).")

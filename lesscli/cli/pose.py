@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option, output_option, progress, seed_option
+from lesscli.cli.common import checked_output, format_option, output_option, progress, seed_option
 
 MAX_FRAME_WARNINGS = 5      # frames without a pose named on stderr before a count takes over
 
@@ -72,7 +72,7 @@ def track_cmd(frames: str, camera_path: str, output: str, sensor_tag: int, globa
 @click.option("--camera", "camera_path", default=None, help="cam.json (default: 1280x720, f = 900 px).")
 @click.option("--trajectory", "trajectory", default=None,
               help="traj.npz: time_s, T_cam_global, T_cam_sensor_tag (mm); default: a generated hand-held motion.")
-@output_option(help="Output folder for the frames, timestamps.txt, camera.json and truth.npz.")
+@output_option(help="Output folder for the frames, timestamps.txt, camera.json and truth.npz.", folder=True)
 @click.option("--frames", "n_frames", type=int, default=30, show_default=True, help="Frames of a generated motion.")
 @click.option("--step", type=int, default=1, show_default=True, help="Generated motion: every step-th 30 fps frame.")
 @click.option("--sensor-tag", type=int, default=1, show_default=True)
@@ -148,7 +148,7 @@ def calibrate_cmd(estimated: str, robot: str, output: str, threshold_mm: float, 
 @click.argument("estimated", metavar="ESTIMATED")
 @click.argument("reference", metavar="ROBOT")
 @click.option("--calibration", default=None, help="Calibration .npz applied to ESTIMATED first.")
-@click.option("--plot", "plot_path", default=None, help="PNG of the per-axis errors over time.")
+@click.option("--plot", "plot_path", default=None, callback=checked_output(), help="PNG of the per-axis errors over time.")
 @format_option
 def accuracy_cmd(estimated: str, reference: str, calibration: str | None, plot_path: str | None,
                  fmt: str | None) -> None:

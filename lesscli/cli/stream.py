@@ -7,6 +7,8 @@ import time
 
 import click
 
+from lesscli.cli.common import checked_output
+
 EMIT_DEFAULT = 10
 LATENCY_PERCENTILES = (50, 90, 99)
 
@@ -18,7 +20,7 @@ LATENCY_PERCENTILES = (50, 90, 99)
               help="Replay a scan set at this many samples per second (default: as fast as possible).")
 @click.option("--emit-every", type=click.IntRange(min=1), default=EMIT_DEFAULT, show_default=True,
               help="Write a record (and a monitor frame) every N samples, and at the end of each scan.")
-@click.option("--monitor", "monitor_dir", default=None, help="Write PNG frames (image | uncertainty | touches) here.")
+@click.option("--monitor", "monitor_dir", default=None, callback=checked_output(folder=True), help="Write PNG frames (image | uncertainty | touches) here.")
 @click.option("--on-error", type=click.Choice(["skip", "stop"]), default="skip", show_default=True,
               help="Live input: a malformed line is reported with its line number and skipped, or stops the stream.")
 @click.option("--threshold", type=click.FloatRange(0, 1), default=None,
@@ -49,7 +51,7 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer
     emitter = Emitter(emit_every, monitor_dir, threshold)
     try:
         if source == "-":
-            run_live(imager, ckpt, click.get_text_stream("stdin"), emitter, on_error, defer)
+            run_live(imager, ckpt, click.get_binary_stream("stdin"), emitter, on_error, defer)
         else:
             replay_scans(imager, ckpt, source, emitter, rate, defer)
     finally:
@@ -162,22 +164,25 @@ def replay_scans(imager, ckpt: dict, path: str, emitter: Emitter, rate: float | 
 
 
 def run_live(imager, ckpt: dict, lines, emitter: Emitter, on_error: str, defer: bool) -> None:
-    """Image live JSON lines from ``lines``; malformed lines are reported with their number."""
+    """Image live JSON lines from ``lines`` (bytes or text); malformed lines, lines that are not UTF-8
+    and samples whose time goes backwards are reported with their number."""
     from lesscli.cli.common import LOG
     from lesscli.errors import DataError
     from lesscli.infer.stream import StreamingImager, parse_live_line
 
     stream = StreamingImager(imager, ckpt["norm_stats"], defer_decode=defer)
     emitter.start(0, "live")
+    last_t = None
     for number, text in enumerate(lines, 1):
         if not text.strip():
             continue
         try:
-            sample = parse_live_line(text, stream.force_dim)
+            sample = parse_live_line(text, stream.force_dim, last_t)
         except ValueError as exc:
             if on_error == "stop":
                 raise DataError(f"-: line {number}: {exc}; stopping (--on-error stop)") from None
             LOG.warning("-: line %d: %s; skipped", number, exc)
             continue
+        last_t = last_t if sample.t is None else sample.t
         _push(stream, emitter, sample.pose, sample.force, sample.t)
     emitter.finish(stream)
