@@ -122,8 +122,8 @@ def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, outp
     from lesscli.io.scans import append_history, load_scans
     from lesscli.train import distributed
 
-    train = load_scans(data)
-    val = load_scans(val_path) if val_path else None
+    train = training_scans(data)
+    val = training_scans(val_path) if val_path else None
     env = distributed.setup(cfg.train.device)
     try:
         history = append_history({}, seed=cfg.train.seed)["history"]
@@ -137,6 +137,23 @@ def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, outp
         LOG.warning("%s summary: %s", what, summary)
     else:
         emit_records([summary], fmt)
+
+
+def training_scans(path: str):
+    """Load a scan set to learn from: untouched scans (no steps) teach nothing and are left out with a
+    warning; a set with no touches at all is a DataError."""
+    from lesscli.errors import DataError
+    from lesscli.io.scans import load_scans
+
+    scans = load_scans(path)
+    touched = scans.touched_scans()
+    if len(touched) < scans.n_scans:
+        if not len(touched):
+            raise DataError(f"{path}: no scan has any steps; there is nothing to learn from")
+        LOG.warning("%s: %d of %d scans have no steps (untouched); training leaves them out",
+                    path, scans.n_scans - len(touched), scans.n_scans)
+        scans = scans.select_scans(touched)
+    return scans
 
 
 def comma_list(text: str, cast: type, what: str) -> tuple:

@@ -65,13 +65,13 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
     given = [f"--{k}" for k, v in learned_only.items() if v]
     if given:
         raise click.UsageError(f"{', '.join(given)} only apply to learned models, not --model forcemap")
-    from lesscli.cli.common import LOG
+    from lesscli.cli.common import LOG, training_scans
     from lesscli.io.records import emit_records
-    from lesscli.io.scans import append_history, load_scans
+    from lesscli.io.scans import append_history
     from lesscli.train.forcemap_fit import fit_forcemap
 
     history = append_history({})["history"]
-    summary = fit_forcemap(load_scans(data), output, int(dim or 3), slice_index, data, history)
+    summary = fit_forcemap(training_scans(data), output, int(dim or 3), slice_index, data, history)
     if output == "-":
         LOG.warning("image fit summary: %s", summary)
     else:

@@ -22,7 +22,7 @@ from lesscli.data.batching import ScanDataset, collate
 from lesscli.data.image_labels import AUTO_SLICE, grid_of, target_volume
 from lesscli.errors import DataError
 from lesscli.infer import forcemap
-from lesscli.io.predictions import PredictionSet, ScanPrediction, labels_from_probs
+from lesscli.io.predictions import PredictionSet, ScanPrediction, labels_from_probs, nothing_known
 from lesscli.io.scans import ScanSet, load_scans
 from lesscli.models.imager import Imager, grid_from_dict
 from lesscli.models.patch_decoder import ImageGrid
@@ -118,6 +118,9 @@ def predict_scan(imager: Imager, item: dict, lengths: list[int], grid: ImageGrid
 
 def _scan_prediction(scans: ScanSet, s: int, probs: np.ndarray, grid: ImageGrid, truth: np.ndarray | None,
                      steps: int, threshold: float | None) -> ScanPrediction:
+    """One prediction record; a prefix of 0 steps images as nothing known (uniform probabilities)."""
+    if steps == 0:
+        probs = nothing_known(probs.shape)
     return ScanPrediction(probs=probs, origin_mm=np.array(grid.origin_mm),
                           spacing_mm=np.array(grid.spacing_mm), truth=truth, insert=str(scans.scan_insert[s]),
                           orientation=int(scans.scan_orientation[s]), steps=int(steps),

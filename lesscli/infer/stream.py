@@ -255,10 +255,10 @@ class StreamingImager:
         Args:
             pose: (n, 6) raw poses; force: (n, T, 3) raw forces. Replaces any earlier samples.
         """
-        from lesscli.data.batching import collate
+        from lesscli.data.batching import collate, normalise_forces
 
         n = int(pose.shape[0])
-        flat = ((np.asarray(force, np.float64).reshape(n, -1) - self.mean) / self.std).astype(np.float32)
+        flat = normalise_forces(force, self.mean, self.std)
         item = {"pose": torch.from_numpy(np.ascontiguousarray(pose, np.float32)), "force": torch.from_numpy(flat),
                 "scan_index": 0}
         batch = collate([item]).to(self.device)
@@ -272,9 +272,14 @@ class StreamingImager:
         self.flush()
 
     def logits(self) -> Tensor:
-        """(C, D, H, W) float32 logits of the image after the samples so far (flushes deferred decodes)."""
+        """(C, D, H, W) float32 logits of the image after the samples so far (flushes deferred decodes).
+
+        Before the first sample nothing is known: all logits 0, uniform probabilities (as
+        lesscli.io.predictions.nothing_known), whatever the decoder.
+        """
         self.flush()
-        return self.canvas.logits()
+        logits = self.canvas.logits()
+        return torch.zeros_like(logits) if self.n_steps == 0 else logits
 
     def probs(self) -> np.ndarray:
         """(C, D, H, W) float32 class probabilities."""

@@ -56,6 +56,12 @@ def labels_from_probs(probs: np.ndarray, threshold: float | None = None) -> np.n
     return labels
 
 
+def nothing_known(shape: tuple[int, ...]) -> np.ndarray:
+    """The image of a scan without touches: uniform class probabilities (C, ...) float32, so maximum
+    entropy ln C everywhere. Every predictor (learned, force map, streaming) applies this one rule."""
+    return np.full(shape, 1.0 / shape[0], np.float32)
+
+
 def entropy(probs: np.ndarray) -> np.ndarray:
     """Shannon entropy in nats over axis 0, computed in float32; 0 * log 0 = 0."""
     p = np.asarray(probs, dtype=np.float32)

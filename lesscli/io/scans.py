@@ -120,6 +120,10 @@ class ScanSet:
         o = self.scan_step_offsets()
         return slice(int(o[s]), int(o[s + 1]))
 
+    def touched_scans(self) -> np.ndarray:
+        """Indices of the scans with at least one step (an untouched scan has none)."""
+        return np.flatnonzero(np.diff(self.scan_step_offsets()) > 0)
+
     def label_of(self, s: int) -> LabelVolume | None:
         idx = int(self.scan_label[s])
         return None if idx < 0 else self.labels[idx]
