@@ -39,6 +39,7 @@ from lesscli.io.scans import ScanSet, concat, default_meta
 from lesscli.io.sensor import xela_uscu
 
 SPACING_MM = (0.9, 0.4774, 0.4774)
+LABEL_INPLANE = (128, 128)   # published labels: the 61.1 mm field of view resampled to 128 x 128 px
 LARGE_INPLANE_FACTOR = 2.0
 SENSOR_TAXELS = 30
 CALIBRATION_NAME = "est_to_robot_calibration.npz"
@@ -206,6 +207,10 @@ def label_volume(raw: np.ndarray, insert: str, orientation: int, name: str, top_
     """
     if raw.ndim != 3:
         raise DataError(f"{name}: label has shape {raw.shape}, expected (D, H, W)")
+    if raw.shape[1:] != LABEL_INPLANE:
+        raise DataError(f"{name}: label is {' x '.join(map(str, raw.shape))}, but the published layout is "
+                        f"D x {LABEL_INPLANE[0]} x {LABEL_INPLANE[1]} (spacing {SPACING_MM[1]} mm in-plane); "
+                        "a resampled or cropped label would get the wrong field of view, use the original file")
     data = pp.rotate_label(pp.map_label_codes(raw, name), -pp.ORIENTATION_STEP_DEG * orientation)
     data = data[:, :, ::-1]
     if top_slice == "first":

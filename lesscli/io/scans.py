@@ -29,6 +29,7 @@ sees a scan as its trajectories concatenated in time.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shlex
@@ -123,6 +124,16 @@ class ScanSet:
     def touched_scans(self) -> np.ndarray:
         """Indices of the scans with at least one step (an untouched scan has none)."""
         return np.flatnonzero(np.diff(self.scan_step_offsets()) > 0)
+
+    def fingerprint(self) -> str:
+        """Content hash of the steps, trajectories, scans and label volumes (meta and history excluded)."""
+        h = hashlib.sha1()
+        for arr in (self.pose, self.force, self.time_s, self.traj_offsets, self.traj_scan, self.scan_insert,
+                    self.scan_orientation, self.scan_label):
+            h.update(np.ascontiguousarray(arr).tobytes())
+        for vol in self.labels:
+            h.update(vol.content_hash().encode())
+        return h.hexdigest()
 
     def label_of(self, s: int) -> LabelVolume | None:
         idx = int(self.scan_label[s])
