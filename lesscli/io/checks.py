@@ -14,6 +14,7 @@ import numpy as np
 from lesscli.errors import DataError
 
 NUMBER_KINDS = "biuf"  # numpy dtype kinds that hold plain numbers (bool, int, uint, float)
+JSON_KINDS = {list: "array", str: "string", int: "number", float: "number", bool: "boolean", type(None): "null"}
 
 
 def require(arrays: dict, key: str, name: str, what: str) -> np.ndarray:
@@ -84,7 +85,8 @@ def json_object(arrays: dict, key: str, name: str, what: str) -> dict:
     except (json.JSONDecodeError, ValueError):
         raise DataError(f"{name}: '{key}' is not valid JSON") from None
     if not isinstance(value, dict):
-        raise DataError(f"{name}: '{key}' is a JSON {type(value).__name__}, expected an object {{...}}")
+        kind = JSON_KINDS.get(type(value), type(value).__name__)
+        raise DataError(f"{name}: '{key}' is a JSON {kind}, expected an object {{...}}")
     return value
 
 

@@ -117,10 +117,12 @@ def load_nifti_labels(path: str) -> LabelVolume:
         raise DataError(f"{path}: expected a 3D label volume, got shape {data.shape}")
     aff = np.asarray(img.affine, dtype=np.float64)
     lin = aff[:3, :3]
-    if not np.isfinite(aff).all() or (np.abs(np.diag(lin)) == 0).any():
-        raise DataError(f"{path}: the affine must be finite with a non-zero voxel size on each axis")
+    if not np.isfinite(aff).all():
+        raise DataError(f"{path}: the affine holds NaN or inf; the file's geometry is broken")
     if not np.allclose(lin, np.diag(np.diag(lin)), atol=1e-6 * np.abs(lin).max()):
         raise DataError(f"{path}: affine is rotated or sheared; resample to an axis-aligned grid first")
+    if (np.diag(lin) == 0).any():
+        raise DataError(f"{path}: the affine gives a voxel size of 0 on an axis")
     flips = np.diag(lin) < 0
     for axis in np.flatnonzero(flips):
         data = np.flip(data, axis=axis)

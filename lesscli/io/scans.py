@@ -206,8 +206,9 @@ def _labels_from(arrays: dict, name: str) -> list[LabelVolume]:
         raise DataError(f"{name}: 'label_shape' must be at least 1 voxel on each axis, found {int(shapes.min())}")
     n = len(shapes)
     data = checks.require(arrays, "label_data", name, WHAT)
+    checks.shape(data, "label_data", name, (None,), "(V,): the volumes flattened one after another")
     sizes = shapes.prod(axis=1)
-    if data.ndim != 1 or data.shape[0] != sizes.sum():
+    if data.shape[0] != sizes.sum():
         raise DataError(f"{name}: 'label_data' has {data.size} values, 'label_shape' needs {int(sizes.sum())}")
     check_codes(data, f"{name}: 'label_data'")
     offsets = np.concatenate([[0], np.cumsum(sizes)])
@@ -275,7 +276,7 @@ def validate(arrays: dict, name: str) -> ScanSet:
     checks.shape(scan_insert, "scan_insert", name, (None,), "(S,)")
     n_scans = scan_insert.shape[0]
     offsets, traj_scan, attrs = _trajectories(arrays, name, pose.shape[0], n_scans)
-    labels = _labels_from(arrays, name) if "label_shape" in arrays else []
+    labels = _labels_from(arrays, name) if "label_shape" in arrays or "label_data" in arrays else []
     per_scan = {}
     for key, default in (("scan_orientation", 0), ("scan_label", -1)):
         per_scan[key] = checks.numbers(arrays.get(key, np.full(n_scans, default)), key, name, integer=True)
