@@ -588,3 +588,45 @@ def test_outputs_get_the_mode_of_a_plain_open(tmp_path, umask, file_mode, dir_mo
     assert (tmp_path / "s.npz").stat().st_mode & 0o777 == file_mode
     assert (tmp_path / "out").stat().st_mode & 0o777 == dir_mode
     assert (tmp_path / "out" / "f.txt").stat().st_mode & 0o777 == file_mode
+
+
+# ---------------------------------------------------------------------------------------------- zero-sample rule
+
+def _run_ok(capsys, args) -> tuple[str, str]:
+    with _no_exit():
+        main([str(a) for a in args])
+    return capsys.readouterr()
+
+
+def test_a_scan_without_touches_images_as_nothing_known(capsys, in_tmp):
+    """simulate -> (one scan left untouched) -> pretrain -> fit -> predict -> metrics, guide, noise-sweep."""
+    from test_simulate_cli import SCENE
+
+    from lesscli.io.predictions import load_predictions
+    from lesscli.io.scans import load_scans
+
+    (in_tmp / "tiny.toml").write_text(SCENE)
+    _run_ok(capsys, ["-q", "simulate", "tiny.toml", "-o", "raw.npz"])
+    raw = load_scans("raw.npz")
+    save_scans("scans.npz", raw.select_trajectories(raw.traj_scan != 0))
+    _, err = _run_ok(capsys, ["pretrain", "scans.npz", "-o", "rep.pt", "--epochs", "1", "--dim", "8",
+                              "--format", "jsonl"])
+    assert f"1 of {raw.n_scans} scans have no steps (untouched); training leaves them out" in err
+    _run_ok(capsys, ["-q", "image", "fit", "scans.npz", "--rep", "rep.pt", "-o", "im.pt", "--epochs", "1",
+                     "--format", "jsonl"])
+    _run_ok(capsys, ["-q", "image", "predict", "im.pt", "scans.npz", "-o", "pred.npz", "--format", "jsonl"])
+    preds = load_predictions("pred.npz").scans
+    assert [p.steps == 0 for p in preds] == [True] + [False] * (raw.n_scans - 1)
+    np.testing.assert_allclose(preds[0].probs.astype(np.float32), 0.25, atol=1e-3)
+    np.testing.assert_allclose(preds[0].entropy.astype(np.float32), np.log(4), atol=1e-3)
+    assert all(np.abs(p.probs.astype(np.float32) - 0.25).max() > 0.01 for p in preds[1:])   # touched: informed
+    rows = [json.loads(line) for line in _run_ok(capsys, ["metrics", "pred.npz", "--format", "jsonl"])[0].splitlines()]
+    scan_rows = [r for r in rows if r["row"] == "scan"]
+    assert len(scan_rows) == raw.n_scans and scan_rows[0]["steps"] == 0
+    guided = json.loads(_run_ok(capsys, ["guide", "im.pt", "scans.npz", "--scan", "0", "--k", "1"])[0])
+    assert guided["steps"] == 0 and abs(guided["mean_entropy_nats"] - np.log(4)) < 1e-4
+    swept = _run_ok(capsys, ["noise-sweep", "im.pt", "scans.npz", "--pos-mm", "0,1", "--ang-rad", "0"])[0]
+    assert len(swept.splitlines()) == 2
+    empty = raw.select_trajectories(np.zeros(raw.n_traj, bool))
+    save_scans("none.npz", empty)
+    fails_clearly(capsys, in_tmp, ["pretrain", "none.npz", "-o", "r2.pt", "--epochs", "1"], "none.npz")

@@ -34,7 +34,8 @@ def _parse_values(items: tuple[str, ...], knobs: dict, base) -> dict[str, tuple]
 @click.option("--values", "values", multiple=True, metavar="KNOB=V1,V2",
               help="Values tried for a knob, e.g. --values receptive_field=5,10,20 (repeatable).")
 @click.option("--work-dir", default=None, help="Keep the checkpoints here (default: a temporary folder).")
-@click.option("--plot", "plot_path", default=None, callback=checked_output(), help="PNG: F1 on single and multiple vs training time (Pareto).")
+@click.option("--plot", "plot_path", default=None, callback=checked_output(),
+              help="PNG: F1 on single and multiple vs training time (Pareto).")
 @click.option("--knob-plot", "knob_plot", default=None, callback=checked_output(),
               help="PNG: F1 on single and multiple against the value of the (one) chosen knob.")
 @click.option("--device", default="cpu", show_default=True, help="cpu, cuda or cuda:N.")

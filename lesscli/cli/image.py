@@ -89,7 +89,8 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
 @click.option("--every", type=click.IntRange(min=1), default=None, help="Image every K-th prefix (and the whole).")
 @click.option("--grow", is_flag=True, help="Extend the particle grid over larger label grids (same spacing).")
 @click.option("--slice", "slice_index", type=int, default=None, help="2D: label slice (default: as trained).")
-@click.option("--nifti", "nifti_dir", default=None, callback=checked_output(folder=True), help="Also write label and entropy NIfTI volumes here.")
+@click.option("--nifti", "nifti_dir", default=None, callback=checked_output(folder=True),
+              help="Also write label and entropy NIfTI volumes here.")
 @click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True)
 @click.option("--device", default="auto", show_default=True, help="auto, cpu, cuda or cuda:N.")
 @format_option

@@ -230,7 +230,8 @@ def torque_off(opts: _Options) -> None:
                    "no-reply/bad-crc to that many replies. Repeatable.")
 @click.option("--time-scale", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
               help="Simulated seconds per wall-clock second (e.g. 100 makes moves take milliseconds).")
-@click.option("--log", "log_path", type=click.Path(dir_okay=False), callback=checked_output(), help="Write goal/fault events as JSON lines.")
+@click.option("--log", "log_path", type=click.Path(dir_okay=False), callback=checked_output(),
+              help="Write goal/fault events as JSON lines.")
 @click.pass_obj
 def emulate(opts: _Options, link: str | None, faults: tuple[str, ...], time_scale: float,
             log_path: str | None) -> None:

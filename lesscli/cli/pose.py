@@ -148,7 +148,8 @@ def calibrate_cmd(estimated: str, robot: str, output: str, threshold_mm: float, 
 @click.argument("estimated", metavar="ESTIMATED")
 @click.argument("reference", metavar="ROBOT")
 @click.option("--calibration", default=None, help="Calibration .npz applied to ESTIMATED first.")
-@click.option("--plot", "plot_path", default=None, callback=checked_output(), help="PNG of the per-axis errors over time.")
+@click.option("--plot", "plot_path", default=None, callback=checked_output(),
+              help="PNG of the per-axis errors over time.")
 @format_option
 def accuracy_cmd(estimated: str, reference: str, calibration: str | None, plot_path: str | None,
                  fmt: str | None) -> None:

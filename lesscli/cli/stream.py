@@ -20,7 +20,8 @@ LATENCY_PERCENTILES = (50, 90, 99)
               help="Replay a scan set at this many samples per second (default: as fast as possible).")
 @click.option("--emit-every", type=click.IntRange(min=1), default=EMIT_DEFAULT, show_default=True,
               help="Write a record (and a monitor frame) every N samples, and at the end of each scan.")
-@click.option("--monitor", "monitor_dir", default=None, callback=checked_output(folder=True), help="Write PNG frames (image | uncertainty | touches) here.")
+@click.option("--monitor", "monitor_dir", default=None, callback=checked_output(folder=True),
+              help="Write PNG frames (image | uncertainty | touches) here.")
 @click.option("--on-error", type=click.Choice(["skip", "stop"]), default="skip", show_default=True,
               help="Live input: a malformed line is reported with its line number and skipped, or stops the stream.")
 @click.option("--threshold", type=click.FloatRange(0, 1), default=None,
@@ -51,7 +52,7 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer
     emitter = Emitter(emit_every, monitor_dir, threshold)
     try:
         if source == "-":
-            run_live(imager, ckpt, click.get_binary_stream("stdin"), emitter, on_error, defer)
+            run_live(imager, ckpt, sys.stdin.buffer, emitter, on_error, defer)
         else:
             replay_scans(imager, ckpt, source, emitter, rate, defer)
     finally:
