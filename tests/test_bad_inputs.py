@@ -543,6 +543,55 @@ def test_live_stream_names_the_line_and_stops(capsys, in_tmp, models, monkeypatc
 
 # ---------------------------------------------------------------------------------------------- other readers
 
+NOT_UTF8 = b"\xff\xfe\x00 binary"
+OTHER_READERS = {
+    "training config not UTF-8": ({"bad.toml": NOT_UTF8}, ["pretrain", "good.npz", "-o", "r.pt", "--config", "bad.toml"]),
+    "training config not TOML": ({"bad.toml": b"a = = 1"}, ["pretrain", "good.npz", "-o", "r.pt", "--config", "bad.toml"]),
+    "scene not UTF-8": ({"bad.toml": NOT_UTF8}, ["simulate", "bad.toml", "-o", "x.npz"]),
+    "scene not TOML": ({"bad.toml": b"[motion\n"}, ["simulate", "bad.toml", "-o", "x.npz"]),
+    "phantom set not UTF-8": ({"bad.toml": NOT_UTF8}, ["phantom", "--set", "bad.toml", "-o", "ph"]),
+    "phantom set JSON not UTF-8": ({"bad.json": NOT_UTF8}, ["phantom", "--set", "bad.json", "-o", "ph"]),
+    "camera not UTF-8": ({"bad.json": NOT_UTF8}, ["pose", "track", ".", "--camera", "bad.json", "-o", "p.jsonl"]),
+    "camera a list": ({"bad.json": b"[1]"}, ["pose", "track", ".", "--camera", "bad.json", "-o", "p.jsonl"]),
+    "pose rows not UTF-8": ({"bad.jsonl": NOT_UTF8}, ["pose", "accuracy", "bad.jsonl", "good.npz"]),
+    "mri scan .npy garbage": ({"bad.npy": NOT_UTF8}, ["mri-label", "bad.npy", "--spacing-mm", "1,1,1", "-o", "l.nii.gz"]),
+    "mri scan .npz garbage": ({"bad.npz": NOT_UTF8}, ["mri-label", "bad.npz", "--spacing-mm", "1,1,1", "-o", "l.nii.gz"]),
+    "imager checkpoint garbage": ({"bad.pt": NOT_UTF8}, ["stream", "bad.pt", "good.npz"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(OTHER_READERS))
+def test_bad_secondary_input(capsys, in_tmp, case):
+    files, args = OTHER_READERS[case]
+    save_scans("good.npz", random_scanset())
+    for name, data in files.items():
+        (in_tmp / name).write_bytes(data)
+    line = fails_clearly(capsys, in_tmp, args, next(iter(files)))
+    assert "allow_pickle" not in line
+
+
+@pytest.mark.parametrize("make, words", [
+    (lambda p: p.write_bytes(NOT_UTF8), "not a label .npy: not a .npy array"),
+    (lambda p: np.save(p, np.zeros((26, 64, 64), np.uint8)), "label is 26 x 64 x 64, but the published layout"),
+    (lambda p: np.save(p, np.array([{"a": 1}], dtype=object), allow_pickle=True), "refusing to unpickle"),
+], ids=["garbage", "resampled", "pickled"])
+def test_import_label_files(tmp_path, make, words):
+    from lesscli.data.published import ImportOptions, find_label
+
+    (tmp_path / "mri_images_3D").mkdir()
+    make(tmp_path / "mri_images_3D" / "st12c13_0.npy")
+    with pytest.raises(DataError, match=words) as err:
+        find_label(str(tmp_path), "St12C13", 0, ImportOptions())
+    assert "st12c13_0.npy" in str(err.value)
+
+
+def test_import_calibration_with_nan(tmp_path):
+    from lesscli.data.published import load_calibration
+
+    np.savez(tmp_path / "cal.npz", r_pos=np.eye(3), t_pos=np.array([0.0, np.nan, 0.0]), R_ori=np.eye(3))
+    with pytest.raises(DataError, match=r"cal.npz: 't_pos' has NaN or inf"):
+        load_calibration(str(tmp_path / "cal.npz"))
+
 def test_pose_track_with_no_readable_frame_fails(capsys, in_tmp):
     (in_tmp / "frames").mkdir()
     for i in range(3):
@@ -552,13 +601,6 @@ def test_pose_track_with_no_readable_frame_fails(capsys, in_tmp):
     line = fails_clearly(capsys, in_tmp, ["pose", "track", "frames", "--camera", "c.json", "--fps", "30",
                                           "-o", "p.jsonl"], "frames")
     assert "none of the 3 frames could be read" in line
-
-
-def test_import_refuses_a_resampled_label():
-    from lesscli.data.published import label_volume
-
-    with pytest.raises(DataError, match=r"st12c13_0.npy: label is 26 x 64 x 64, but the published layout"):
-        label_volume(np.zeros((26, 64, 64), np.uint8), "St12C13", 0, "st12c13_0.npy")
 
 
 def test_resume_on_other_data_is_refused(capsys, in_tmp):

@@ -35,7 +35,8 @@ import numpy as np
 from lesscli.data import preprocess as pp
 from lesscli.errors import DataError
 from lesscli.io.labels import LabelVolume
-from lesscli.io.scans import ScanSet, concat, default_meta
+from lesscli.io import checks
+from lesscli.io.scans import ScanSet, concat, default_meta, read_npy, read_npz
 from lesscli.io.sensor import xela_uscu
 
 SPACING_MM = (0.9, 0.4774, 0.4774)
@@ -166,15 +167,15 @@ def _reference_pose(h5, path: str) -> tuple[np.ndarray, np.ndarray]:
 
 def load_calibration(path: str) -> dict:
     """``est_to_robot_calibration.npz`` -> {'r_pos' (3,3), 't_pos' (3,), 'R_ori' (3,3)}."""
+    arrays = read_npz(path, what="calibration .npz")
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            calib = {k: np.asarray(npz[k], np.float64) for k in ("r_pos", "t_pos", "R_ori")}
+        calib = {k: checks.numbers(arrays[k], k, path) for k in ("r_pos", "t_pos", "R_ori")}
     except KeyError as exc:
         raise DataError(f"{path}: calibration lacks key {exc}") from None
-    except (OSError, ValueError) as exc:
-        raise DataError(f"{path}: not a readable calibration .npz ({exc})") from None
     if calib["r_pos"].size != 9 or calib["t_pos"].size != 3 or calib["R_ori"].size != 9:
         raise DataError(f"{path}: calibration needs r_pos (3, 3), t_pos (3,), R_ori (3, 3)")
+    for key, value in calib.items():
+        checks.finite(value.reshape(1, -1), key, path, "array")
     return calib
 
 
@@ -235,10 +236,7 @@ def find_label(root: str, insert: str, orientation: int, opts: ImportOptions) ->
     volume = None
     if chosen:
         path = os.path.join(folder, chosen[0])
-        try:
-            raw = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise DataError(f"{path}: not a readable label .npy ({exc})") from None
+        raw = read_npy(path, "label .npy")
         volume = label_volume(raw, insert, orientation, path, opts.top_slice)
     opts._label_cache[key] = volume
     return volume

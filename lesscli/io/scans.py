@@ -295,8 +295,9 @@ NPZ_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")  # a zip archive (with members / empt
 NPY_MAGIC = b"\x93NUMPY"
 
 
-def _sniff_npz(src, name: str, what: str) -> None:
-    """Refuse what is not a zip archive at all, saying what it is instead of numpy's advice."""
+def _sniff(src, name: str, what: str, npz: bool = True) -> None:
+    """Refuse what is not a .npz archive (``npz``) or a .npy array at all, saying what the file is
+    instead of numpy's advice to unpickle it."""
     if isinstance(src, str):
         if os.path.isdir(src):
             raise DataError(f"{name}: is a folder, not a {what}")
@@ -304,20 +305,39 @@ def _sniff_npz(src, name: str, what: str) -> None:
             head = fh.read(8)
     else:
         head = src.getvalue()[:8]
-    if head.startswith(NPZ_MAGIC):
+    if head.startswith(NPZ_MAGIC if npz else (NPY_MAGIC,)):
         return
     if not head:
         raise DataError(f"{name}: not a {what}: the file is empty")
     if head.startswith(NPY_MAGIC):
         raise DataError(f"{name}: not a {what}: it is a single .npy array, expected a .npz archive")
-    raise DataError(f"{name}: not a {what}: not a .npz archive (starts with {head[:4]!r})")
+    if head.startswith(NPZ_MAGIC):
+        raise DataError(f"{name}: not a {what}: it is a .npz archive, expected a single .npy array")
+    raise DataError(f"{name}: not a {what}: not a {'.npz archive' if npz else '.npy array'} "
+                    f"(starts with {head[:4]!r})")
+
+
+def read_npy(path: str, what: str) -> np.ndarray:
+    """One ``.npy`` array without pickle; a missing, foreign, truncated or pickled file raises DataError."""
+    if not os.path.exists(path):
+        raise DataError(f"{path}: no such file")
+    _sniff(path, path, what, npz=False)
+    try:
+        return np.load(path, allow_pickle=False)
+    except ValueError as exc:
+        if "allow_pickle" in str(exc) or "Object arrays" in str(exc):
+            raise DataError(f"{path}: holds a pickled Python object; a {what} must be a plain array "
+                            "(refusing to unpickle)") from None
+        raise DataError(f"{path}: not a readable {what} (truncated or corrupt: {exc})") from None
+    except (OSError, EOFError) as exc:
+        raise DataError(f"{path}: not a readable {what} (truncated or corrupt: {exc})") from None
 
 
 def read_npz(path: str, what: str = WHAT) -> dict[str, np.ndarray]:
     """All arrays of a ``.npz`` without pickle; corrupt, truncated or pickled files raise DataError."""
     name = "<stdin>" if path == "-" else path
     src = open_input_bytes(path)
-    _sniff_npz(src, name, what)
+    _sniff(src, name, what)
     try:
         with np.load(src, allow_pickle=False) as npz:
             arrays = {}
