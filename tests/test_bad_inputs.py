@@ -324,6 +324,14 @@ def test_bad_prediction(capsys, in_tmp, case):
     assert _key_of(case) in line
 
 
+def test_a_prediction_with_nan_is_not_written(tmp_path):
+    probs = np.full((4, 2, 3, 3), 0.25, np.float32)
+    probs[:, 0, 1, 1] = np.nan
+    with pytest.raises(DataError, match=r"out.npz: 'probs_data' has NaN or inf"):
+        save_predictions(str(tmp_path / "out.npz"), PredictionSet([ScanPrediction(probs, np.zeros(3), np.ones(3))]))
+    assert os.listdir(tmp_path) == []
+
+
 @pytest.mark.parametrize("make", [
     lambda p: (p.write_bytes(b"\x89PNG not a prediction"), p)[1],
     lambda p: (p.write_bytes(b""), p)[1],

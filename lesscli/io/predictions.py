@@ -106,7 +106,7 @@ def _flat(arrays: list[np.ndarray], dtype) -> np.ndarray:
 
 
 def save_predictions(path: str, preds: PredictionSet) -> None:
-    """Write atomically to ``path`` (``-`` = stdout)."""
+    """Check (as :func:`load_predictions` does) and write atomically to ``path`` (``-`` = stdout)."""
     scans = preds.scans
     meta = {"schema": SCHEMA, "version": VERSION, **{k: v for k, v in preds.meta.items() if k not in ("schema", "version")}}
     arrays = {
@@ -123,6 +123,7 @@ def save_predictions(path: str, preds: PredictionSet) -> None:
         "scan_steps": np.array([p.steps for p in scans], np.int64),
         "meta": np.array(json.dumps(meta)),
     }
+    _checked_arrays(arrays, path)   # a writer never stores what its reader would refuse
     with atomic_path(path, ".npz") as tmp:
         np.savez_compressed(tmp, **arrays)
 
