@@ -21,6 +21,14 @@ from lesscli.errors import LessError
 
 
 def _umask() -> int:
+    """The process umask, read without changing it where the system tells it (Linux), else set back."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
