@@ -413,6 +413,50 @@ CKPT_CASES = {
 }
 
 
+def _imager_with(models, change):
+    def make(path):
+        ckpt = torch.load(models / "imager.pt", weights_only=True)
+        change(ckpt)
+        torch.save(ckpt, path)
+    return make
+
+
+IMAGER_CASES = {
+    "config image a string": lambda c: c["config"].__setitem__("image", "x"),
+    "config image.dim a string": lambda c: c["config"]["image"].__setitem__("dim", "three"),
+    "config image.threshold a string": lambda c: c["config"]["image"].__setitem__("threshold", "hi"),
+    "config image.threshold 2": lambda c: c["config"]["image"].__setitem__("threshold", 2.0),
+    "config grid without shape": lambda c: c["config"]["grid"].pop("shape"),
+    "config encoder unknown": lambda c: c["config"]["encoder"].__setitem__("name", "lesss"),
+    "config encoder.dim a string": lambda c: c["config"]["encoder"].__setitem__("dim", "a"),
+    "config decoder a list": lambda c: c["config"].__setitem__("decoder", [1]),
+    "weights of another shape": lambda c: c["model_state"].__setitem__(next(iter(c["model_state"])), torch.zeros(1)),
+}
+
+
+@pytest.mark.parametrize("command", ["image predict", "stream", "guide"])
+@pytest.mark.parametrize("case", sorted(IMAGER_CASES))
+def test_bad_imager_checkpoint(capsys, in_tmp, models, case, command):
+    save_scans("data.npz", random_scanset())
+    _imager_with(models, IMAGER_CASES[case])(in_tmp / "model.pt")
+    args = {"image predict": ["image", "predict", "model.pt", "data.npz", "-o", "pred.npz"],
+            "stream": ["stream", "model.pt", "data.npz"], "guide": ["guide", "model.pt", "data.npz"]}[command]
+    fails_clearly(capsys, in_tmp, args, "model.pt")
+
+
+@pytest.mark.parametrize("command", ["image predict", "stream", "guide", "noise-sweep"])
+def test_data_with_other_taxels_than_the_model(capsys, in_tmp, models, command):
+    scans = random_scanset()
+    scans.force, scans.meta = scans.force[:, :20], {**scans.meta, "sensor": {**scans.meta["sensor"], "taxels": 20}}
+    save_scans("data.npz", scans)
+    imager = models / "imager.pt"
+    args = {"image predict": ["image", "predict", imager, "data.npz", "-o", "pred.npz"],
+            "stream": ["stream", imager, "data.npz"], "guide": ["guide", imager, "data.npz"],
+            "noise-sweep": ["noise-sweep", imager, "data.npz", "--pos-mm", "0", "--ang-rad", "0"]}[command]
+    line = fails_clearly(capsys, in_tmp, args, "data.npz")
+    assert "20 taxels x 3 = 60 features" in line
+
+
 @pytest.mark.parametrize("case", sorted(CKPT_CASES))
 def test_bad_checkpoint(capsys, in_tmp, case):
     save_scans("data.npz", random_scanset())

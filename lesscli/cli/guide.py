@@ -39,15 +39,14 @@ def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margi
     """
     from lesscli.errors import DataError
     from lesscli.infer.guide import UNCERTAINTY, GuideOptions, guide_scan
-    from lesscli.infer.predict import load_imager
+    from lesscli.infer.predict import load_imager, scans_for_model
     from lesscli.io.records import emit_records
-    from lesscli.io.scans import load_scans
     from lesscli.models.registry import lookup
     from lesscli.train.distributed import resolve_device
 
     lookup(UNCERTAINTY, score, "guide score")
     imager, ckpt = load_imager(model, resolve_device(device))
-    scans = load_scans(partial)
+    scans = scans_for_model(partial, ckpt)
     if scan_index is not None and scan_index >= scans.n_scans:
         raise DataError(f"{partial}: has {scans.n_scans} scans, no scan {scan_index}")
     chosen = [scan_index] if scan_index is not None else list(range(scans.n_scans))

@@ -142,11 +142,10 @@ def _push(stream, emitter: Emitter, pose, force, t) -> None:
 def replay_scans(imager, ckpt: dict, path: str, emitter: Emitter, rate: float | None, defer: bool) -> None:
     """Replay every scan of a scan set from a fresh state, paced at ``rate`` samples/s when given."""
     from lesscli.data.image_labels import AUTO_SLICE
-    from lesscli.infer.predict import scan_grid
+    from lesscli.infer.predict import scan_grid, scans_for_model
     from lesscli.infer.stream import StreamingImager
-    from lesscli.io.scans import load_scans
 
-    scans = load_scans(path)
+    scans = scans_for_model(path, ckpt)
     image_cfg = ckpt["config"]["image"]
     dim, slice_index = int(image_cfg["dim"]), int(image_cfg.get("slice", AUTO_SLICE))
     offsets = scans.scan_step_offsets()

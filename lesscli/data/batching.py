@@ -99,6 +99,14 @@ def force_dim(norm_stats: dict) -> int:
     return len(norm_stats["force_mean"])
 
 
+def check_force_features(scans: ScanSet, norm_stats: dict, name: str) -> None:
+    """DataError naming ``name`` unless the scans' force features match the model's statistics."""
+    features = scans.n_taxels * 3
+    if features != force_dim(norm_stats):
+        raise DataError(f"{name}: force has {scans.n_taxels} taxels x 3 = {features} features, "
+                        f"but the normalisation statistics have {force_dim(norm_stats)}")
+
+
 class ScanDataset(torch.utils.data.Dataset):
     """Scan s -> ``{"pose": (n, 6), "force": (n, F) normalised, "scan_index": s}`` float32 tensors.
 
@@ -109,10 +117,7 @@ class ScanDataset(torch.utils.data.Dataset):
     """
 
     def __init__(self, scans: ScanSet, norm_stats: dict, name: str = "scan set") -> None:
-        features = scans.n_taxels * 3
-        if features != force_dim(norm_stats):
-            raise DataError(f"{name}: force has {scans.n_taxels} taxels x 3 = {features} features, "
-                            f"but the normalisation statistics have {force_dim(norm_stats)}")
+        check_force_features(scans, norm_stats, name)
         self.scans = scans
         self.offsets = scans.scan_step_offsets()
         self.mean = np.asarray(norm_stats["force_mean"], np.float64)
