@@ -10,11 +10,14 @@ Layout written by :func:`write_root`::
 
 :func:`write_hand_held_root` writes files carrying both ``robot`` and ``pos_estimation`` groups, the
 latter in a tracker frame related by ``est_to_robot_calibration.npz``, so both imports must agree.
+:func:`zip_root` and :func:`write_archive` pack such roots the way the archive publishes them (one
+top folder per zip).
 """
 
 from __future__ import annotations
 
 import os
+import zipfile
 
 import h5py
 import numpy as np
@@ -145,3 +148,23 @@ def break_file(path: str, dataset: str = "robot/ee_position", traj: str = "traj_
     """Delete one dataset of one trajectory (a broken file)."""
     with h5py.File(path, "a") as h5:
         del h5[f"{traj}/{dataset}"]
+
+
+def zip_root(root: str, path: str, top: str = "dataset", compression: int = zipfile.ZIP_DEFLATED) -> str:
+    """Zip every file under ``root`` into ``path`` inside one top folder ``top`` (as published); returns ``path``."""
+    with zipfile.ZipFile(path, "w", compression) as archive:
+        for folder, _dirs, names in sorted(os.walk(root)):
+            for name in sorted(names):
+                full = os.path.join(folder, name)
+                archive.write(full, f"{top}/{os.path.relpath(full, root)}")
+    return path
+
+
+def write_archive(path: str, seed: int = 0, n_traj: int = 2, compression: int = zipfile.ZIP_DEFLATED) -> str:
+    """A published-style archive of two scans and their labels (built in a sibling folder); returns ``path``."""
+    rng = np.random.default_rng(seed)
+    root = f"{path}.src"
+    for name in ("phantomA_St12C13_0", "phantomA_St10D5_1"):
+        write_scan(os.path.join(root, "poke_trial", f"{name}.hdf5"), rng, n_traj)
+    write_labels(root, rng)
+    return zip_root(root, path, os.path.splitext(os.path.basename(path))[0], compression)

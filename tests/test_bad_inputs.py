@@ -629,20 +629,22 @@ def test_bad_secondary_input(capsys, in_tmp, case):
 ], ids=["garbage", "resampled", "pickled"])
 def test_import_label_files(tmp_path, make, words):
     from lesscli.data.published import ImportOptions, find_label
+    from lesscli.data.sources import FolderSource
 
     (tmp_path / "mri_images_3D").mkdir()
     make(tmp_path / "mri_images_3D" / "st12c13_0.npy")
     with pytest.raises(DataError, match=words) as err:
-        find_label(str(tmp_path), "St12C13", 0, ImportOptions())
+        find_label(FolderSource(str(tmp_path)), "St12C13", 0, ImportOptions())
     assert "st12c13_0.npy" in str(err.value)
 
 
 def test_import_calibration_with_nan(tmp_path):
     from lesscli.data.published import load_calibration
+    from lesscli.data.sources import FolderSource
 
     np.savez(tmp_path / "cal.npz", r_pos=np.eye(3), t_pos=np.array([0.0, np.nan, 0.0]), R_ori=np.eye(3))
     with pytest.raises(DataError, match=r"cal.npz: 't_pos' has NaN or inf"):
-        load_calibration(str(tmp_path / "cal.npz"))
+        load_calibration(FolderSource(str(tmp_path)), "cal.npz")
 
 def test_pose_track_with_no_readable_frame_fails(capsys, in_tmp):
     (in_tmp / "frames").mkdir()

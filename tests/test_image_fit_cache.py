@@ -1,5 +1,6 @@
 """A frozen-encoder fit on cached encoder states trains exactly as the per-batch encoder path."""
 
+import numpy as np
 import pytest
 import torch
 from imaging_factory import learnable_scanset, make_representation
@@ -69,7 +70,7 @@ def test_best_epoch_is_the_best_validation_f1_or_loss(tmp_path, select):
 def test_threshold_is_chosen_on_validation_voxels():
     """Inclusion voxels at p = 0.95, false ones at p = 0.65: any threshold in [0.65, 0.95) scores F1 = 1,
     argmax and 0.5 / 0.6 do not, and ties keep the lowest threshold (0.7)."""
-    from lesscli.train.image_fit import choose_threshold
+    from lesscli.train.image_fit import choose_labelling
 
     class Item:
         def __init__(self, logits, target):
@@ -85,6 +86,55 @@ def test_threshold_is_chosen_on_validation_voxels():
     probs[0, 3, 0, 0, 0] = 0.95
     probs[0, :3, 0, 0, 0] = 0.05 / 3
     logits = probs.log()
-    threshold, scores = choose_threshold(torch.nn.Identity(), [Item(logits, target)], 1, torch.device("cpu"),
-                                         collate_fn=lambda items: items[0])
-    assert threshold == 0.7 and scores["0.7"] == 1.0 and scores["None"] < 1.0
+    threshold, min_volume, scores = choose_labelling(torch.nn.Identity(), [Item(logits, target)], 1,
+                                                     torch.device("cpu"), (1.0, 1.0, 1.0),
+                                                     collate_fn=lambda items: items[0])
+    assert threshold == 0.7 and min_volume == 0.0 and scores["0.7"]["0"] == 1.0 and scores["None"]["0"] < 1.0
+
+
+def test_minimum_volume_is_chosen_on_validation_regions():
+    """A true 3 x 3 x 3 inclusion (27 mm^3) and a false 2-voxel speck, both at p = 0.9: no threshold
+    separates them, a 50 mm^3 minimum drops the true one too, 0 < min <= 27 keeps only the true one."""
+    from lesscli.train.image_fit import choose_labelling
+
+    class Item:
+        def __init__(self, logits, target):
+            self.inputs, self.target = logits, target
+
+        def to(self, device):
+            return self
+
+    target = torch.ones(1, 8, 8, 8, dtype=torch.long)
+    target[0, 1:4, 1:4, 1:4] = 3
+    probs = torch.full((1, 4, 8, 8, 8), 0.0)
+    probs[:, 1] = 1.0
+    stiff = target[0] == 3
+    stiff[6, 6, 5:7] = True                                               # the speck, far from the body
+    probs[0, :, stiff] = torch.tensor([0.0, 0.1, 0.0, 0.9])[:, None]
+    logits = (probs + 1e-6).log()
+    threshold, min_volume, scores = choose_labelling(
+        torch.nn.Identity(), [Item(logits, target)], 1, torch.device("cpu"), (1.0, 1.0, 1.0),
+        collate_fn=lambda items: items[0], volumes=(0.0, 10.0, 50.0))
+    assert (threshold, min_volume) == (None, 10.0) and scores["None"]["10"] == 1.0
+    assert scores["None"]["0"] < 1.0 and scores["None"]["50"] == 0.0
+
+
+@pytest.mark.parametrize("min_volume, kept", [(0.0, True), (4.0, True), (4.5, False)])
+def test_region_rule_measures_volume_in_mm3(min_volume, kept):
+    """A 2-voxel inclusion region at 2 x 1 x 1 mm voxels is 4 mm^3; below the minimum it takes the
+    likelier of background and insert, and a 27-voxel region (54 mm^3) stays."""
+    from lesscli.io.predictions import labels_from_probs
+
+    probs = np.zeros((4, 6, 6, 6), dtype=np.float32)
+    probs[0] = 0.6                                                        # background likelier than insert
+    probs[1] = 0.4
+    body = np.zeros((6, 6, 6), bool)
+    body[0:3, 0:3, 0:3] = True
+    speck = np.zeros((6, 6, 6), bool)
+    speck[5, 5, 4:6] = True
+    for region in (body, speck):
+        probs[:, region] = np.array([0.05, 0.05, 0.0, 0.9])[:, None]
+    labels = labels_from_probs(probs, None, min_volume, (2.0, 1.0, 1.0))
+    assert (labels[body] == 3).all()
+    assert (labels[speck] == 3).all() if kept else (labels[speck] == 0).all()
+    assert (labels[~body & ~speck] == 0).all()

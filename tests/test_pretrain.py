@@ -9,12 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from factories import random_scanset
+from factories import poke_scanset, random_scanset
 
 from lesscli.data.batching import ScanDataset, batches, collate, compute_norm_stats
 from lesscli.errors import LessError, TrainingError
-from lesscli.io.scans import ScanSet, default_meta, save_scans
-from lesscli.io.sensor import xela_uscu
+from lesscli.io.scans import save_scans
 from lesscli.train import loop as loop_mod
 from lesscli.train import pretrain as pretrain_mod
 from lesscli.train.checkpoint import load_checkpoint, load_representation, save_checkpoint
@@ -23,38 +22,6 @@ from lesscli.train.pretrain import build_model, pretrain
 
 torch.set_num_threads(1)
 REPO = Path(__file__).resolve().parents[1]
-
-
-def poke_scanset(n_scans: int, seed: int, traj_per_scan: int = 10, steps: int = 5) -> ScanSet:
-    """Pokes on a phantom whose stiffness is higher inside one disc per scan.
-
-    Each trajectory presses at one x-y from 0 to a random depth; the 30 x 3 force pattern is a
-    fixed profile scaled by depth x stiffness (+ 2 % noise), so forces are predictable from the
-    query depth and from what a particle has felt nearby.
-    """
-    rng = np.random.default_rng(seed)
-    profile = np.random.default_rng(99).uniform(0.2, 1.0, size=(30, 3))
-    pose, force, lengths, traj_scan = [], [], [], []
-    for s in range(n_scans):
-        centre = rng.uniform(-12, 12, size=2)
-        for _ in range(traj_per_scan):
-            xy = rng.uniform(-20, 20, size=2)
-            stiff = 3.0 if np.linalg.norm(xy - centre) < 8.0 else 1.0
-            depth = np.linspace(0.0, rng.uniform(1.0, 4.0), steps)
-            p = np.zeros((steps, 6), np.float32)
-            p[:, :2], p[:, 2] = xy, -depth
-            f = stiff * depth[:, None, None] * profile[None] * (1 + 0.02 * rng.normal(size=(steps, 30, 3)))
-            pose.append(p)
-            force.append(f.astype(np.float32))
-            lengths.append(steps)
-            traj_scan.append(s)
-    lengths = np.array(lengths)
-    return ScanSet(pose=np.concatenate(pose), force=np.concatenate(force),
-                   time_s=np.concatenate([np.arange(n) * 0.5 for n in lengths]),
-                   traj_offsets=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
-                   traj_scan=np.array(traj_scan, np.int64), scan_insert=np.array([f"St12C{s}" for s in range(n_scans)]),
-                   scan_orientation=np.zeros(n_scans, np.int64), scan_label=-np.ones(n_scans, np.int64),
-                   meta=default_meta(xela_uscu()))
 
 
 def tiny_cfg(**train) -> PretrainConfig:

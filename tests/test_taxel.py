@@ -104,6 +104,31 @@ def test_map_peaks_where_the_taxels_felt_the_stiff_spot(spot):
         assert (axis[best % 7], axis[best // 7]) == pytest.approx(spot)
 
 
+def test_samples_count_by_indentation():
+    """Two uniform presses at the particle, 1 mm deep (force 3 per taxel) and 3 mm deep (force 14):
+    every covered cell holds the indentation-weighted mean of log(f / (d + 0.5)), no within-step
+    contrast, and log(1 + weight) with weight proportional to 1 + 3 mm."""
+    enc = _encoder().eval()
+    pose = torch.zeros(2, 6)
+    pose[:, 2] = torch.tensor([-1.0, -3.0])
+    force = torch.zeros(2, 30, 3)
+    force[0, :, 2], force[1, :, 2] = 3.0, 14.0
+    with torch.no_grad():
+        states = enc(_batch(pose, force.reshape(2, 90)))
+    z = states.z[0, int((states.xy_mm ** 2).sum(-1).argmin())]
+    g, m = enc.gru_dim, enc.cells
+    centre = m // 2
+    expected = (1.0 * math.log(3.0 / 1.5) + 3.0 * math.log(14.0 / 3.5)) / 4.0
+    assert float(z[g + centre]) == pytest.approx(expected, abs=1e-4)
+    assert float(z[g + m:g + 2 * m].abs().max()) < 1e-5
+    with torch.no_grad():                                                 # the same presses, both 1 mm deep
+        shallow = pose.clone()
+        shallow[:, 2] = -1.0
+        once = enc(_batch(shallow, force.reshape(2, 90))).z[0, int((states.xy_mm ** 2).sum(-1).argmin())]
+    weight = torch.expm1(z[g + 2 * m:]) / torch.expm1(once[g + 2 * m:])
+    torch.testing.assert_close(weight, torch.full_like(weight, 2.0), atol=1e-4, rtol=0)
+
+
 def test_training_evaluation_and_streaming_steps_agree():
     enc = _encoder()
     gen = torch.Generator().manual_seed(5)
@@ -210,9 +235,11 @@ def test_cli_less_taxel_pretrain_fit_predict_round_trip(run_less, tmp_path):
                               "--device", "cpu", "--format", "jsonl", check=True, env=env).stdout)
     stored = torch.load(str(tmp_path / "img.pt"), weights_only=True)["config"]
     assert stored["encoder"]["name"] == "less-taxel" and stored["image"]["threshold"] == fit["threshold"]
+    assert stored["image"]["min_volume_mm3"] == fit["min_volume_mm3"]
     run_less("image", "predict", "img.pt", "va.npz", "-o", "pred.npz", "--device", "cpu", check=True, env=env)
     from lesscli.io.predictions import load_predictions
 
     preds = load_predictions(str(tmp_path / "pred.npz"))
     assert preds.meta["model"] == "less-taxel" and preds.meta["threshold"] == fit["threshold"]
+    assert preds.meta["min_volume_mm3"] == fit["min_volume_mm3"]
     assert all(np.isfinite(p.probs.astype(np.float32)).all() for p in preds.scans)

@@ -84,7 +84,7 @@ def training_options(default_epochs: int, tables: str, set_example: str):
     """The options every training command shares (``--epochs`` ... ``--resume``); None = not given.
 
     The command receives them as keyword arguments ``epochs, batch_size, lr, seed, device,
-    config_path, overrides, resume`` (collect them with ``**train_opts``).
+    config_path, overrides, resume, tensorboard`` (collect them with ``**train_opts``).
     """
     options = [
         click.option("--epochs", type=int, default=None, help=f"Epochs.  [default: {default_epochs}]"),
@@ -96,6 +96,9 @@ def training_options(default_epochs: int, tables: str, set_example: str):
         click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
                      help=f"Override a setting, e.g. {set_example} (repeatable)."),
         click.option("--resume", is_flag=True, help="Continue from <stem>.last.pt with the same settings."),
+        click.option("--tensorboard", default=None, type=click.Path(file_okay=False), metavar="DIR",
+                     help="Also write each epoch's losses and scores as TensorBoard scalars into DIR "
+                          "(needs the tensorboard extra)."),
     ]
 
     def decorate(func):
@@ -113,23 +116,32 @@ def training_config(cls, explicit: dict, train_opts: dict):
     return load_config(cls, train_opts["config_path"], train_opts["overrides"], {**explicit, **loop})
 
 
-def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, output: str, fmt: str | None) -> None:
+def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, output: str, fmt: str | None,
+                 tensorboard: str | None = None) -> None:
     """Load DATA and --val, train under torchrun/DDP when launched so, and print the summary on rank 0.
 
-    ``train_fn(train, val, env=, history=, progress=, names=)`` trains and returns a summary record.
+    ``train_fn(train, val, env=, history=, watch=, names=)`` trains and returns a summary record. Rank
+    0 shows the epoch bar (batch bars with -v) and writes the TensorBoard scalars (``tensorboard``);
+    a missing tensorboard package is an error before anything is loaded.
     """
     from lesscli.io.records import emit_records
-    from lesscli.io.scans import append_history, load_scans
+    from lesscli.io.scans import append_history
     from lesscli.train import distributed
+    from lesscli.train.watch import TensorBoardScalars, Watch, require_tensorboard
 
+    if tensorboard:
+        require_tensorboard(tensorboard)
     train = training_scans(data)
     val = training_scans(val_path) if val_path else None
     env = distributed.setup(cfg.train.device)
+    board = TensorBoardScalars(tensorboard) if tensorboard and env.is_main else None
+    watch = Watch(progress, progress if STATE.verbose else None, [board] if board else []) if env.is_main else Watch()
     try:
         history = append_history({}, seed=cfg.train.seed)["history"]
-        summary = train_fn(train, val, env=env, history=history, names=(data, val_path or ""),
-                           progress=progress if env.is_main else (lambda it, **_: it))
+        summary = train_fn(train, val, env=env, history=history, names=(data, val_path or ""), watch=watch)
     finally:
+        if board:
+            board.close()
         distributed.teardown(env)
     if not env.is_main:
         return

@@ -48,7 +48,8 @@ def fit_cmd(data, model, rep_path, output, val_path, select, dim, finetune, slic
     """
     if model == "forcemap":
         return _fit_forcemap(data, output, dim, slice_index, fmt, rep=rep_path, val=val_path,
-                             finetune=finetune, decoder=decoder, select=select, resume=train_opts["resume"])
+                             finetune=finetune, decoder=decoder, select=select, resume=train_opts["resume"],
+                             tensorboard=train_opts["tensorboard"])
     if not rep_path:
         raise click.UsageError("--rep is required for learned models (--model less)")
     from lesscli.cli.common import run_training, training_config
@@ -58,7 +59,7 @@ def fit_cmd(data, model, rep_path, output, val_path, select, dim, finetune, slic
                 "image.select": select, "image.decoder": decoder}
     cfg = training_config(ImageFitConfig, explicit, train_opts)
     run_training(lambda train, val, **kw: fit_imager(train, val, rep_path, cfg, output, resume=train_opts["resume"], **kw),
-                 "image fit", data, val_path, cfg, output, fmt)
+                 "image fit", data, val_path, cfg, output, fmt, train_opts["tensorboard"])
 
 
 def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
@@ -83,7 +84,11 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
 @click.argument("data")
 @output_option(help="Prediction file (less.pred/1 .npz; '-' for stdout).")
 @click.option("--threshold", type=click.FloatRange(0, 1), default=None,
-              help="Pillar/inclusion only above this probability (hand-held setting: 0.8). Default: argmax.")
+              help="Pillar/inclusion only above this probability (hand-held setting: 0.8). Default: the "
+                   "model's, chosen on --val by image fit; else argmax.")
+@click.option("--min-volume-mm3", "min_volume_mm3", type=click.FloatRange(min=0), default=None,
+              help="Drop inclusion regions smaller than this volume (mm^3; 0: keep all). Default: the "
+                   "model's, chosen on --val by image fit; else 0.")
 @click.option("--steps", type=click.IntRange(min=1), default=None,
               help="Image N evenly spaced prefixes of each scan's sequence.")
 @click.option("--every", type=click.IntRange(min=1), default=None, help="Image every K-th prefix (and the whole).")
@@ -94,8 +99,8 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
 @click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True)
 @click.option("--device", default="auto", show_default=True, help="auto, cpu, cuda or cuda:N.")
 @format_option
-def predict_cmd(model, data, output, threshold, steps, every, grow, slice_index, nifti_dir, batch_size, device,
-                fmt) -> None:
+def predict_cmd(model, data, output, threshold, min_volume_mm3, steps, every, grow, slice_index, nifti_dir,
+                batch_size, device, fmt) -> None:
     """Predict label images of every scan in DATA with an imaging checkpoint MODEL.
 
     Per scan: class probabilities, labels, per-pixel Shannon entropy (nats), the truth when DATA
@@ -117,7 +122,7 @@ def predict_cmd(model, data, output, threshold, steps, every, grow, slice_index,
     from lesscli.train.distributed import resolve_device
 
     t0 = time.perf_counter()
-    opts = PredictOptions(threshold, steps, every, grow, batch_size, slice_index)
+    opts = PredictOptions(threshold, steps, every, grow, batch_size, slice_index, min_volume_mm3)
     preds, ckpt, scans = predict_file(model, data, opts, resolve_device(device), progress=progress)
     preds.meta.update({"imager": model, "set": data,
                        "history": append_history({"history": [

@@ -1,4 +1,4 @@
-"""``less import ROOT -o OUT.npz``: the published HDF5 dataset -> a scan set."""
+"""``less import ROOT -o OUT.npz``: the published HDF5 dataset (a folder or its zip archive) -> a scan set."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from lesscli.cli.common import LOG, format_option, output_option, parse_shard
 
 
 @click.command("import")
-@click.argument("root", type=click.Path(file_okay=False))
+@click.argument("root", type=click.Path())
 @output_option()
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True,
               help="Keep every N-th step of each trajectory (50 pokes, 10 primitives; 1 keeps 100 Hz).")
@@ -32,10 +32,13 @@ def cli(root: str, output: str, every: int, trajectories: int | None, hand_held:
         fmt: str | None) -> None:
     """Import ROOT (one HDF5 file per scan, labels in ROOT/mri_images_3D) with the published preprocessing.
 
+    ROOT is the dataset folder or a zip archive of it (as published), read in place without
+    extracting it; an archive's single top folder is its root.
+
     Prints one record per file (trajectories kept, dropped by reason, label, errors); with -o - the
     records go to stderr. Forces are raw sensor counts with each trajectory's first sample removed.
 
-    Example: less import data/ -o raw.npz --on-error skip
+    Example: less import dataset_poke.zip -o raw.npz --on-error skip
     """
     import sys
 

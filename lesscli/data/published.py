@@ -33,10 +33,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lesscli.data import preprocess as pp
+from lesscli.data.sources import FolderSource, ZipSource, load_array, open_source
 from lesscli.errors import DataError
-from lesscli.io.labels import LabelVolume
 from lesscli.io import checks
-from lesscli.io.scans import ScanSet, concat, default_meta, read_npy, read_npz
+from lesscli.io.labels import LabelVolume
+from lesscli.io.scans import ScanSet, concat, default_meta
 from lesscli.io.sensor import xela_uscu
 
 SPACING_MM = (0.9, 0.4774, 0.4774)
@@ -63,15 +64,9 @@ class ImportOptions:
     _label_cache: dict = field(default_factory=dict, repr=False)
 
 
-def find_scan_files(root: str) -> list[str]:
-    """All ``*.hdf5`` files under ``root``, sorted by relative path."""
-    if not os.path.isdir(root):
-        raise DataError(f"{root}: not a directory (expected the root of the published dataset)")
-    found = []
-    for folder, dirs, files in os.walk(root):
-        dirs.sort()
-        found += [os.path.join(folder, f) for f in sorted(files) if f.endswith(".hdf5")]
-    return sorted(found, key=lambda p: os.path.relpath(p, root))
+def find_scan_files(source: FolderSource | ZipSource) -> list[str]:
+    """All ``*.hdf5`` files of the dataset, relative to its root, sorted."""
+    return [rel for rel in source.files() if rel.endswith(".hdf5")]
 
 
 def parse_scan_name(path: str) -> tuple[str, str, int]:
@@ -165,39 +160,37 @@ def _reference_pose(h5, path: str) -> tuple[np.ndarray, np.ndarray]:
 
 # ---------------------------------------------------------------------------------------------- calibration, labels
 
-def load_calibration(path: str) -> dict:
+def load_calibration(source: FolderSource | ZipSource, rel: str) -> dict:
     """``est_to_robot_calibration.npz`` -> {'r_pos' (3,3), 't_pos' (3,), 'R_ori' (3,3)}."""
-    arrays = read_npz(path, what="calibration .npz")
+    arrays = load_array(source, rel, "calibration .npz")
+    where = source.where(rel)
     try:
-        calib = {k: checks.numbers(arrays[k], k, path) for k in ("r_pos", "t_pos", "R_ori")}
-    except KeyError as exc:
-        raise DataError(f"{path}: calibration lacks key {exc}") from None
+        calib = {k: checks.numbers(arrays[k], k, where) for k in ("r_pos", "t_pos", "R_ori")}
+    except (KeyError, TypeError, IndexError) as exc:
+        raise DataError(f"{where}: calibration lacks key {exc}") from None
     if calib["r_pos"].size != 9 or calib["t_pos"].size != 3 or calib["R_ori"].size != 9:
-        raise DataError(f"{path}: calibration needs r_pos (3, 3), t_pos (3,), R_ori (3, 3)")
+        raise DataError(f"{where}: calibration needs r_pos (3, 3), t_pos (3,), R_ori (3, 3)")
     for key, value in calib.items():
-        checks.finite(value.reshape(1, -1), key, path, "array")
+        checks.finite(value.reshape(1, -1), key, where, "array")
     return calib
 
 
-def find_calibration(path: str, root: str, opts: ImportOptions) -> dict:
-    """The calibration for a hand-held file: ``opts.calibration`` or the nearest one up to ``root``."""
+def find_calibration(source: FolderSource | ZipSource, rel: str, opts: ImportOptions) -> dict:
+    """The calibration for a hand-held file: ``opts.calibration`` or the nearest one up to the root."""
     if opts.calibration:
-        candidates = [opts.calibration]
+        folder, name = os.path.split(os.path.abspath(opts.calibration))
+        candidates = [(FolderSource(folder), name)] if os.path.isfile(opts.calibration) else []
     else:
-        folder, candidates = os.path.dirname(os.path.abspath(path)), []
-        top = os.path.abspath(root)
-        while True:
-            candidates.append(os.path.join(folder, CALIBRATION_NAME))
-            if folder == top or os.path.dirname(folder) == folder:
-                break
-            folder = os.path.dirname(folder)
-    for cand in candidates:
-        if os.path.isfile(cand):
-            if cand not in opts._calib_cache:
-                opts._calib_cache[cand] = load_calibration(cand)
-            return opts._calib_cache[cand]
-    raise DataError(f"{path}: hand-held import needs {CALIBRATION_NAME} (not found up to {root}; "
-                    "pass --calibration)")
+        parts = rel.split("/")[:-1]
+        candidates = [(source, "/".join([*parts[:n], CALIBRATION_NAME])) for n in range(len(parts), -1, -1)]
+    for cal_source, cal_rel in candidates:
+        if cal_source.is_file(cal_rel):
+            key = cal_source.where(cal_rel)
+            if key not in opts._calib_cache:
+                opts._calib_cache[key] = load_calibration(cal_source, cal_rel)
+            return opts._calib_cache[key]
+    raise DataError(f"{source.where(rel)}: hand-held import needs {CALIBRATION_NAME} (not found up to the "
+                    "dataset root; pass --calibration)")
 
 
 def label_volume(raw: np.ndarray, insert: str, orientation: int, name: str, top_slice: str = "last") -> LabelVolume:
@@ -223,21 +216,21 @@ def label_volume(raw: np.ndarray, insert: str, orientation: int, name: str, top_
     return LabelVolume(data, origin, spacing, f"{os.path.splitext(os.path.basename(name))[0]}_k{orientation}")
 
 
-def find_label(root: str, insert: str, orientation: int, opts: ImportOptions) -> LabelVolume | None:
+def find_label(source: FolderSource | ZipSource, insert: str, orientation: int,
+               opts: ImportOptions) -> LabelVolume | None:
     """The label for (insert, orientation): scan ``opts.mri_scan`` or else the lowest one present."""
-    folder = opts.labels_dir or os.path.join(root, LABEL_DIR)
     key = (insert.lower(), orientation)
     if key in opts._label_cache:
         return opts._label_cache[key]
-    pattern = re.compile(rf"^{re.escape(insert.lower())}_(\d+)\.npy$")
-    found = sorted((int(m[1]), f) for f in (os.listdir(folder) if os.path.isdir(folder) else [])
-                   if (m := pattern.match(f.lower())))
+    labels, folder = (source, f"{LABEL_DIR}/") if not opts.labels_dir else (
+        FolderSource(opts.labels_dir) if os.path.isdir(opts.labels_dir) else None, "")
+    pattern = re.compile(rf"^{re.escape(folder.lower())}{re.escape(insert.lower())}_(\d+)\.npy$")
+    found = sorted((int(m[1]), f) for f in (labels.files() if labels else []) if (m := pattern.match(f.lower())))
     chosen = [f for n, f in found if n == opts.mri_scan] or [f for _n, f in found[:1]]
     volume = None
     if chosen:
-        path = os.path.join(folder, chosen[0])
-        raw = read_npy(path, "label .npy")
-        volume = label_volume(raw, insert, orientation, path, opts.top_slice)
+        raw = load_array(labels, chosen[0], "label .npy")
+        volume = label_volume(raw, insert, orientation, labels.where(chosen[0]), opts.top_slice)
     opts._label_cache[key] = volume
     return volume
 
@@ -248,51 +241,59 @@ def _dropped() -> dict:
     return {"short": 0, "no_onset": 0, "too_long": 0}
 
 
-def import_file(path: str, root: str, opts: ImportOptions) -> tuple[ScanSet | None, dict]:
-    """One HDF5 scan file -> (a one-scan ScanSet or None when nothing survives, its record).
+def import_file(source: FolderSource | ZipSource, rel: str, opts: ImportOptions) -> tuple[ScanSet | None, dict]:
+    """One HDF5 scan file (``rel`` in ``source``) -> (a one-scan ScanSet or None when nothing survives, its record).
 
     Raises DataError naming the file (and trajectory) when the file is broken.
     """
     import h5py
 
+    path = source.where(rel)
     _phantom, insert, orientation = parse_scan_name(path)
-    rel = os.path.relpath(path, root)
-    calib = find_calibration(path, root, opts) if opts.hand_held else None
+    calib = find_calibration(source, rel, opts) if opts.hand_held else None
     pose_group = "pos_estimation" if opts.hand_held else "robot"
     max_steps = pp.MAX_STEPS_HAND_HELD if opts.hand_held else pp.MAX_STEPS_ROBOT
     kept, attrs, dropped = [], [], _dropped()
-    try:
-        h5 = h5py.File(path, "r")
-    except OSError as exc:
-        raise DataError(f"{path}: not a readable HDF5 file ({exc})") from None
-    with h5:
-        t_ref, rot_ref = _reference_pose(h5, path)
-        for name in _traj_names(h5, path):
-            if opts.trajectories is not None and len(kept) >= opts.trajectories:
-                break
-            try:
-                stream = read_stream(h5[name], f"{path}: {name}", pose_group)
-                traj_attrs = traj_attributes(h5[name].attrs)
-            except (KeyError, TypeError, ValueError, OSError, AttributeError) as exc:
-                raise DataError(f"{path}: {name}: unreadable ({type(exc).__name__}: {exc})") from None
-            if calib is not None:
-                stream.robot_pos_m, stream.robot_rot = pp.calibrate_estimate(stream.robot_pos_m, stream.robot_rot, calib)
-            out, reason = pp.preprocess(stream, t_ref, rot_ref, max_steps)
-            if out is None:
-                dropped[reason] += 1
-                continue
-            kept.append(out)
-            attrs.append(traj_attrs)
+    with source.open(rel) as fh:
+        try:
+            h5 = h5py.File(fh, "r")
+        except OSError as exc:
+            raise DataError(f"{path}: not a readable HDF5 file ({exc})") from None
+        with h5:
+            t_ref, rot_ref = _reference_pose(h5, path)
+            for name in _traj_names(h5, path):
+                if opts.trajectories is not None and len(kept) >= opts.trajectories:
+                    break
+                out, traj_attrs = _read_traj(h5, name, path, pose_group, calib, t_ref, rot_ref, max_steps)
+                if isinstance(out, str):
+                    dropped[out] += 1
+                    continue
+                kept.append(out)
+                attrs.append(traj_attrs)
     record = {"file": rel, "insert": insert, "orientation": orientation, "status": "ok",
               "trajectories": len(kept), "steps": 0, "dropped": dropped, "label": None, "error": None}
     if not kept:
         record["status"] = "empty"
         return None, record
-    label = find_label(root, insert, orientation, opts)
+    label = find_label(source, insert, orientation, opts)
     record["label"] = label.name if label is not None else None
     scans = _one_scan(kept, attrs, insert, orientation, label, opts.every)
     record["steps"] = scans.n_steps
     return scans, record
+
+
+def _read_traj(h5, name: str, path: str, pose_group: str, calib: dict | None, t_ref: np.ndarray,
+               rot_ref: np.ndarray, max_steps: int) -> tuple[pp.Processed | str, dict]:
+    """One ``traj_<i>`` group -> (preprocessed trajectory, or the reason it was dropped; its attributes)."""
+    try:
+        stream = read_stream(h5[name], f"{path}: {name}", pose_group)
+        traj_attrs = traj_attributes(h5[name].attrs)
+    except (KeyError, TypeError, ValueError, OSError, AttributeError) as exc:
+        raise DataError(f"{path}: {name}: unreadable ({type(exc).__name__}: {exc})") from None
+    if calib is not None:
+        stream.robot_pos_m, stream.robot_rot = pp.calibrate_estimate(stream.robot_pos_m, stream.robot_rot, calib)
+    out, reason = pp.preprocess(stream, t_ref, rot_ref, max_steps)
+    return (reason if out is None else out), traj_attrs
 
 
 def _one_scan(trajs: list[pp.Processed], attrs: list[dict], insert: str, orientation: int,
@@ -321,10 +322,10 @@ def import_meta(every: int, hand_held: bool) -> dict:
 
 def import_published(root: str, opts: ImportOptions, shard: tuple[int, int] = (0, 1), on_error: str = "fail",
                      progress: Callable | None = None, report: Callable[[dict], None] | None = None) -> ScanSet:
-    """Import every scan file of shard ``i/n`` under ``root`` into one scan set.
+    """Import every scan file of shard ``i/n`` of the dataset at ``root`` into one scan set.
 
     Args:
-        root: dataset root.
+        root: dataset root folder, or a zip archive of it (read in place, see :mod:`lesscli.data.sources`).
         opts: import options.
         shard: (i, n): files i, i+n, i+2n, ... of the sorted list.
         on_error: "fail" raises on the first broken file; "skip" reports it and goes on.
@@ -334,25 +335,33 @@ def import_published(root: str, opts: ImportOptions, shard: tuple[int, int] = (0
     Raises:
         DataError: a broken file with ``on_error="fail"``, or no scan survived.
     """
-    files = find_scan_files(root)[shard[0]::shard[1]]
+    source = open_source(root)
+    try:
+        return _import_files(source, root, opts, shard, on_error, progress, report)
+    finally:
+        source.close()
+
+
+def _import_files(source, root, opts, shard, on_error, progress, report) -> ScanSet:
+    files = find_scan_files(source)[shard[0]::shard[1]]
     if not files:
         raise DataError(f"{root}: no *.hdf5 scan files (shard {shard[0]}/{shard[1]})")
     parts, names = [], []
-    for path in (progress(files, desc="import", unit="file") if progress else files):
+    for rel in (progress(files, desc="import", unit="file") if progress else files):
         try:
-            scans, record = import_file(path, root, opts)
+            scans, record = import_file(source, rel, opts)
         except DataError as exc:
             if on_error == "fail":
                 raise
-            _phantom, insert, orientation = _safe_name(path)
-            scans, record = None, {"file": os.path.relpath(path, root), "insert": insert, "orientation": orientation,
+            _phantom, insert, orientation = _safe_name(rel)
+            scans, record = None, {"file": rel, "insert": insert, "orientation": orientation,
                                    "status": "skipped", "trajectories": 0, "steps": 0, "dropped": _dropped(),
                                    "label": None, "error": str(exc)}
         if report:
             report(record)
         if scans is not None:
             parts.append(scans)
-            names.append(path)
+            names.append(source.where(rel))
     if not parts:
         raise DataError(f"{root}: no scan survived the import ({len(files)} files; see the per-file records)")
     out = concat(parts, names)

@@ -41,6 +41,8 @@ class PredictOptions:
         grow: extend the particle grid over larger label grids.
         batch_size: prefixes per forward pass.
         slice_index: 2D slice rule (default: the model's training rule).
+        min_volume_mm3: inclusion regions smaller than this are dropped (None: the checkpoint's
+            ``config['image']['min_volume_mm3']``, chosen on validation data by ``image fit``; else 0).
     """
 
     threshold: float | None = None
@@ -49,6 +51,7 @@ class PredictOptions:
     grow: bool = False
     batch_size: int = 4
     slice_index: int | None = None
+    min_volume_mm3: float | None = None
 
 
 def load_imager(path: str, map_location: str | torch.device = "cpu",
@@ -144,14 +147,14 @@ def predict_scan(imager: Imager, item: dict, lengths: list[int], grid: ImageGrid
 
 
 def _scan_prediction(scans: ScanSet, s: int, probs: np.ndarray, grid: ImageGrid, truth: np.ndarray | None,
-                     steps: int, threshold: float | None) -> ScanPrediction:
+                     steps: int, threshold: float | None, min_volume_mm3: float) -> ScanPrediction:
     """One prediction record; a prefix of 0 steps images as nothing known (uniform probabilities)."""
     if steps == 0:
         probs = nothing_known(probs.shape)
     return ScanPrediction(probs=probs, origin_mm=np.array(grid.origin_mm),
                           spacing_mm=np.array(grid.spacing_mm), truth=truth, insert=str(scans.scan_insert[s]),
                           orientation=int(scans.scan_orientation[s]), steps=int(steps),
-                          label=labels_from_probs(probs, threshold))
+                          label=labels_from_probs(probs, threshold, min_volume_mm3, grid.spacing_mm))
 
 
 def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, device: torch.device | str = "cpu",
@@ -166,6 +169,7 @@ def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, de
         imager.encoder = imager.encoder.with_grid(grow_extent_mm([g for g, _ in grids]))
     imager = imager.to(device).eval()
     threshold = opts.threshold if opts.threshold is not None else cfg["image"].get("threshold")
+    min_volume = opts.min_volume_mm3 if opts.min_volume_mm3 is not None else cfg["image"].get("min_volume_mm3") or 0.0
     data = ScanDataset(scans, ckpt["norm_stats"], name)
     offsets = scans.scan_step_offsets()
     preds = []
@@ -173,8 +177,8 @@ def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, de
         grid, truth = grids[s]
         lengths = prefix_lengths(int(offsets[s + 1] - offsets[s]), opts.steps, opts.every)
         for k, probs in zip(lengths, predict_scan(imager, data[s], lengths, grid, opts.batch_size, device)):
-            preds.append(_scan_prediction(scans, s, probs, grid, truth, k, threshold))
-    meta = {"dim": dim, "threshold": threshold, "model": cfg["encoder"]["name"],
+            preds.append(_scan_prediction(scans, s, probs, grid, truth, k, threshold, min_volume))
+    meta = {"dim": dim, "threshold": threshold, "min_volume_mm3": min_volume, "model": cfg["encoder"]["name"],
             "decoder": cfg["decoder"]["name"], "width": cfg["decoder"].get("width"), "grown": bool(opts.grow),
             "particles": int(getattr(imager.encoder, "n_particles", 1)), "seed": cfg.get("train", {}).get("seed")}
     return PredictionSet(preds, meta)
@@ -198,8 +202,9 @@ def predict_forcemap(ckpt: dict, scans: ScanSet, opts: PredictOptions, path: str
         for k in prefix_lengths(int(offsets[s + 1] - offsets[s]), opts.steps, opts.every):
             probs = forcemap.scan_probs(cal, forcemap.scan_touches(scans, s, taxel_xy, k), grid.shape,
                                         grid.origin_mm, grid.spacing_mm)
-            preds.append(_scan_prediction(scans, s, probs, grid, truth, k, opts.threshold))
-    meta = {"dim": dim, "threshold": opts.threshold, "model": forcemap.MODEL, "decoder": None, "width": None,
+            preds.append(_scan_prediction(scans, s, probs, grid, truth, k, opts.threshold, opts.min_volume_mm3 or 0.0))
+    meta = {"dim": dim, "threshold": opts.threshold, "min_volume_mm3": opts.min_volume_mm3 or 0.0,
+            "model": forcemap.MODEL, "decoder": None, "width": None,
             "grown": False, "particles": None, "seed": None}
     return PredictionSet(preds, meta)
 

@@ -39,20 +39,33 @@ SCHEMA, VERSION = "less.pred", 1
 EPS_LOG = 1e-12  # floor inside log(p) for the entropy of float16-rounded probabilities
 
 
-def labels_from_probs(probs: np.ndarray, threshold: float | None = None) -> np.ndarray:
+def labels_from_probs(probs: np.ndarray, threshold: float | None = None, min_volume_mm3: float = 0.0,
+                      spacing_mm=(1.0, 1.0, 1.0)) -> np.ndarray:
     """Class codes from probabilities (C, ...) -> (...) uint8.
 
     Without a threshold this is the argmax. With one, a voxel is pillar or inclusion only when that
     class's probability exceeds ``threshold``; otherwise it takes the more likely of background and
-    insert (the hand-held rule of the paper).
+    insert (the hand-held rule of the paper). With ``min_volume_mm3`` > 0, inclusion regions (face-
+    connected) smaller than that volume (voxels of ``spacing_mm``) take the more likely of background
+    and insert too: an inclusion is a solid body, not a speck.
     """
     probs = np.asarray(probs, dtype=np.float32)
     labels = probs.argmax(axis=0).astype(np.uint8)
-    if threshold is None:
-        return labels
-    thin = np.isin(labels, (PILLAR, INCLUSION))
-    weak = thin & (np.take_along_axis(probs, labels[None].astype(np.int64), 0)[0] <= threshold)
-    labels[weak] = probs[:2].argmax(axis=0)[weak]
+    if threshold is not None:
+        thin = np.isin(labels, (PILLAR, INCLUSION))
+        weak = thin & (np.take_along_axis(probs, labels[None].astype(np.int64), 0)[0] <= threshold)
+        labels[weak] = probs[:2].argmax(axis=0)[weak]
+    if min_volume_mm3 > 0:
+        from scipy import ndimage
+
+        regions, n = ndimage.label(labels == INCLUSION)
+        if n:
+            voxels = np.bincount(regions.ravel(), minlength=n + 1)
+            voxels[0] = 0
+            small = voxels * float(np.prod(spacing_mm)) < min_volume_mm3
+            small[0] = False
+            speck = small[regions]
+            labels[speck] = probs[:2].argmax(axis=0)[speck]
     return labels
 
 

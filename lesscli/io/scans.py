@@ -305,6 +305,11 @@ def _sniff(src, name: str, what: str, npz: bool = True) -> None:
             head = fh.read(8)
     else:
         head = src.getvalue()[:8]
+    check_magic(head, name, what, npz)
+
+
+def check_magic(head: bytes, name: str, what: str, npz: bool = True) -> None:
+    """DataError unless ``head`` (a file's first bytes) opens a .npz archive (``npz``) or a .npy array."""
     if head.startswith(NPZ_MAGIC if npz else (NPY_MAGIC,)):
         return
     if not head:
@@ -317,6 +322,14 @@ def _sniff(src, name: str, what: str, npz: bool = True) -> None:
                     f"(starts with {head[:4]!r})")
 
 
+def unreadable(name: str, what: str, exc: Exception) -> DataError:
+    """The error for a .npy/.npz that numpy cannot read: pickled objects refused, else truncated or corrupt."""
+    if isinstance(exc, ValueError) and ("allow_pickle" in str(exc) or "Object arrays" in str(exc)):
+        return DataError(f"{name}: holds a pickled Python object; a {what} must be a plain array "
+                         "(refusing to unpickle)")
+    return DataError(f"{name}: not a readable {what} (truncated or corrupt: {exc})")
+
+
 def read_npy(path: str, what: str) -> np.ndarray:
     """One ``.npy`` array without pickle; a missing, foreign, truncated or pickled file raises DataError."""
     if not os.path.exists(path):
@@ -324,13 +337,8 @@ def read_npy(path: str, what: str) -> np.ndarray:
     _sniff(path, path, what, npz=False)
     try:
         return np.load(path, allow_pickle=False)
-    except ValueError as exc:
-        if "allow_pickle" in str(exc) or "Object arrays" in str(exc):
-            raise DataError(f"{path}: holds a pickled Python object; a {what} must be a plain array "
-                            "(refusing to unpickle)") from None
-        raise DataError(f"{path}: not a readable {what} (truncated or corrupt: {exc})") from None
-    except (OSError, EOFError) as exc:
-        raise DataError(f"{path}: not a readable {what} (truncated or corrupt: {exc})") from None
+    except (ValueError, OSError, EOFError) as exc:
+        raise unreadable(path, what, exc) from None
 
 
 def read_npz(path: str, what: str = WHAT) -> dict[str, np.ndarray]:

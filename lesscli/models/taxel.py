@@ -16,17 +16,21 @@ and, when it presses (pad below the surface and normal force above ``CONTACT_FOR
 stiffness sample ``k_t = f_t / (depth + DEPTH_FLOOR_MM)`` (normal force per mm of indentation, in
 normalised units: with ``scale`` normalisation, this encoder's default, each taxel is divided by
 its own typical force, which flat-fields its gain and its place in the pad's pressure profile).
-The map has ``map_cells x map_cells`` cells at ``map_pitch_mm`` around the particle; cell j
-collects Gaussian weights ``w_j(r_t)`` (sigma = ``SIGMA_PER_PITCH`` pitches) and keeps
+A sample counts in proportion to its indentation ``d`` (mm): the force offset and noise of a taxel
+are the same at any depth, so a deep press measures stiffness more surely than a shallow one, and
+the depth floor biases shallow samples low. The map has ``map_cells x map_cells`` cells at
+``map_pitch_mm`` around the particle; cell j collects Gaussian weights ``w_j(r_t)`` (sigma =
+``SIGMA_PER_PITCH`` pitches) and keeps
 
-    M_j = sum w_j(r_t) log k_t / (W_j + MAP_EPS),   W_j = sum w_j(r_t)
-    Q_j = sum w_j(r_t) (log k_t - mean_t' log k_t') / (W_j + MAP_EPS),   c_j = log(1 + W_j)
+    M_j = sum w_j(r_t) d log k_t / (W_j + MAP_EPS),   W_j = sum w_j(r_t) d
+    Q_j = sum w_j(r_t) d (log k_t - mean_t' log k_t') / (W_j + MAP_EPS),   c_j = log(1 + W_j)
 
 over every step seen so far: a weighted mean of log stiffness (ratios of stiffness become
 differences, which linear layers read), the same of each taxel's contrast to the other pressing
 taxels of its step (a per-touch detrending: it does not depend on the gel's overall stiffness, the
-pad's depth calibration or the total force) and the evidence behind both. The update from one step is a
-pure function of the state and the step, so the state stays exactly local and streams like the
+pad's depth calibration or the total force) and the evidence behind both (mm of indentation; what
+weighting by indentation adds is in the ablation table of examples/README.md). The update from one
+step is a pure function of the state and the step, so the state stays exactly local and streams like the
 GRU's (:meth:`gru_step`). The map has no parameters; self-supervision trains the GRU part, the image
 decoder reads both.
 """
@@ -119,8 +123,9 @@ class TaxelParticleEncoder(ParticleEncoder):
         # the Gaussian weight of a cell is separable: exp(-dx^2 / 2 s^2) exp(-dy^2 / 2 s^2)
         d = taxel_xy(pose, self.taxel_xy_mm)[..., None, :] - self.axis_mm.to(pose.dtype)[:, None]  # (..., T, n, 2)
         wx, wy = torch.exp(-(d * d) / (2 * self.sigma_mm**2)).unbind(-1)
-        on = presses.to(pose.dtype)
-        step_mean = (on * log_k).sum(-1, keepdim=True) / on.sum(-1, keepdim=True).clamp(min=1.0)
+        pressing = presses.to(pose.dtype)
+        step_mean = (pressing * log_k).sum(-1, keepdim=True) / pressing.sum(-1, keepdim=True).clamp(min=1.0)
+        on = pressing * depth                                                        # weight: indentation, mm
         values = torch.stack([on * log_k, on * (log_k - step_mean), on], dim=-2)          # (..., 3, T)
         maps = torch.einsum("...vt,...ty,...tx->...vyx", values, wy, wx).flatten(-3)      # (..., 3 m)
         return torch.cat([self.paper_fle(pose, force), maps], dim=-1)

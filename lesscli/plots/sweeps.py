@@ -15,7 +15,7 @@ from lesscli.plots.render import agg_figure
 FIGSIZE_IN = (6.4, 4.4)
 
 
-def _save(fig, path: str) -> None:
+def save_png(fig, path: str) -> None:
     with atomic_path(path, ".png") as tmp:
         fig.savefig(tmp, format="png")
 
@@ -47,7 +47,7 @@ def noise_figure(rows: Sequence[Mapping], path: str, metric: str = "f1", title: 
     ax.legend(title="angle noise sigma", fontsize="small")
     ax.grid(alpha=0.3)
     ax.set_title(title or "Pose-noise robustness (phantom frame, i.i.d. Gaussian)")
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
@@ -96,7 +96,7 @@ def pareto_figure(rows: Sequence[Mapping], path: str, time_key: str = "train_s",
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize="small")
     fig.suptitle(title or "Accuracy against time")
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def line_figure(rows: Sequence[Mapping], path: str, x_key: str, y_keys: Sequence[str], xlabel: str,
@@ -118,4 +118,4 @@ def line_figure(rows: Sequence[Mapping], path: str, x_key: str, y_keys: Sequence
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small")
     ax.set_title(title)
-    _save(fig, path)
+    save_png(fig, path)

@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
 from lesscli.data.image_labels import AUTO_SLICE, ImageDataset, collate_images, training_targets
@@ -28,6 +29,7 @@ from lesscli.train.checkpoint import load_checkpoint, load_representation, save_
 from lesscli.train.config import LoopConfig, check_rules, to_dict
 from lesscli.train.loop import FitResult, data_identity, fit
 from lesscli.train.state_cache import CachedImager, cache_states, collate_states
+from lesscli.train.watch import Watch
 
 
 @dataclass
@@ -43,6 +45,7 @@ class ImageModelConfig:
     slice: int = AUTO_SLICE       # 2D label slice; -1 = through the inclusion centre
     select: str = "f1"            # best epoch on --val: inclusion "f1" (ties: loss) or "loss"
     threshold: float | None = None  # inclusion only above this probability at predict; None: chosen on --val
+    min_volume_mm3: float | None = None  # smaller inclusion regions dropped at predict; None: chosen on --val
 
 
 @dataclass
@@ -64,6 +67,7 @@ _RULES = [("image.dim", lambda v: v in (2, 3), "2 or 3"), ("image.width", lambda
           ("image.stitch", lambda v: v in ("sum", "mean"), "sum or mean"),
           ("image.select", lambda v: v in ("f1", "loss"), "f1 or loss"), ("loss.lam", lambda v: 0 <= v <= 1, "in [0, 1]"), ("loss.gamma", lambda v: v == 0 or v >= 1, "0 or >= 1"),
           ("loss.alpha_power", lambda v: 0 <= v <= 2, "in [0, 2]"),
+          ("image.min_volume_mm3", lambda v: v is None or v >= 0, "unset or >= 0"),
           ("train.epochs", lambda v: v >= 1, ">= 1"), ("train.batch_size", lambda v: v >= 1, ">= 1"),
           ("train.lr", lambda v: v > 0, "> 0")]
 
@@ -147,35 +151,42 @@ def inclusion_f1(model: torch.nn.Module, dataset, batch_size: int, device: torch
     return {"inclusion_f1": out["inclusion_f1"], "no_inclusion_f1": 0.0 if out["true_inclusion"] else float("nan")}
 
 
-# Inclusion thresholds tried on the validation set (None: argmax); the best micro F1 is kept.
+# Labelling rules tried on the validation set; the best micro inclusion F1 is kept (ties: the first,
+# i.e. the lowest threshold, then the smallest minimum volume). None: argmax; 0 mm^3: no region rule.
 THRESHOLD_CHOICES = (None, 0.5, 0.6, 0.7, 0.8, 0.9)
+MIN_VOLUME_CHOICES_MM3 = (0.0, 50.0, 100.0, 150.0)
 
 
-def choose_threshold(model: torch.nn.Module, dataset, batch_size: int, device: torch.device,
-                     collate_fn: Callable = collate_images) -> tuple[float | None, dict]:
-    """The inclusion threshold of THRESHOLD_CHOICES with the best micro F1 over ``dataset`` (validation).
+def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: torch.device, spacing_mm,
+                     collate_fn: Callable = collate_images, thresholds=THRESHOLD_CHOICES,
+                     volumes=MIN_VOLUME_CHOICES_MM3) -> tuple[float | None, float, dict]:
+    """The inclusion threshold and minimum inclusion volume with the best micro F1 over ``dataset``.
 
-    A voxel is inclusion when inclusion is its most likely class and, with a threshold, its probability
-    exceeds it (the rule of ``less image predict --threshold``). Ties keep the lower threshold.
+    Every pair of ``thresholds`` x ``volumes`` labels the validation volumes with
+    :func:`~lesscli.io.predictions.labels_from_probs`, the rule ``less image predict`` applies.
 
     Returns:
-        (threshold, {str(threshold): F1}).
+        (threshold, min_volume_mm3, {str(threshold): {str(min_volume_mm3): F1}}).
     """
+    from lesscli.io.predictions import labels_from_probs
+
+    choices = [(th, float(mv)) for th in thresholds for mv in volumes]
+    counts = np.zeros((len(choices), 3), dtype=np.int64)                       # tp, fp, fn
     loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, collate_fn=collate_fn)
-    counts = torch.zeros(len(THRESHOLD_CHOICES), 3, dtype=torch.long)      # tp, fp, fn
     model = model.to(device).eval()
     with torch.no_grad():
         for batch in loader:
             batch = batch.to(device)
-            probs = torch.softmax(model(batch.inputs).float(), dim=1)
-            top = probs.argmax(dim=1) == INCLUSION
-            true = batch.target == INCLUSION
-            for i, th in enumerate(THRESHOLD_CHOICES):
-                pred = top if th is None else top & (probs[:, INCLUSION] > th)
-                counts[i] += torch.stack([(pred & true).sum(), (pred & ~true).sum(), (~pred & true).sum()]).cpu()
+            probs = torch.softmax(model(batch.inputs).float(), dim=1).cpu().numpy()
+            for p, target in zip(probs, batch.target.cpu().numpy()):
+                true = target == INCLUSION
+                for i, (th, mv) in enumerate(choices):
+                    pred = labels_from_probs(p, th, mv, spacing_mm) == INCLUSION
+                    counts[i] += ((pred & true).sum(), (pred & ~true).sum(), (~pred & true).sum())
     scores = [_f1(*map(int, c)) for c in counts]
     best = max(range(len(scores)), key=lambda i: (scores[i] if scores[i] == scores[i] else -1.0, -i))
-    return THRESHOLD_CHOICES[best], {str(th): f for th, f in zip(THRESHOLD_CHOICES, scores)}
+    table = {str(th): {f"{mv:g}": f for (t, mv), f in zip(choices, scores) if t == th} for th in thresholds}
+    return (*choices[best], table)
 
 
 def fit_inputs(model: Imager, train_set: ImageDataset, val_set: ImageDataset | None, batch_size: int,
@@ -190,7 +201,7 @@ def fit_inputs(model: Imager, train_set: ImageDataset, val_set: ImageDataset | N
 
 def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFitConfig, output: str, *,
                env: distributed.DistEnv | None = None, resume: bool = False, history: list | None = None,
-               progress: Callable = lambda it, **_: it, names: tuple[str, str] = ("train", "val"),
+               watch: Watch | None = None, names: tuple[str, str] = ("train", "val"),
                cache: bool = True) -> dict:
     """Train an imaging model on ``train`` (best by ``val``) and write it to ``output``.
 
@@ -223,7 +234,7 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
                             collate_fn=collate, output=output, config=config, norm_stats=stats, env=env,
                             resume=resume, history=[*(h for h in rep.get("history", []) if "epoch" not in h),
                                                     *(history or [])],
-                            progress=progress, val_fn=image_val_fn(cfg.loss, by_f1),
+                            watch=watch, val_fn=image_val_fn(cfg.loss, by_f1),
                             data=data_identity(train, stats, names[0]))
     summary = {"output": output, "dim": cfg.image.dim, "decoder": dec["name"], "encoder": enc_cfg["name"],
                "frozen": not cfg.image.finetune, "trainable_parameters": sum(
@@ -234,18 +245,22 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
         model.load_state_dict(result.best_state)
         summary.update({f"val_{k}": v for k, v in
                         inclusion_f1(model, val_set, cfg.train.batch_size, env.device, cfg.loss, collate).items()})
-        if by_f1 and cfg.image.threshold is None and env.is_main:
-            threshold, scores = choose_threshold(model, val_set, cfg.train.batch_size, env.device, collate)
-            store_threshold(output, threshold)
-            summary.update({"threshold": threshold, "val_f1_by_threshold": scores})
+        image = cfg.image
+        if by_f1 and None in (image.threshold, image.min_volume_mm3) and env.is_main:
+            threshold, min_volume, scores = choose_labelling(
+                model, val_set, cfg.train.batch_size, env.device, grid.spacing_mm, collate,
+                THRESHOLD_CHOICES if image.threshold is None else (image.threshold,),
+                MIN_VOLUME_CHOICES_MM3 if image.min_volume_mm3 is None else (image.min_volume_mm3,))
+            store_labelling(output, threshold, min_volume)
+            summary.update({"threshold": threshold, "min_volume_mm3": min_volume, "val_f1_by_labelling": scores})
     summary["seconds"] = round(time.perf_counter() - t0, 2)
     return summary
 
 
 
-def store_threshold(path: str, threshold: float | None) -> None:
-    """Record the chosen inclusion threshold in the imaging checkpoint's ``config['image']``."""
+def store_labelling(path: str, threshold: float | None, min_volume_mm3: float) -> None:
+    """Record the chosen labelling rule in the imaging checkpoint's ``config['image']``."""
     ckpt = load_checkpoint(path)
-    ckpt["config"]["image"]["threshold"] = threshold
+    ckpt["config"]["image"].update({"threshold": threshold, "min_volume_mm3": min_volume_mm3})
     save_checkpoint(path, ckpt["model_state"], ckpt["config"], ckpt["norm_stats"], ckpt["history"],
                     ckpt.get("extra"))

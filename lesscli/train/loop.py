@@ -34,6 +34,7 @@ from lesscli.errors import TrainingError
 from lesscli.train import distributed
 from lesscli.train.checkpoint import load_checkpoint, save_checkpoint
 from lesscli.train.config import LoopConfig
+from lesscli.train.watch import Watch, bar_postfix
 
 LossFn = Callable[[nn.Module, object, torch.Generator], torch.Tensor]
 # val_fn(model, loader, device) -> (mean loss, score or None): one pass over the validation set
@@ -131,11 +132,11 @@ def validate(val_fn: ValFn, model: nn.Module, loader, device: torch.device) -> t
 class _Trainer:
     """State of one :func:`fit` call (kept in an object so each step stays short)."""
 
-    def __init__(self, model, loss_fn, cfg, env, output, ckpt_info, progress):
+    def __init__(self, model, loss_fn, cfg, env, output, ckpt_info, watch: Watch):
         self.raw = model.to(env.device)
         self.model = distributed.wrap(self.raw, env)
         self.loss_fn, self.cfg, self.env, self.output = loss_fn, cfg, env, output
-        self.ckpt_info, self.progress = ckpt_info, progress
+        self.ckpt_info, self.watch = ckpt_info, watch
         params = [p for p in self.raw.parameters() if p.requires_grad]
         self.params = params
         self.opt = torch.optim.Adam(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -214,7 +215,8 @@ class _Trainer:
             loader.sampler.set_epoch(epoch)
         self.model.train()
         losses = []
-        bar = self.progress(loader, desc=f"epoch {epoch + 1}/{self.cfg.epochs}", leave=False)
+        bar = self.watch.batches(loader, desc=f"epoch {epoch + 1}/{self.cfg.epochs}", leave=False) \
+            if self.watch.batches else loader
         for i, batch in enumerate(bar):
             losses.append(self.train_step(batch, epoch, i))
             if hasattr(bar, "set_postfix"):
@@ -222,7 +224,7 @@ class _Trainer:
         return sum(losses) / max(1, len(losses))
 
     def end_epoch(self, epoch: int, train_loss: float, val_loss: float | None, val_score: float | None,
-                  seconds: float) -> dict:
+                  seconds: float, extra: dict | None = None) -> dict:
         loss = val_loss if val_loss is not None else train_loss
         if val_score is not None and not math.isfinite(val_score):
             val_score = None                                     # undefined (NaN): never better
@@ -231,14 +233,20 @@ class _Trainer:
             self.result.best_loss, self.result.best_score, self.result.best_epoch = loss, val_score, epoch
             self.result.best_state = copy.deepcopy({k: v.detach().cpu() for k, v in self.raw.state_dict().items()})
         record = {"epoch": epoch + 1, "step": self.step, "train_loss": train_loss, "val_loss": val_loss,
-                  **({} if val_score is None else {"val_score": val_score}),
+                  **({} if val_score is None else {"val_score": val_score}), **(extra or {}),
                   "lr": self.opt.param_groups[0]["lr"] if self.params else 0.0, "best": improved,
                   "seconds": round(seconds, 3)}
         self.result.history.append(record)
         if self.env.is_main:
             self._write(record, improved, epoch)
+            for callback in self.watch.on_epoch:
+                callback(record)
         distributed.barrier(self.env)
         return record
+
+    def best_record(self, latest: dict) -> dict:
+        """The epoch record of the best epoch so far (``latest`` when it is not in the history)."""
+        return next((r for r in self.result.history if r["epoch"] == self.result.best_epoch + 1), latest)
 
     def _write(self, record: dict, improved: bool, epoch: int) -> None:
         info = self.ckpt_info
@@ -270,8 +278,8 @@ class _Trainer:
 
 def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, *, collate_fn, output: str,
         config: dict, norm_stats: dict, env: distributed.DistEnv | None = None, resume: bool = False,
-        history: list | None = None, extra: dict | None = None,
-        progress: Callable = lambda it, **_: it, val_fn: ValFn | None = None, data: dict | None = None) -> FitResult:
+        history: list | None = None, extra: dict | None = None, watch: Watch | None = None,
+        val_fn: ValFn | None = None, record_extra: dict | None = None, data: dict | None = None) -> FitResult:
     """Train ``model`` by minimising ``loss_fn`` and keep the best checkpoint.
 
     Args:
@@ -284,12 +292,14 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
         config, norm_stats, history, extra: stored in every checkpoint (see ``checkpoint.py``).
         env: distributed environment (default: single process on CPU).
         resume: continue from ``<stem>.last.pt``.
-        progress: wraps an iterable in a progress bar (e.g. tqdm); gets ``desc`` and ``leave``.
+        watch: the epoch bar, batch bars and per-epoch callbacks (:class:`lesscli.train.watch.Watch`;
+            default: nothing shown).
         data: :func:`data_identity` of the training data, stored in ``<stem>.last.pt``; ``resume``
             refuses a run whose data differs.
         val_fn: ``val_fn(model, loader, device) -> (mean loss, score)``, one pass over the validation
             loader (called in evaluation mode without gradients). A score (higher is better; None or
             NaN: none) selects the best epoch, ties broken by the loss. Default: :func:`loss_only`.
+        record_extra: constant values added to every epoch record (e.g. a baseline to compare with).
 
     Returns:
         :class:`FitResult` (``best_state`` is the best model's CPU state dict).
@@ -299,7 +309,8 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
     """
     env = env or distributed.DistEnv()
     info = {"config": config, "norm_stats": norm_stats, "history": history or [], "extra": extra, "data": data}
-    trainer = _Trainer(model, loss_fn, cfg, env, output, info, progress)
+    watch = watch or Watch()
+    trainer = _Trainer(model, loss_fn, cfg, env, output, info, watch)
     train_loader = _loader(train_set, cfg, collate_fn, env, True, trainer.data_gen)
     val_loader = _loader(val_set, cfg, collate_fn, distributed.DistEnv(), False, trainer.data_gen) \
         if val_set is not None and len(val_set) else None
@@ -308,13 +319,19 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
         trainer.resume()
     elif env.is_main and trainer.log_path and os.path.exists(trainer.log_path):
         os.remove(trainer.log_path)
-    for epoch in range(trainer.start_epoch, cfg.epochs):
+    bar = watch.epochs(range(trainer.start_epoch, cfg.epochs), desc="train", unit="epoch", total=cfg.epochs,
+                       initial=trainer.start_epoch)
+    for epoch in bar:
         t0 = time.perf_counter()
         train_loss = trainer.run_epoch(train_loader, epoch)
         val_loss = val_score = None
         if val_loader:
             val_loss, val_score = validate(val_fn or loss_only(loss_fn), trainer.raw, val_loader, env.device)
             trainer.guard(val_loss, "validation loss", epoch, len(val_loader) - 1)
-        trainer.end_epoch(epoch, train_loss, val_loss, val_score, time.perf_counter() - t0)
+        record = trainer.end_epoch(epoch, train_loss, val_loss, val_score, time.perf_counter() - t0, record_extra)
+        if hasattr(bar, "set_postfix"):
+            bar.set_postfix(bar_postfix(record, trainer.best_record(record)))
+    if hasattr(bar, "close"):
+        bar.close()
     trainer.finish()
     return trainer.result

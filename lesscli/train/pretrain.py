@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import inspect
 import time
-from collections.abc import Callable
 
 import torch
 
@@ -16,6 +15,7 @@ from lesscli.models.ssl_loss import ForcePredictor
 from lesscli.train import distributed
 from lesscli.train.config import PretrainConfig, check_pretrain_config, to_dict
 from lesscli.train.loop import EVAL_SEED, FitResult, data_identity, fit
+from lesscli.train.watch import Watch
 
 
 def encoder_kwargs(cfg: PretrainConfig, n_force: int, taxel_xy_mm: list | None = None) -> dict:
@@ -57,32 +57,38 @@ def ssl_loss_fn(model, batch, generator: torch.Generator) -> torch.Tensor:
     return model(batch, generator)
 
 
+def force_mse(model: ForcePredictor, dataset: ScanDataset, batch_size: int, device: torch.device,
+              baseline: bool = False) -> float:
+    """Mean force-prediction MSE (normalised units) over ``dataset`` with the fixed evaluation draws;
+    ``baseline``: of predicting the training mean (0 after normalisation) on the same draws."""
+    loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, collate_fn=collate)
+    model = model.to(device).eval()
+    gen = torch.Generator().manual_seed(EVAL_SEED)
+    total, n = 0.0, 0
+    with torch.no_grad():
+        for batch in loader:
+            total += float(model(batch.to(device), gen, baseline=baseline)) * batch.size
+            n += batch.size
+    return total / max(1, n)
+
+
 def force_errors(model: ForcePredictor, dataset: ScanDataset, batch_size: int,
                  device: torch.device) -> dict:
-    """Validation force-prediction MSE (normalised units) of the model and of predicting the mean.
-
-    Both use the same fixed draws of input and query steps; the mean is the training-set mean
-    (0 after normalisation).
-    """
-    loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, collate_fn=collate)
-    scores = {}
-    model = model.to(device).eval()
-    for name, baseline in (("mse", False), ("baseline_mse", True)):
-        gen = torch.Generator().manual_seed(EVAL_SEED)
-        total, n = 0.0, 0
-        with torch.no_grad():
-            for batch in loader:
-                total += float(model(batch.to(device), gen, baseline=baseline)) * batch.size
-                n += batch.size
-        scores[name] = total / max(1, n)
+    """Validation force-prediction MSE of the model and of predicting the mean, and their ratio."""
+    scores = {name: force_mse(model, dataset, batch_size, device, baseline)
+              for name, baseline in (("mse", False), ("baseline_mse", True))}
     scores["ratio"] = scores["mse"] / scores["baseline_mse"] if scores["baseline_mse"] > 0 else float("nan")
     return scores
 
 
 def pretrain(train: ScanSet, val: ScanSet | None, cfg: PretrainConfig, output: str, *,
              env: distributed.DistEnv | None = None, resume: bool = False, history: list | None = None,
-             progress: Callable = lambda it, **_: it, names: tuple[str, str] = ("train", "val")) -> dict:
+             watch: Watch | None = None, names: tuple[str, str] = ("train", "val")) -> dict:
     """Train a representation and write the best checkpoint to ``output``.
+
+    With ``val``, every epoch record also holds ``val_baseline_mse``, the validation force MSE of
+    predicting the training mean on the same draws as ``val_loss`` (their ratio is the force error
+    against the mean baseline, per epoch).
 
     Returns:
         A summary record: epochs, best epoch, best validation (or training) loss, and the
@@ -98,14 +104,17 @@ def pretrain(train: ScanSet, val: ScanSet | None, cfg: PretrainConfig, output: s
     model = build_model(cfg, force_dim(stats), taxel_layout(train, names[0]))
     config = {**to_dict(cfg), "encoder": model.encoder.config(),
               "decoder": {"name": model.decoder.name, **model.decoder.settings}}
+    has_val = val_set is not None and len(val_set) > 0
+    baseline = {"val_baseline_mse": force_mse(model, val_set, cfg.train.batch_size, env.device, baseline=True)} \
+        if has_val else None
     result: FitResult = fit(model, ssl_loss_fn, train_set, val_set, cfg.train, collate_fn=collate, output=output,
                             config=config, norm_stats=stats, env=env, resume=resume, history=history,
-                            progress=progress, data=data_identity(train, stats, names[0]))
+                            watch=watch, record_extra=baseline, data=data_identity(train, stats, names[0]))
     summary = {"output": output, "model": cfg.model.name, "particles": model.encoder.n_particles,
                "parameters": sum(p.numel() for p in model.parameters()), "epochs": cfg.train.epochs,
                "best_epoch": result.best_epoch + 1, "best_loss": result.best_loss,
-               "selected_by": "val_loss" if val_set is not None and len(val_set) else "train_loss"}
-    if val_set is not None and len(val_set) and result.best_state is not None:
+               "selected_by": "val_loss" if has_val else "train_loss"}
+    if has_val and result.best_state is not None:
         model.load_state_dict(result.best_state)
         summary.update({f"val_{k}": v for k, v in
                         force_errors(model, val_set, cfg.train.batch_size, env.device).items()})
