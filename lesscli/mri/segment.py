@@ -14,8 +14,8 @@ Pipeline (:func:`segment`):
 6. which tissue is silicone: the minority tissue of the insert (the filling is hydrogel), so either
    contrast works;
 7. silicone morphology (:mod:`lesscli.mri.morphology`): inclusions = opening with a ball thicker
-   than any pillar or skin; pillars = thin elongated silicone columns touching an inclusion; the
-   rest of the silicone (the skin shell) stays insert.
+   than any pillar or skin; pillars traced from each inclusion to the base in the silicone fraction
+   image (:mod:`lesscli.mri.pillar`); the rest of the silicone (skin, base) stays insert.
 """
 
 from __future__ import annotations
@@ -192,13 +192,14 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     n_bright, n_insert = int(bright_mask.sum()), int(insert.sum())
     silicone_brighter = n_bright < n_insert - n_bright
     silicone = bright_mask if silicone_brighter else insert & ~bright_mask
+    sil_level, gel_level = (bright, dark) if silicone_brighter else (dark, bright)
+    fraction = (corrected - np.float32(gel_level)) / np.float32(sil_level - gel_level)
     pillar, inclusion, more = split_silicone(silicone, insert, spacing, params.pillar_max_diameter_mm,
-                                             params.skin_max_thickness_mm)
+                                             params.skin_max_thickness_mm, fraction)
     labels = np.full(arr.shape, BACKGROUND, dtype=np.uint8)
     labels[insert] = INSERT
     labels[pillar] = PILLAR
     labels[inclusion] = INCLUSION
-    levels = {"air": air, "silicone": bright if silicone_brighter else dark,
-              "hydrogel": dark if silicone_brighter else bright}
+    levels = {"air": air, "silicone": sil_level, "hydrogel": gel_level}
     return Segmentation(labels, spacing, silicone_brighter, levels, (t_air, t_tissue), corrected.astype(np.float32),
                         silicone, warnings + more)
