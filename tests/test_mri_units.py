@@ -149,38 +149,3 @@ def test_container_walls_are_background_and_cut_insert_warns():
     seg_cut = segment(cut, synth.labels.spacing_mm)
     assert any("touches the border" in w for w in seg_cut.warnings)
     assert dice(seg_cut.labels == INCLUSION, synth.labels.data[:, :, 12:-12] == INCLUSION) > 0.9
-
-
-def test_dicom_series_geometry_with_a_stand_in_reader(tmp_path, monkeypatch):
-    """Slice order, pixel layout, rescale and the LPS -> RAS affine, with a minimal stand-in for pydicom."""
-    import sys
-    import types
-
-    from lesscli.mri.scan import load_scan
-
-    volume = np.random.default_rng(0).integers(0, 1000, (5, 6, 7))        # slices, rows, columns
-    for k in range(volume.shape[0]):
-        np.save(tmp_path / f"s{(k * 3) % 5}.npy", np.array([k]))          # file order differs from slice order
-    (tmp_path / "notes.txt").write_text("not DICOM")
-
-    class InvalidDicomError(Exception):
-        pass
-
-    def dcmread(path):
-        if not path.endswith(".npy"):
-            raise InvalidDicomError(path)
-        k = int(np.load(path)[0])
-        return types.SimpleNamespace(ImagePositionPatient=[10.0, 20.0, 0.9 * k], ImageOrientationPatient=[1, 0, 0, 0, 1, 0],
-                                     PixelSpacing=[0.5, 0.6], pixel_array=volume[k], RescaleSlope=2.0,
-                                     RescaleIntercept=-1.0, PixelData=b"")
-
-    fake = types.ModuleType("pydicom")
-    fake.dcmread = dcmread
-    fake.errors = types.SimpleNamespace(InvalidDicomError=InvalidDicomError)
-    monkeypatch.setitem(sys.modules, "pydicom", fake)
-    scan = load_scan(str(tmp_path))
-    assert scan.kind == "dicom" and scan.data.shape == (7, 6, 5)            # columns, rows, slices
-    np.testing.assert_allclose(scan.data, 2.0 * np.transpose(volume, (2, 1, 0)) - 1.0)
-    np.testing.assert_allclose(scan.affine[:3, :3], np.diag([-0.6, -0.5, 0.9]))
-    np.testing.assert_allclose(scan.affine[:3, 3], [-10.0, -20.0, 0.0])
-    np.testing.assert_allclose(scan.spacing_mm, [0.6, 0.5, 0.9])
