@@ -27,11 +27,12 @@ JUNCTION_STEPS = 4
 LEVEL_VOXELS = (2.0, 4.0)       # the filling's level is measured this far outside an inclusion, in voxels
 AXIS_SAMPLES = 200_000
 BALL_MARGIN_VOXELS = 0.25       # the opening ball's radius exceeds the thickest pillar's by this
-BOUNDARY_VOXELS = 1.5           # the layer around a body in which its surroundings are measured
+BOUNDARY_VOXELS = (1.0, 2.5)    # the layer around a body in which its surroundings are measured
 MAX_BOUNDARY_SILICONE = 0.3     # an inclusion lies in the filling; more silicone around: a pillar's foot, a corner
 
 
-def _crop(mask: np.ndarray, pad: int) -> tuple[slice, ...]:
+def crop_box(mask: np.ndarray, pad: int) -> tuple[slice, ...]:
+    """The bounding box of ``mask`` widened by ``pad`` voxels (clipped to the array)."""
     idx = np.argwhere(mask)
     lo = np.maximum(idx.min(axis=0) - pad, 0)
     hi = np.minimum(idx.max(axis=0) + pad + 1, mask.shape)
@@ -69,18 +70,20 @@ def insert_axis(insert: np.ndarray, spacing: np.ndarray) -> np.ndarray:
 
 def _in_filling(bodies: np.ndarray, silicone: np.ndarray, insert: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     """The bodies mostly surrounded by filling: silicone covers at most MAX_BOUNDARY_SILICONE of the layer
-    of BOUNDARY_VOXELS around each (inside the insert); thick spots where a pillar meets the base, or
-    skin meets skin in a corner, are surrounded by silicone on one side."""
+    BOUNDARY_VOXELS around each (inside the insert; a voxel away, so that the body's own rim does not
+    count); thick spots where a pillar meets the base, or skin meets skin in a corner, are surrounded by
+    silicone on one side."""
     from scipy import ndimage
 
     comps, n = ndimage.label(bodies)
     keep = np.zeros(bodies.shape, dtype=bool)
-    reach = BOUNDARY_VOXELS * float(spacing.max())
+    gap, reach = (v * float(spacing.max()) for v in BOUNDARY_VOXELS)
     pad = int(np.ceil(reach / float(spacing.min()))) + 1
     for i, sl in enumerate(ndimage.find_objects(comps), start=1):
         box = tuple(slice(max(a.start - pad, 0), a.stop + pad) for a in sl)
         own = comps[box] == i
-        near = (ndimage.distance_transform_edt(~own, sampling=spacing) <= reach) & ~own & insert[box]
+        dist = ndimage.distance_transform_edt(~own, sampling=spacing)
+        near = (dist > gap) & (dist <= reach) & insert[box]
         if near.any() and float(silicone[box][near].mean()) <= MAX_BOUNDARY_SILICONE:
             keep[box] |= own
     return keep
@@ -165,7 +168,7 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     inclusion_full = np.zeros(insert.shape, dtype=bool)
     if not silicone.any():
         return pillar_full, inclusion_full, ["no inclusion found (no silicone inside the insert)"]
-    box = _crop(insert, 2)
+    box = crop_box(insert, 2)
     # one voxel of padding: the distance transforms must see air beyond a scan's border too
     sil, ins = np.pad(silicone[box], 1), np.pad(insert[box], 1)
     voxel_mm = float(spacing.max())

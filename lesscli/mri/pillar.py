@@ -35,6 +35,8 @@ RING_GAP_VOXELS = 0.5
 RING_WIDTH_MM = 2.5
 HALF = 0.5                      # ring level / insert coverage at the base surface
 MAX_TILT = math.tan(math.radians(30.0))
+SHORT_GAP_SLABS = 2.5           # a closer base leaves too few slabs to measure a cross-section
+GAP_AXIS_MM = 0.75              # the voxels this close to the line decide whether a short gap holds a post
 MAD_TO_SIGMA = 1.4826
 MEDIAN_SE = 1.2533              # standard error of a median / (sigma / sqrt(n)) for normal scatter
 SCALE_EPS = 1e-3
@@ -185,6 +187,33 @@ def _inner(trace: Trace) -> Trace:
     return Trace(trace.t_mm[keep], trace.area_mm2[keep], trace.centroid_mm[keep], trace.end_mm)
 
 
+def _short_gap(trace: Trace, col: _Column, sign: int, step_mm: float) -> bool:
+    """The base lies within SHORT_GAP_SLABS slabs of the inclusion: too close for cross-sections."""
+    return trace.end_mm - col.start[sign] <= SHORT_GAP_SLABS * step_mm
+
+
+def _gap_radius(col: _Column, sign: int, end_mm: float, contrast: tuple[float, float], core_mm: float,
+                step_mm: float, voxel_mm3: float, found: dict) -> float | None:
+    """Radius of the post across a short gap between an inclusion and the base, or None (no post).
+
+    Along the line the gap holds silicone (the inclusion seen reaching the base counts) or not; the
+    radius is the median of the scan's measured pillars, else the area of the core's silicone in the gap.
+    """
+    st = sign * col.t
+    gap = col.free & (st > col.start[sign]) & (st <= end_mm)
+    rho = np.linalg.norm(col.uv, axis=1)
+    axis_voxels = gap & (rho <= GAP_AXIS_MM)
+    half = contrast[0] + HALF * contrast[1]
+    if axis_voxels.any() and float(np.median(col.value[axis_voxels])) <= half:
+        return None
+    if found:
+        return float(np.median([r for _line, r, _end in found.values()]))
+    in_core = gap & (rho <= core_mm)
+    length = max(end_mm - col.start[sign], step_mm)
+    area = float((col.value[in_core] > half).sum()) * voxel_mm3 / length
+    return math.sqrt(area / math.pi) if area >= math.pi * MIN_RADIUS_MM ** 2 else None
+
+
 def _contrast(fraction: np.ndarray, inc_ids: np.ndarray, label: int, col: _Column, ring_mm,
               spacing) -> tuple[float, float]:
     """(hydrogel level, silicone - hydrogel): the inclusion's interior against the column's ring."""
@@ -241,19 +270,28 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
                                          contrasts[label])
     side = 1 if sum(_inner(traces[k, 1]).median_area() - _inner(traces[k, -1]).median_area()
                     for k in labels) >= 0 else -1
-    missing = []
+    found, short, missing = {}, [], []
     for label in labels:
         first = _inner(traces[label, side])
         if not first.significant():
-            missing.append(label)
+            (short if _short_gap(traces[label, side], columns[label], side, step) else missing).append(label)
             continue
         col, line = columns[label], _fit_line(first, np.zeros((2, 2)))
         core = min(core0, math.sqrt(first.median_area() / math.pi) + CORE_MARGIN_VOXELS * voxel)
         second = _trace(col, side, line, core, rings(core), step, voxel_mm3, contrasts[label])
         final = _inner(second) if len(second.area_mm2) else first
-        radius = min(math.sqrt(max(final.median_area(), 0.0) / math.pi), core)
+        found[label] = (line, min(math.sqrt(max(final.median_area(), 0.0) / math.pi), core), second.end_mm)
+    for label in short:                 # too close to the base to measure: silicone across the gap, or none
+        col, end = columns[label], traces[label, side].end_mm
+        radius = _gap_radius(col, side, end, contrasts[label], core0, step, voxel_mm3, found)
+        if radius is None:
+            missing.append(label)
+        else:
+            found[label] = (np.zeros((2, 2)), radius, end)
+    for label, (line, radius, end) in found.items():
+        col = columns[label]
         st = side * col.t
         rho = np.linalg.norm(col.uv - line[0] - st[:, None] * line[1], axis=1)
-        sel = col.inside & ~col.other & (rho <= radius) & (st >= 0) & (st <= second.end_mm)
+        sel = col.inside & ~col.other & (rho <= radius) & (st >= 0) & (st <= end)
         pillar[tuple(i[sel] for i in col.index)] = True
-    return pillar, missing, side
+    return pillar, sorted(missing), side
