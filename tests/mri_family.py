@@ -31,7 +31,8 @@ PLACEMENT_TRIES = 400
 
 @dataclass(frozen=True)
 class Case:
-    """One volume of the family (lengths in mm; spacing per array axis 0, 1, 2 with axis 0 the insert axis)."""
+    """One volume of the family (lengths in mm; spacing per array axis 0, 1, 2 with axis 0 the insert axis;
+    ``pillar_mm`` 0: the inclusions float without pillars)."""
 
     seed: int
     spacing_mm: tuple[float, float, float] = (0.7, 0.7, 0.9)
@@ -137,10 +138,11 @@ def generate(case: Case) -> Volume:
     spheres = [np.sqrt((x - cx) ** 2 + (y - cy) ** 2 + (z - cz) ** 2) - r
                for (cx, cy, cz), r in zip(centres, 0.5 * np.asarray(case.inclusion_mm))]
     pillars = [np.maximum(np.sqrt((x - cx) ** 2 + (y - cy) ** 2) - 0.5 * case.pillar_mm,
-                          _slab_sd(z, case.base_mm - 1.0, cz)) for cx, cy, cz in centres]
+                          _slab_sd(z, case.base_mm - 1.0, cz)) for cx, cy, cz in centres] if case.pillar_mm > 0 else []
     silicone = np.minimum.reduce([-cavity] + spheres + pillars)
     truth = np.where(body <= 0, INSERT, AIR).astype(np.uint8)
-    truth[(np.minimum.reduce(pillars) <= 0) & (cavity <= 0) & (body <= 0)] = PILLAR
+    if pillars:
+        truth[(np.minimum.reduce(pillars) <= 0) & (cavity <= 0) & (body <= 0)] = PILLAR
     truth[(np.minimum.reduce(spheres) <= 0) & (body <= 0)] = INCLUSION
     if case.silicone_brighter:
         sil_level, gel_level = 1.0, float(rng.uniform(0.4, 0.6))
