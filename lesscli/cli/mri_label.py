@@ -77,8 +77,8 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
                 aff = zyx_affine(vol.origin_mm, vol.spacing_mm)
                 rows += [rep.frame_row(frame)] + rep.class_rows(vol.data, aff) + rep.inclusion_rows(vol.data, aff)
     if qc:
-        rep.save_qc(qc, seg.corrected, seg.labels, seg.spacing_mm, title=f"{scan_path}: blue insert, orange pillar, "
-                    "red inclusion")
+        rep.save_qc(qc, seg.corrected, seg.labels, seg.spacing_mm, title=f"{scan_path}: blue insert, orange outline "
+                    "pillar, red inclusion")
     if report:
         emit_records(rows + rep.warning_rows(seg.warnings), fmt)
 
@@ -100,7 +100,8 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
 @click.option("--orientations", type=click.Choice(["1", "8"]), default="1", show_default=True,
               help="8: also write the 45-degree rotated copies OUT_0 ... OUT_7 (with --grid phantom).")
 @click.option("--report", is_flag=True, help="Print class volumes, inclusions, frame and warnings as records.")
-@click.option("--qc", type=str, default=None, help="PNG with orthogonal slices and the label overlay.")
+@click.option("--qc", type=str, default=None,
+              help="PNG: the three orthogonal planes through each inclusion, labels overlaid, pillar outlined.")
 @click.option("--strict", is_flag=True, help="Treat warnings (no inclusion, pillar not connected, ...) as errors.")
 @click.option("--synth", "synth", default=None, metavar="INSERT",
               help="Instead of labelling: write a synthetic MRI of a catalogue insert (e.g. St12C13) or of the "
