@@ -103,7 +103,7 @@ def test_qc_shows_each_inclusion_with_the_pillar_outlined(run_less, tmp_path):
     vol = generate(CASES["two-inclusions-thick-slices-dark-noisy"])
     affine = np.diag([*vol.spacing_mm, 1.0])
     nib.save(nib.Nifti1Image(vol.image, affine), tmp_path / "scan.nii.gz")
-    run_less("mri-label", "scan.nii.gz", "-o", "labels.nii.gz", "--qc", "qc.png", check=True)
+    run_less("mri-label", "scan.nii.gz", "-o", "labels.nii.gz", "--plot", "qc.png", check=True)
     png = mpimg.imread(tmp_path / "qc.png")
     height, width = png.shape[:2]
     assert abs(height / width - 2 * 4.2 / 12) < 0.02                # two rows of three planes

@@ -223,7 +223,8 @@ def plot_curves(path: str, means: dict[str, list[tuple]], title: str) -> None:
 @click.option("--touches", "budget", type=click.IntRange(2), default=None, help="Touch budget (default 60, quick 30).")
 @click.option("--start", "n_start", type=click.IntRange(1), default=3, show_default=True, help="Random first touches.")
 @click.option("--seeds", type=click.IntRange(1), default=None, help="Seeds per phantom (default 3, quick 1).")
-@click.option("--eval-every", type=click.IntRange(1), default=3, show_default=True)
+@click.option("--eval-every", type=click.IntRange(1), default=3, show_default=True,
+              help="Score the image every N touches.")
 @click.option("--batch", type=click.IntRange(1), default=3, show_default=True, help="Guided touches per round.")
 @click.option("--plot", "plot_path", default=None, callback=checked_output(), help="F1 vs touches PNG.")
 @seed_option()

@@ -60,7 +60,7 @@ def _case(dim: int, batch: int, repeat: int, gen) -> list[dict]:
 @click.command("imaging")
 @click.option("--quick", is_flag=True, help="2D only, fewer repeats.")
 @click.option("--repeat", type=click.IntRange(1), default=None, help="Timing repeats (best of; default 5, quick 2).")
-@click.option("--batch", type=click.IntRange(1), default=2, show_default=True)
+@click.option("--batch", type=click.IntRange(1), default=2, show_default=True, help="Scans per timed batch.")
 @click.option("--threads", type=click.IntRange(1), default=None, help="Pin torch's CPU threads.")
 @seed_option()
 @format_option

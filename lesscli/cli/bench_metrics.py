@@ -39,7 +39,8 @@ def _volumes(diameter_mm: float, seed: int):
 @click.command("metrics")
 @click.option("--quick", is_flag=True, help="Fewer repeats.")
 @click.option("--repeat", type=click.IntRange(1), default=None, help="Timing repeats (best of; default 7, quick 2).")
-@click.option("--diameter-mm", type=click.FloatRange(min=1.0, max=25.0), default=16.0, show_default=True)
+@click.option("--diameter-mm", type=click.FloatRange(min=1.0, max=25.0), default=16.0, show_default=True,
+              help="Diameter of the synthetic inclusion.")
 @seed_option()
 @format_option
 def cli(quick: bool, repeat: int | None, diameter_mm: float, seed: int, fmt: str | None) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import checked_output, comma_list, format_option, seed_option
+from lesscli.cli.common import checked_output, comma_list, device_option, format_option, seed_option
 
 TABLE_COLUMNS = ["knob", "value", "sim_s", "pretrain_s", "fit_s", "train_s", "train_s_ratio", "latency_ms_per_scan",
                  "f1_single", "f1_multiple", "f1_single_delta", "f1_multiple_delta"]
@@ -38,7 +38,7 @@ def _parse_values(items: tuple[str, ...], knobs: dict, base) -> dict[str, tuple]
               help="PNG: F1 on single and multiple vs training time (Pareto).")
 @click.option("--knob-plot", "knob_plot", default=None, callback=checked_output(),
               help="PNG: F1 on single and multiple against the value of the (one) chosen knob.")
-@click.option("--device", default="cpu", show_default=True, help="cpu, cuda or cuda:N.")
+@device_option()
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="Torch CPU threads.")
 @seed_option()
 @format_option

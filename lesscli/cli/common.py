@@ -62,6 +62,73 @@ def format_option(func):
     )(func)
 
 
+def deprecated(old: str, new: str) -> None:
+    """The one stderr line for a spelling that still works in this release and goes in the next."""
+    LOG.warning("%s is deprecated and goes in the next release; use %s", old, new)
+
+
+def renamed_option(old: str, *decls: str, **attrs):
+    """A click option spelled ``decls`` that still accepts its old spelling ``old`` for one release.
+
+    The old spelling is a hidden option of the same type; given on the command line it prints one
+    deprecation line on stderr and its value stands in for the new option's default (the new spelling
+    wins when both are given). The new option's own callback, if any, sees the value either way.
+    """
+    new = click.Option(decls, **attrs)
+    key = ("renamed", new.name)
+    callback = attrs.pop("callback", None)
+
+    def take_old(ctx: click.Context, param: click.Parameter, value):
+        if value is not None and value != ():
+            deprecated(old, new.opts[0])
+            ctx.meta[key] = value
+        return value
+
+    def take_new(ctx: click.Context, param: click.Parameter, value):
+        from click.core import ParameterSource
+
+        if key in ctx.meta and ctx.get_parameter_source(param.name) in (ParameterSource.DEFAULT, None):
+            value = ctx.meta[key]
+        return callback(ctx, param, value) if callback else value
+
+    alias = click.option(old, "_old_" + new.name, hidden=True, expose_value=False, default=None, type=new.type,
+                         multiple=new.multiple, callback=take_old, help=f"Old spelling of {new.opts[0]}.")
+    current = click.option(*decls, callback=take_new, **attrs)
+
+    def decorate(func):
+        return alias(current(func))
+    return decorate
+
+
+def orientation_list(text: str, option: str = "--orientations") -> list[int]:
+    """``'0-7'`` or ``'0,2,4'`` (ranges and lists mix: ``'0-2,6'``) -> orientations k in 0..7, in order.
+
+    Raises:
+        click.BadParameter: on text that does not parse or an orientation outside 0..7.
+    """
+    out: list[int] = []
+    try:
+        for part in text.split(","):
+            first, _, last = part.partition("-")
+            out.extend(range(int(first), int(last or first) + 1))
+    except ValueError:
+        raise click.BadParameter(f"'{text}': expected e.g. 0-7 or 0,2,4", param_hint=option) from None
+    if not out or any(not 0 <= k <= 7 for k in out):
+        raise click.BadParameter(f"'{text}': orientations are 0..7 (45 degrees each)", param_hint=option)
+    return out
+
+
+def orientations_option(default: str = "0-7", help: str = "Orientations k (x 45 deg), e.g. 0-7 or 0,2,4."):
+    """``--orientations`` in the one syntax every command shares (see :func:`orientation_list`)."""
+    return click.option("--orientations", default=default, show_default=True, metavar="LIST", help=help,
+                        callback=lambda ctx, param, value: orientation_list(value, "--orientations"))
+
+
+def device_option(help: str = "auto (CUDA when available, else CPU), cpu, cuda or cuda:N."):
+    """``--device``, ``auto`` by default in every command."""
+    return click.option("--device", default="auto", show_default=True, help=help)
+
+
 def checked_output(folder: bool = False):
     """A click callback that checks an output path (see lesscli.io.atomic.check_output) at parse time,
     before the command does any work."""

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import checked_output, format_option
+from lesscli.cli.common import checked_output, device_option, format_option
 
 
 @click.command("guide")
-@click.argument("model")
-@click.argument("partial")
+@click.argument("model", type=click.Path())
+@click.argument("partial", type=click.Path())
 @click.option("--k", "k", type=click.IntRange(min=1), default=5, show_default=True, help="Touch locations to suggest.")
 @click.option("--scan", "scan_index", type=click.IntRange(min=0), default=None,
               help="Only this scan of PARTIAL (default: every scan).")
@@ -25,7 +25,7 @@ from lesscli.cli.common import checked_output, format_option
               help="Phantom octagon across flats (default: the scan's label footprint, else 60 mm).")
 @click.option("--score", default="entropy", show_default=True,
               help="Uncertainty to cover: 'entropy' (all classes) or 'inclusion' (inclusion vs the rest).")
-@click.option("--device", default="cpu", show_default=True, help="cpu, cuda or cuda:N.")
+@device_option()
 @format_option
 def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margin_mm, width_mm, score, device,
         fmt) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import checked_output, format_option, output_option, training_options
+from lesscli.cli.common import checked_output, device_option, format_option, output_option, training_options
 
 
 @click.group("image")
@@ -14,7 +14,7 @@ def cli() -> None:
 
 
 @cli.command("fit")
-@click.argument("data")
+@click.argument("data", type=click.Path())
 @click.option("--model", "model", type=click.Choice(["less", "forcemap"]), default="less", show_default=True,
               help="less: a learned decoder on --rep; forcemap: calibrate the classical force-map reference.")
 @click.option("--rep", "rep_path", default=None,
@@ -80,8 +80,8 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
 
 
 @cli.command("predict")
-@click.argument("model")
-@click.argument("data")
+@click.argument("model", type=click.Path())
+@click.argument("data", type=click.Path())
 @output_option(help="Prediction file (less.pred/1 .npz; '-' for stdout).")
 @click.option("--threshold", type=click.FloatRange(0, 1), default=None,
               help="Pillar/inclusion only above this probability (hand-held setting: 0.8). Default: the "
@@ -96,8 +96,9 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
 @click.option("--slice", "slice_index", type=int, default=None, help="2D: label slice (default: as trained).")
 @click.option("--nifti", "nifti_dir", default=None, callback=checked_output(folder=True),
               help="Also write label and entropy NIfTI volumes here.")
-@click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True)
-@click.option("--device", default="auto", show_default=True, help="auto, cpu, cuda or cuda:N.")
+@click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True,
+              help="Scans imaged together (memory against speed).")
+@device_option()
 @format_option
 def predict_cmd(model, data, output, threshold, min_volume_mm3, steps, every, grow, slice_index, nifti_dir,
                 batch_size, device, fmt) -> None:

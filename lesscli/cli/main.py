@@ -23,6 +23,8 @@ from lesscli.cli.pager import hand_over_to_pager, wants_pager
 from lesscli.cli.registry import COMMANDS
 from lesscli.errors import LessError
 
+COMPLETE_VAR = "_LESS_COMPLETE"  # shell completion: eval "$(_LESS_COMPLETE=bash_source less)"
+
 
 class PipeClosed(Exception):
     """stdout's reader went away (``| head``); raised instead of BrokenPipeError, which click would
@@ -86,7 +88,7 @@ def main(argv: list[str] | None = None) -> None:
     args = list(sys.argv[1:] if argv is None else argv)
     common.STATE.verbose = sum(a in ("-v", "--verbose") or a.startswith("-vv") for a in args)
     try:
-        cli.main(args=args, prog_name="less", standalone_mode=False)
+        cli.main(args=args, prog_name="less", complete_var=COMPLETE_VAR, standalone_mode=False)
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)
     except click.ClickException as exc:
@@ -122,9 +124,10 @@ def _silence_stdout() -> None:
 
 
 def entry() -> None:
-    """Console-script entry: pager hand-over first (never for the ``lesscli`` alias), then the CLI."""
+    """Console-script entry: pager hand-over first (never for the ``lesscli`` alias, nor for a shell's
+    completion request, which comes without a subcommand and often without a terminal), then the CLI."""
     args = sys.argv[1:]
-    as_pager = os.path.basename(sys.argv[0]) == "less"
+    as_pager = os.path.basename(sys.argv[0]) == "less" and COMPLETE_VAR not in os.environ
     if as_pager and wants_pager(args, set(COMMANDS), stdin_is_tty=sys.stdin.isatty()):
         hand_over_to_pager(args)
         return

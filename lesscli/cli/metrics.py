@@ -68,7 +68,7 @@ def _emit_tables(report, fmt: str, summary_only: bool) -> None:
 
 
 @click.command("metrics")
-@click.argument("preds", nargs=-1, metavar="[PRED.npz ...]")
+@click.argument("preds", type=click.Path(), nargs=-1, metavar="[PRED.npz ...]")
 @click.option("--truth", "truth_path", type=str, default=None, help="Reference label volume (NIfTI) for --pred.")
 @click.option("--pred", "pred_nifti", type=str, multiple=True, help="Predicted label volume (NIfTI); repeatable.")
 @click.option("--cls", type=click.Choice(["inclusion", "pillar"]), default="inclusion", show_default=True,

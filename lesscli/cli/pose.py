@@ -18,7 +18,7 @@ def cli() -> None:
 
 
 @cli.command("track")
-@click.argument("frames", metavar="FRAMES")
+@click.argument("frames", type=click.Path(), metavar="FRAMES")
 @click.option("--camera", "camera_path", required=True, help="cam.json: fx, fy, cx, cy, width, height, dist.")
 @output_option(help="Pose rows as JSON lines ('-' for stdout).")
 @click.option("--sensor-tag", type=int, default=1, show_default=True, help="Id of the tag on the sensor handle.")
@@ -75,9 +75,9 @@ def track_cmd(frames: str, camera_path: str, output: str, sensor_tag: int, globa
 @output_option(help="Output folder for the frames, timestamps.txt, camera.json and truth.npz.", folder=True)
 @click.option("--frames", "n_frames", type=int, default=30, show_default=True, help="Frames of a generated motion.")
 @click.option("--step", type=int, default=1, show_default=True, help="Generated motion: every step-th 30 fps frame.")
-@click.option("--sensor-tag", type=int, default=1, show_default=True)
-@click.option("--global-tag", type=int, default=0, show_default=True)
-@click.option("--tag-size-mm", type=float, default=31.0, show_default=True)
+@click.option("--sensor-tag", type=int, default=1, show_default=True, help="Id of the tag drawn on the sensor handle.")
+@click.option("--global-tag", type=int, default=0, show_default=True, help="Id of the fixed reference tag drawn.")
+@click.option("--tag-size-mm", type=float, default=31.0, show_default=True, help="Side of the black square.")
 @click.option("--blur-px", type=float, default=0.7, show_default=True, help="Gaussian blur sigma, px.")
 @click.option("--noise", "noise_gray", type=float, default=2.0, show_default=True, help="Noise sigma, grey levels.")
 @seed_option()
@@ -111,8 +111,8 @@ def render_cmd(camera_path: str | None, trajectory: str | None, output: str, n_f
 
 
 @cli.command("calibrate")
-@click.argument("estimated", metavar="ESTIMATED")
-@click.argument("robot", metavar="ROBOT")
+@click.argument("estimated", type=click.Path(), metavar="ESTIMATED")
+@click.argument("robot", type=click.Path(), metavar="ROBOT")
 @output_option(help="Calibration .npz (r_pos, t_pos, R_ori, R_pre, time_offset_s).")
 @click.option("--threshold-mm", type=float, default=3.0, show_default=True, help="RANSAC inlier distance.")
 @click.option("--max-offset-s", type=float, default=0.5, show_default=True,
@@ -145,8 +145,8 @@ def calibrate_cmd(estimated: str, robot: str, output: str, threshold_mm: float, 
 
 
 @cli.command("accuracy")
-@click.argument("estimated", metavar="ESTIMATED")
-@click.argument("reference", metavar="ROBOT")
+@click.argument("estimated", type=click.Path(), metavar="ESTIMATED")
+@click.argument("reference", type=click.Path(), metavar="ROBOT")
 @click.option("--calibration", default=None, help="Calibration .npz applied to ESTIMATED first.")
 @click.option("--plot", "plot_path", default=None, callback=checked_output(),
               help="PNG of the per-axis errors over time.")
@@ -170,8 +170,8 @@ def accuracy_cmd(estimated: str, reference: str, calibration: str | None, plot_p
 
 
 @cli.command("apply")
-@click.argument("calibration", metavar="CALIB")
-@click.argument("scans", metavar="SCANS")
+@click.argument("calibration", type=click.Path(), metavar="CALIB")
+@click.argument("scans", type=click.Path(), metavar="SCANS")
 @output_option(help="Output scan set .npz ('-' for stdout).")
 def apply_cmd(calibration: str, scans: str, output: str) -> None:
     """Apply a calibration (p <- p r_pos^T + t_pos, R <- R_pre R R_ori) to a scan set's poses.

@@ -8,7 +8,7 @@ from lesscli.cli.common import format_option, output_option, training_options
 
 
 @click.command("pretrain")
-@click.argument("data")
+@click.argument("data", type=click.Path())
 @output_option(help="Best checkpoint (.pt); beside it <stem>.last.pt (for --resume) and <stem>.log.jsonl.")
 @click.option("--val", "val_path", default=None, help="Validation scan set: selects the best epoch.")
 @click.option("--model", "model_name", default=None, help="Encoder: less (particles) or global.  [default: less]")

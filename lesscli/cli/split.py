@@ -8,7 +8,7 @@ from lesscli.cli.common import format_option, output_option, seed_option
 
 
 @click.command("split")
-@click.argument("path", metavar="FILE")
+@click.argument("path", type=click.Path(), metavar="FILE")
 @click.option("--by", type=click.Choice(["insert", "scan"]), default="insert", show_default=True,
               help="Unit kept whole: 'insert' (no insert in two splits) or 'scan'.")
 @click.option("--test", type=click.FloatRange(0, 1, max_open=True), default=0.2, show_default=True,

@@ -7,15 +7,15 @@ import time
 
 import click
 
-from lesscli.cli.common import checked_output
+from lesscli.cli.common import checked_output, device_option
 
 EMIT_DEFAULT = 10
 LATENCY_PERCENTILES = (50, 90, 99)
 
 
 @click.command("stream")
-@click.argument("model")
-@click.argument("source")
+@click.argument("model", type=click.Path())
+@click.argument("source", type=click.Path())
 @click.option("--rate", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Replay a scan set at this many samples per second (default: as fast as possible).")
 @click.option("--emit-every", type=click.IntRange(min=1), default=EMIT_DEFAULT, show_default=True,
@@ -27,7 +27,7 @@ LATENCY_PERCENTILES = (50, 90, 99)
 @click.option("--threshold", type=click.FloatRange(0, 1), default=None,
               help="Pillar/inclusion only above this probability (hand-held setting: 0.8). Default: argmax.")
 @click.option("--defer", is_flag=True, help="Re-decode patches only when a record is written (same images, faster).")
-@click.option("--device", default="cpu", show_default=True, help="cpu, cuda or cuda:N.")
+@device_option()
 def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer, device) -> None:
     """Image SOURCE incrementally with the imaging checkpoint MODEL.
 
