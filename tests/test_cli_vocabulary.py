@@ -65,6 +65,36 @@ def test_renamed_option_works_under_both_spellings(case, tmp_path, monkeypatch):
     assert old in line and new in line
 
 
+# every old spelling in the command tree: (command, old) -> (required arguments, a value to give)
+ALIASES = {
+    ("phantom", "--shape"): (["-o", "out"], "8,32,32"),
+    ("phantom", "--spacing"): (["-o", "out"], "2,2,2"),
+    ("mri-label", "--qc"): (["-o", "labels.nii.gz"], "qc.png"),
+    ("bench guide", "--work"): ([], "cache"),
+    ("bench imaging", "--repeat"): ([], "3"),
+    ("bench imaging", "--batch"): ([], "5"),
+    ("bench metrics", "--repeat"): ([], "3"),
+}
+
+
+def test_every_old_spelling_parses_to_its_new_option(tmp_path, monkeypatch):
+    """Parsing only (no command runs): the old spelling fills the new option, the new one wins over it."""
+    monkeypatch.chdir(tmp_path)
+    found = {}
+    for path, command in walk(cli):
+        for param in command.params:
+            if isinstance(param, click.Option) and param.hidden and (param.help or "").startswith("Old spelling"):
+                found[(path, param.opts[0])] = (command, param.help.split()[-1].rstrip("."))
+    assert set(found) == set(ALIASES)
+    for (path, old), (command, new) in found.items():
+        required, value = ALIASES[path, old]
+        (target,) = [p for p in command.params if new in getattr(p, "opts", ())]
+        expected = target.type_cast_value(click.Context(command), value)
+        for args in ([old, value], [new, value], [old, "1", new, value], [new, value, old, "1"]):
+            ctx = command.make_context(path, required + args)
+            assert ctx.params[target.name] == expected, (path, args)
+
+
 def test_mri_label_old_orientation_count_means_all_eight(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     code, _, err = invoke(MRI_LABEL + ["--orientations", "0-7"], tmp_path)
