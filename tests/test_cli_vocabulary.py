@@ -141,6 +141,21 @@ def test_path_arguments_complete_files():
     assert plain == []
 
 
+def test_file_options_complete_files():
+    """Outputs, figures and the usual inputs: every option spelled so is a click.Path."""
+    names = {"--output", "--plot", "--knob-plot", "--rep", "--config", "--camera", "--calibration", "--nifti",
+             "--monitor", "--truth-out", "--scene", "--trajectory", "--tag-to-sensor", "--work-dir", "--cache-dir",
+             "--baseline-from", "--pred"}
+    checked, plain = 0, []
+    for path, command in walk(cli):
+        for param in command.params:
+            if isinstance(param, click.Option) and not param.is_flag and set(param.opts) & names:
+                checked += 1
+                if not isinstance(param.type, click.Path):
+                    plain.append((path, param.opts))
+    assert checked > 40 and plain == []
+
+
 def test_device_defaults_to_auto_everywhere():
     seen = {path: param.default for path, command in walk(cli) for param in command.params
             if "--device" in getattr(param, "opts", [])}
@@ -175,3 +190,5 @@ def test_shell_completion_through_the_console_script(tmp_path):
     assert words.split() == ["plain,phantom"]
     files = _complete({"_LESS_COMPLETE": "bash_complete", "COMP_WORDS": "less image predict x", "COMP_CWORD": "3"})
     assert files.split() == ["file,x"]
+    option = _complete({"_LESS_COMPLETE": "bash_complete", "COMP_WORDS": "less render p.npz -o fig", "COMP_CWORD": "4"})
+    assert option.split() == ["file,fig"]

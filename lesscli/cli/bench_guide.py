@@ -218,8 +218,9 @@ def plot_curves(path: str, means: dict[str, list[tuple]], title: str) -> None:
 
 @click.command("guide")
 @click.option("--quick", is_flag=True, help="Smaller model, budget and seeds (minutes).")
-@click.option("--model", "model_path", default=None, help="Imaging checkpoint (default: train a small 2D model).")
-@renamed_option("--work", "--work-dir", "work", default=".less-bench-guide", show_default=True,
+@click.option("--model", "model_path", type=click.Path(), default=None,
+              help="Imaging checkpoint (default: train a small 2D model).")
+@renamed_option("--work", "--work-dir", "work", type=click.Path(), default=".less-bench-guide", show_default=True,
                 help="Cache folder for the trained model.")
 @click.option("--touches", "budget", type=click.IntRange(2), default=None, help="Touch budget (default 60, quick 30).")
 @click.option("--start", "n_start", type=click.IntRange(1), default=3, show_default=True, help="Random first touches.")
@@ -227,7 +228,8 @@ def plot_curves(path: str, means: dict[str, list[tuple]], title: str) -> None:
 @click.option("--eval-every", type=click.IntRange(1), default=3, show_default=True,
               help="Score the image every N touches.")
 @click.option("--batch", type=click.IntRange(1), default=3, show_default=True, help="Guided touches per round.")
-@click.option("--plot", "plot_path", default=None, callback=checked_output(), help="F1 vs touches PNG.")
+@click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
+              help="F1 vs touches PNG.")
 @seed_option()
 @format_option
 def cli(quick, model_path, work, budget, n_start, seeds, eval_every, batch, plot_path, seed, fmt) -> None:

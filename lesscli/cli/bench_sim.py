@@ -18,9 +18,10 @@ DEFAULT_SCENE = os.path.join("examples", "scenes", "poke.toml")
               help="Also draw error vs time per step to this PNG.")
 @click.option("--check", "checks", multiple=True, type=click.Choice(CHECKS),
               help="Run only these checks (repeatable; default all).")
-@click.option("--scene", "scene_path", default=None,
+@click.option("--scene", "scene_path", type=click.Path(), default=None,
               help=f"Scene timed by the 'pipeline' check (default {DEFAULT_SCENE} when it exists).")
-@click.option("--cache-dir", default=None, help="Compliance cache (default: a fresh temporary one, so "
+@click.option("--cache-dir", type=click.Path(), default=None,
+              help="Compliance cache (default: a fresh temporary one, so "
               "precompute is timed).")
 @format_option
 def cli(quick: bool, plot_path: str | None, checks: tuple[str, ...], scene_path: str | None,

@@ -33,10 +33,11 @@ def _parse_values(items: tuple[str, ...], knobs: dict, base) -> dict[str, tuple]
 @click.option("--image-epochs", type=click.IntRange(min=1), default=None, help="Imaging epochs per setting.")
 @click.option("--values", "values", multiple=True, metavar="KNOB=V1,V2",
               help="Values tried for a knob, e.g. --values receptive_field=5,10,20 (repeatable).")
-@click.option("--work-dir", default=None, help="Keep the checkpoints here (default: a temporary folder).")
-@click.option("--plot", "plot_path", default=None, callback=checked_output(),
+@click.option("--work-dir", type=click.Path(), default=None,
+              help="Keep the checkpoints here (default: a temporary folder).")
+@click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
               help="PNG: F1 on single and multiple vs training time (Pareto).")
-@click.option("--knob-plot", "knob_plot", default=None, callback=checked_output(),
+@click.option("--knob-plot", "knob_plot", type=click.Path(), default=None, callback=checked_output(),
               help="PNG: F1 on single and multiple against the value of the (one) chosen knob.")
 @device_option()
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="Torch CPU threads.")

@@ -143,7 +143,7 @@ def checked_output(folder: bool = False):
 
 def output_option(required: bool = True, help: str = "Output file ('-' for stdout).", folder: bool = False):
     """``-o/--output PATH``, checked before the command starts (``folder``: the output is a folder)."""
-    return click.option("-o", "--output", "output", type=str, required=required, help=help,
+    return click.option("-o", "--output", "output", type=click.Path(), required=required, help=help,
                         callback=checked_output(folder))
 
 
@@ -159,7 +159,8 @@ def training_options(default_epochs: int, tables: str, set_example: str):
         click.option("--lr", type=float, default=None, help="Adam learning rate (cosine decay).  [default: 1e-4]"),
         click.option("--seed", type=int, default=None, help="Seed for initialisation and sampling.  [default: 0]"),
         click.option("--device", default=None, help="auto, cpu, cuda or cuda:N.  [default: auto]"),
-        click.option("--config", "config_path", default=None, help=f"TOML file with {tables} tables."),
+        click.option("--config", "config_path", type=click.Path(), default=None,
+                     help=f"TOML file with {tables} tables."),
         click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
                      help=f"Override a setting, e.g. {set_example} (repeatable)."),
         click.option("--resume", is_flag=True, help="Continue from <stem>.last.pt with the same settings."),

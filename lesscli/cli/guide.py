@@ -13,7 +13,7 @@ from lesscli.cli.common import checked_output, device_option, format_option
 @click.option("--k", "k", type=click.IntRange(min=1), default=5, show_default=True, help="Touch locations to suggest.")
 @click.option("--scan", "scan_index", type=click.IntRange(min=0), default=None,
               help="Only this scan of PARTIAL (default: every scan).")
-@click.option("--plot", "plot_path", default=None, callback=checked_output(),
+@click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
               help="Overlay PNG (image | uncertainty + suggestions | touches); needs one scan.")
 @click.option("--radius-mm", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Disc a touch resolves (default: the model's receptive field).")

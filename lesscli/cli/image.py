@@ -17,10 +17,10 @@ def cli() -> None:
 @click.argument("data", type=click.Path())
 @click.option("--model", "model", type=click.Choice(["less", "forcemap"]), default="less", show_default=True,
               help="less: a learned decoder on --rep; forcemap: calibrate the classical force-map reference.")
-@click.option("--rep", "rep_path", default=None,
+@click.option("--rep", "rep_path", type=click.Path(), default=None,
               help="Representation checkpoint from 'less pretrain' (required for learned models).")
 @output_option(help="Best imaging checkpoint (.pt); beside it <stem>.last.pt (--resume) and <stem>.log.jsonl.")
-@click.option("--val", "val_path", default=None, help="Validation scan set: selects the best epoch.")
+@click.option("--val", "val_path", type=click.Path(), default=None, help="Validation scan set: selects the best epoch.")
 @click.option("--select", type=click.Choice(["f1", "loss"]), default=None,
               help="Best epoch on --val by inclusion F1 (ties: loss) or by loss.  [default: f1]")
 @click.option("--dim", type=click.Choice(["2", "3"]), default=None, help="2: slice image, 3: volume.  [default: 3]")
@@ -94,7 +94,7 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
 @click.option("--every", type=click.IntRange(min=1), default=None, help="Image every K-th prefix (and the whole).")
 @click.option("--grow", is_flag=True, help="Extend the particle grid over larger label grids (same spacing).")
 @click.option("--slice", "slice_index", type=int, default=None, help="2D: label slice (default: as trained).")
-@click.option("--nifti", "nifti_dir", default=None, callback=checked_output(folder=True),
+@click.option("--nifti", "nifti_dir", type=click.Path(), default=None, callback=checked_output(folder=True),
               help="Also write label and entropy NIfTI volumes here.")
 @click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True,
               help="Scans imaged together (memory against speed).")

@@ -116,7 +116,7 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
 @click.option("--synth", "synth", default=None, metavar="INSERT",
               help="Instead of labelling: write a synthetic MRI of a catalogue insert (e.g. St12C13) or of the "
                    "first phantom in a .toml/.json file to -o, and its true labels to --truth-out.")
-@click.option("--truth-out", default=None, callback=checked_output(),
+@click.option("--truth-out", type=click.Path(), default=None, callback=checked_output(),
               help="With --synth: where to write the true labels (NIfTI).")
 @click.option("--contrast", type=click.Choice(sorted(CONTRASTS)), default="silicone-darker", show_default=True,
               help="With --synth: which tissue is brighter.")

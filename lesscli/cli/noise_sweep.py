@@ -26,7 +26,7 @@ def _levels(text: str, what: str) -> list[float]:
               help="Angle noise sigmas (roll, pitch, yaw), rad.")
 @click.option("--repeats", type=click.IntRange(min=1), default=3, show_default=True, help="Noise draws per cell.")
 @seed_option()
-@click.option("--plot", "plot_path", default=None, callback=checked_output(),
+@click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
               help="PNG: F1 vs position noise, one line per angle level.")
 @click.option("--metric", type=click.Choice(["f1_micro", "f1", "com_error_mm", "diameter_error_mm"]),
               default="f1_micro", show_default=True, help="Plotted metric.")

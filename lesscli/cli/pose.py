@@ -19,12 +19,14 @@ def cli() -> None:
 
 @cli.command("track")
 @click.argument("frames", type=click.Path(), metavar="FRAMES")
-@click.option("--camera", "camera_path", required=True, help="cam.json: fx, fy, cx, cy, width, height, dist.")
+@click.option("--camera", "camera_path", type=click.Path(), required=True,
+              help="cam.json: fx, fy, cx, cy, width, height, dist.")
 @output_option(help="Pose rows as JSON lines ('-' for stdout).")
 @click.option("--sensor-tag", type=int, default=1, show_default=True, help="Id of the tag on the sensor handle.")
 @click.option("--global-tag", type=int, default=0, show_default=True, help="Id of the fixed reference tag.")
 @click.option("--tag-size-mm", type=float, default=31.0, show_default=True, help="Side of the black square.")
-@click.option("--tag-to-sensor", "tag_to_sensor", default=None, help="T.json: 4x4 T_Stag<-S in mm (default identity).")
+@click.option("--tag-to-sensor", "tag_to_sensor", type=click.Path(), default=None,
+              help="T.json: 4x4 T_Stag<-S in mm (default identity).")
 @click.option("--refine", type=click.Choice(["apriltag", "subpix", "none"]), default="apriltag", show_default=True,
               help="The detector's corner refinement.")
 @click.option("--edge-fit/--no-edge-fit", default=True, show_default=True,
@@ -69,8 +71,9 @@ def track_cmd(frames: str, camera_path: str, output: str, sensor_tag: int, globa
 
 
 @cli.command("render")
-@click.option("--camera", "camera_path", default=None, help="cam.json (default: 1280x720, f = 900 px).")
-@click.option("--trajectory", "trajectory", default=None,
+@click.option("--camera", "camera_path", type=click.Path(), default=None,
+              help="cam.json (default: 1280x720, f = 900 px).")
+@click.option("--trajectory", "trajectory", type=click.Path(), default=None,
               help="traj.npz: time_s, T_cam_global, T_cam_sensor_tag (mm); default: a generated hand-held motion.")
 @output_option(help="Output folder for the frames, timestamps.txt, camera.json and truth.npz.", folder=True)
 @click.option("--frames", "n_frames", type=int, default=30, show_default=True, help="Frames of a generated motion.")
@@ -147,8 +150,8 @@ def calibrate_cmd(estimated: str, robot: str, output: str, threshold_mm: float, 
 @cli.command("accuracy")
 @click.argument("estimated", type=click.Path(), metavar="ESTIMATED")
 @click.argument("reference", type=click.Path(), metavar="ROBOT")
-@click.option("--calibration", default=None, help="Calibration .npz applied to ESTIMATED first.")
-@click.option("--plot", "plot_path", default=None, callback=checked_output(),
+@click.option("--calibration", type=click.Path(), default=None, help="Calibration .npz applied to ESTIMATED first.")
+@click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
               help="PNG of the per-axis errors over time.")
 @format_option
 def accuracy_cmd(estimated: str, reference: str, calibration: str | None, plot_path: str | None,

@@ -20,7 +20,7 @@ LATENCY_PERCENTILES = (50, 90, 99)
               help="Replay a scan set at this many samples per second (default: as fast as possible).")
 @click.option("--emit-every", type=click.IntRange(min=1), default=EMIT_DEFAULT, show_default=True,
               help="Write a record (and a monitor frame) every N samples, and at the end of each scan.")
-@click.option("--monitor", "monitor_dir", default=None, callback=checked_output(folder=True),
+@click.option("--monitor", "monitor_dir", type=click.Path(), default=None, callback=checked_output(folder=True),
               help="Write PNG frames (image | uncertainty | touches) here.")
 @click.option("--on-error", type=click.Choice(["skip", "stop"]), default="skip", show_default=True,
               help="Live input: a malformed line is reported with its line number and skipped, or stops the stream.")
