@@ -171,7 +171,7 @@ def test_orientation_list(text, expected):
     assert orientation_list(text) == expected
 
 
-@pytest.mark.parametrize("text", ["8", "0-8", "a", "", "1,,2", "-1"])
+@pytest.mark.parametrize("text", ["8", "0-8", "a", "", "1,,2", "-1", "0,3-1"])
 def test_orientation_list_refuses(text):
     with pytest.raises(click.BadParameter, match=r"0\.\.7|0-7"):
         orientation_list(text)

@@ -110,7 +110,10 @@ def orientation_list(text: str, option: str = "--orientations") -> list[int]:
     try:
         for part in text.split(","):
             first, _, last = part.partition("-")
-            out.extend(range(int(first), int(last or first) + 1))
+            span = range(int(first), int(last or first) + 1)
+            if not span:
+                raise ValueError(part)
+            out.extend(span)
     except ValueError:
         raise click.BadParameter(f"'{text}': expected e.g. 0-7 or 0,2,4", param_hint=option) from None
     if not out or any(not 0 <= k <= 7 for k in out):
