@@ -537,7 +537,7 @@ OUTPUT_CASES = {
                                          "nodir/p.jsonl"),
     "mri-label --synth into a missing folder": (["mri-label", "--synth", "St12C13", "-o", "nodir/s.nii.gz"],
                                                 "nodir/s.nii.gz"),
-    "stream --monitor into a file": (["stream", "m.pt", "good.npz", "--monitor", "afile.txt"], "afile.txt"),
+    "stream -o into a file": (["stream", "m.pt", "good.npz", "-o", "afile.txt"], "afile.txt"),
 }
 
 

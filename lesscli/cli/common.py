@@ -75,12 +75,13 @@ def renamed_option(old: str, *decls: str, **attrs):
     wins when both are given). The new option's own callback, if any, sees the value either way.
     """
     new = click.Option(decls, **attrs)
+    spelled = "/".join(new.opts)
     key = ("renamed", new.name)
     callback = attrs.pop("callback", None)
 
     def take_old(ctx: click.Context, param: click.Parameter, value):
         if value is not None and value != ():
-            deprecated(old, new.opts[0])
+            deprecated(old, spelled)
             ctx.meta[key] = value
         return value
 
@@ -92,7 +93,7 @@ def renamed_option(old: str, *decls: str, **attrs):
         return callback(ctx, param, value) if callback else value
 
     alias = click.option(old, "_old_" + new.name, hidden=True, expose_value=False, default=None, type=new.type,
-                         multiple=new.multiple, callback=take_old, help=f"Old spelling of {new.opts[0]}.")
+                         multiple=new.multiple, callback=take_old, help=f"Old spelling of {spelled}.")
     current = click.option(*decls, callback=take_new, **attrs)
 
     def decorate(func):

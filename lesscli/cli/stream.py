@@ -7,7 +7,7 @@ import time
 
 import click
 
-from lesscli.cli.common import checked_output, device_option
+from lesscli.cli.common import checked_output, device_option, renamed_option
 
 EMIT_DEFAULT = 10
 LATENCY_PERCENTILES = (50, 90, 99)
@@ -20,8 +20,8 @@ LATENCY_PERCENTILES = (50, 90, 99)
               help="Replay a scan set at this many samples per second (default: as fast as possible).")
 @click.option("--emit-every", type=click.IntRange(min=1), default=EMIT_DEFAULT, show_default=True,
               help="Write a record (and a monitor frame) every N samples, and at the end of each scan.")
-@click.option("--monitor", "monitor_dir", type=click.Path(), default=None, callback=checked_output(folder=True),
-              help="Write PNG frames (image | uncertainty | touches) here.")
+@renamed_option("--monitor", "-o", "--output", "monitor_dir", type=click.Path(), default=None,
+                callback=checked_output(folder=True), help="Write PNG frames (image | uncertainty | touches) here.")
 @click.option("--on-error", type=click.Choice(["skip", "stop"]), default="skip", show_default=True,
               help="Live input: a malformed line is reported with its line number and skipped, or stops the stream.")
 @click.option("--threshold", type=click.FloatRange(0, 1), default=None,
@@ -36,9 +36,9 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer
     {"t": 0.01, "pose": [x, y, z, roll, pitch, yaw], "force": [[fx, fy, fz], ...]} (mm, rad, raw
     sensor units as in the training data). Each sample advances only the particles whose receptive
     field contains it. Every --emit-every samples a JSON line goes to stdout with the entropy summary
-    (and a PNG frame to --monitor); per-update latency percentiles go to stderr at the end.
+    (and a PNG frame to -o DIR); per-update latency percentiles go to stderr at the end.
 
-    Example: less stream imager.pt test.npz --emit-every 50 --monitor frames/
+    Example: less stream imager.pt test.npz --emit-every 50 -o frames/
     """
     import os
 
