@@ -33,13 +33,13 @@ t0=$SECONDS
 step() { printf '\n== [%4ds] %s\n' "$((SECONDS - t0))" "$*" >&2; }
 
 step "1/9 simulate the randomised training family of $SCENE (100 Hz), subsample 1:50 (pokes)"
-less simulate "$SCENE" -o "$OUT/train_raw.npz" --jobs 2 ${TRAIN_SET[@]+"${TRAIN_SET[@]}"}
+less simulate "$SCENE" -o "$OUT/train_raw.npz" --jobs 2 ${TRAIN_SET[@]+"${TRAIN_SET[@]}"} --format table >&2
 less subsample "$OUT/train_raw.npz" --every 50 -o "$OUT/train.npz"
 step "2/9 split off a validation share by insert (split/train.npz: training, split/test.npz: validation)"
 less split "$OUT/train.npz" --by insert --test 0.15 --seed 0 -o "$OUT/split/" --format table >&2
 step "3/9 simulate the held-out evaluation set: 16 catalogue inserts x 2 orientations, the same scene"
 less simulate "$SCENE" -o "$OUT/heldout_raw.npz" --jobs 2 --set phantoms.set=single \
-  --set "phantoms.names=$HELDOUT_NAMES" --set 'phantoms.orientations=[0,4]'
+  --set "phantoms.names=$HELDOUT_NAMES" --set 'phantoms.orientations=[0,4]' --format table >&2
 less subsample "$OUT/heldout_raw.npz" --every 50 -o "$OUT/heldout.npz"
 step "4/9 pretrain the LESS representation ($LESS_MODEL; self-supervised force prediction)"
 less pretrain "$OUT/split/train.npz" --val "$OUT/split/test.npz" -o "$OUT/rep.pt" --model "$LESS_MODEL" \

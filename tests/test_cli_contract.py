@@ -182,4 +182,35 @@ def test_without_a_system_pager_input_is_copied(run_less, tmp_path):
     (tmp_path / "notes.txt").write_bytes(b"hello\n")
     assert run_less("notes.txt", env=env).stdout == b"hello\n"
     missing = run_less("nothere.txt", env=env)
-    assert missing.returncode == 1 and b"nothere.txt" in missing.stderr
+    assert missing.returncode == 2 and b"'nothere.txt' (and no such file)" in missing.stderr
+
+
+@pytest.mark.parametrize("script, args, hint", [
+    ("less", ["simulat", "x"], "Did you mean 'simulate'?"),
+    ("lesscli", ["imgae", "predict"], "Did you mean 'image'?"),
+    ("less", ["-q", "metrcs"], "Did you mean 'metrics'?"),
+])
+def test_a_typo_is_a_usage_error_not_a_pager_call(tmp_path, script, args, hint):
+    fake = tmp_path / "fakebin"
+    fake.mkdir()
+    (fake / "less").write_text("#!/bin/sh\necho paged\n")
+    (fake / "less").chmod(0o755)
+    proc = subprocess.run([str(BIN / script), *args], capture_output=True, timeout=60, check=False, cwd=tmp_path,
+                          env={**os.environ, "PATH": f"{BIN}{os.pathsep}{fake}"})
+    assert proc.returncode == 2 and proc.stdout == b""
+    assert hint in proc.stderr.decode()
+
+
+def test_lesscli_never_pages(tmp_path):
+    fake = tmp_path / "fakebin"
+    fake.mkdir()
+    (fake / "less").write_text("#!/bin/sh\necho paged\n")
+    (fake / "less").chmod(0o755)
+    (tmp_path / "notes.txt").write_text("hello\n")
+    env = {**os.environ, "PATH": f"{BIN}{os.pathsep}{fake}"}
+    piped = subprocess.run([str(BIN / "lesscli")], input=b"x\n", capture_output=True, timeout=60, check=False,
+                           env=env, cwd=tmp_path)
+    assert b"paged" not in piped.stdout and b"Usage: less" in piped.stdout + piped.stderr
+    named = subprocess.run([str(BIN / "lesscli"), "notes.txt"], capture_output=True, timeout=60, check=False,
+                           env=env, cwd=tmp_path)
+    assert named.returncode == 2 and b"paged" not in named.stdout

@@ -83,7 +83,7 @@ def test_config_file_and_errors(tmp_path):
     path.write_text("[rotator]\nzero_ticks = 600\n")
     with pytest.raises(DataError, match="zero_ticks must be in 0..511"):
         load_config(str(path))
-    with pytest.raises(DataError, match="cannot read lift config"):
+    with pytest.raises(DataError, match="missing.toml: no such lift config"):
         load_config(str(tmp_path / "missing.toml"))
 
 

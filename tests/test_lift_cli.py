@@ -65,6 +65,16 @@ def test_status_is_one_json_record(less):
     assert set(record) >= {"time_s", "height_mm", "rotator_deg", "orientation", "moving", "torque", "errors"}
 
 
+@pytest.mark.parametrize("before, after", [(None, "markdown"), ("markdown", None), ("jsonl", "markdown")])
+def test_format_is_taken_after_the_subcommand_too(before, after, emu, cfg_path, capsys):
+    """``less lift status --format markdown``; given on both sides, the subcommand's wins."""
+    logging.getLogger("less").handlers.clear()
+    main(["lift", "--port", emu.port, "--config", str(cfg_path), *(["--format", before] if before else []),
+          "status", *(["--format", after] if after else [])])
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 3 and lines[0].startswith("|") and "height_mm" in lines[0], lines
+
+
 def test_missing_port_is_a_one_line_error(less, tmp_path):
     code, _, err = less("status", port=tmp_path / "ttyUSB9")
     assert code == 1

@@ -196,7 +196,7 @@ def test_usage_errors_exit_2(run_less, tmp_path, with_file, args, words):
 
 
 def test_bench_metrics_quick(run_less):
-    rows = jsonl(run_less("bench", "metrics", "--quick", "--repeat", "1"))
+    rows = jsonl(run_less("bench", "metrics", "--quick", "--repeats", "1"))
     assert [r["case"].split(":")[0] for r in rows][1] == "baseline"
     assert rows[0]["ratio_vs_f1_only"] > 0 and rows[3]["diameters_agree"] is True
     assert rows[0]["diameter_true_mm_3d"] == pytest.approx(rows[2]["diameter_mm"])

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 
 import nibabel as nib
@@ -44,7 +43,7 @@ def _one_line_error(proc) -> str:
 
 def test_synth_label_metrics_roundtrip(run_less, synth_files, tmp_path):
     scan, truth = synth_files / "scan.nii.gz", synth_files / "truth.nii.gz"
-    proc = run_less("mri-label", scan, "-o", "labels.nii.gz", "--report", "--format", "jsonl", "--qc", "qc.png",
+    proc = run_less("mri-label", scan, "-o", "labels.nii.gz", "--report", "--format", "jsonl", "--plot", "qc.png",
                     check=True)
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     contrast = next(r for r in rows if r["row"] == "contrast")
@@ -64,7 +63,7 @@ def test_synth_label_metrics_roundtrip(run_less, synth_files, tmp_path):
 
 
 def test_phantom_grid_writes_eight_orientations(run_less, synth_files, tmp_path):
-    run_less("mri-label", synth_files / "scan.nii.gz", "-o", "grid.nii.gz", "--grid", "phantom", "--orientations", "8",
+    run_less("mri-label", synth_files / "scan.nii.gz", "-o", "grid.nii.gz", "--grid", "phantom", "--orientations", "0-7",
              check=True)
     vols = [load_nifti_labels(str(tmp_path / f"grid_{k}.nii.gz")) for k in range(8)]
     assert not (tmp_path / "grid.nii.gz").exists()
@@ -135,14 +134,13 @@ def test_no_inclusion_warns_and_strict_fails(run_less, tmp_path):
 def test_dicom_folder_without_images_is_a_clear_error(run_less, tmp_path):
     (tmp_path / "series").mkdir()
     line = _one_line_error(run_less("mri-label", "series", "-o", "out.nii.gz"))
-    expected = "no DICOM images" if importlib.util.find_spec("pydicom") else "needs pydicom"
-    assert expected in line
+    assert "no DICOM images" in line
 
 
 def test_usage_errors(run_less, synth_files):
     proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", "x.nii.gz", "--spacing-mm", "1,0,1")
     assert proc.returncode == 2 and "three positive numbers" in proc.stderr.decode()
-    proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", "x.nii.gz", "--orientations", "8")
+    proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", "x.nii.gz", "--orientations", "0-7")
     assert proc.returncode == 2 and "--grid phantom" in proc.stderr.decode()
     line = _one_line_error(run_less("mri-label", "--synth", "St12C31", "-o", "x.nii.gz"))
     assert "did you mean" in line

@@ -121,8 +121,8 @@ def test_stl_not_watertight_is_a_clear_error(tmp_path):
 
 
 def test_cli_phantom_set_writes_labels_and_specs(run_less, tmp_path):
-    proc = run_less("phantom", "--set", "single", "--names", "St12C13", "--orientations", "0,2", "--shape",
-                    "8,32,32", "--spacing", "2,2,2", "-o", "out", check=True)
+    proc = run_less("phantom", "--set", "single", "--names", "St12C13", "--orientations", "0,2", "--grid-shape",
+                    "8,32,32", "--spacing-mm", "2,2,2", "-o", "out", check=True)
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert [(r["insert"], r["orientation"]) for r in rows] == [("St12C13", 0), ("St12C13", 2)]
     assert all(r["inclusion_voxels"] > 0 for r in rows)
@@ -137,7 +137,7 @@ def test_cli_phantom_stl_and_errors(run_less, tmp_path):
     _box_stl(tmp_path / "insert.stl", (50, 50, 25))
     _ball_stl(tmp_path / "ball.stl", 4.0, (0, 0, 3))
     proc = run_less("phantom", "--stl", "insert.stl", "--stl-inclusion", "ball.stl", "--orientations", "0",
-                    "--shape", "10,40,40", "--spacing", "1.5,1.5,1.5", "-o", "cad", check=True)
+                    "--grid-shape", "10,40,40", "--spacing-mm", "1.5,1.5,1.5", "-o", "cad", check=True)
     (row,) = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert row["insert"] == "insert" and row["inclusion_voxels"] > 0
     bad = run_less("phantom", "--set", "single", "--names", "St12C31", "-o", "x")

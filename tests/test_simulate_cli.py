@@ -33,9 +33,12 @@ spacing_mm = [3.0, 4.0, 4.0]
 
 def test_simulate_then_info_subsample_concat_split(run_less, tmp_path):
     (tmp_path / "tiny.toml").write_text(SCENE)
-    run_less("simulate", "tiny.toml", "-o", "raw.npz", "--jobs", "2", check=True)
+    sim = run_less("simulate", "tiny.toml", "-o", "raw.npz", "--jobs", "2", check=True)
     raw = load_scans(str(tmp_path / "raw.npz"))
     assert raw.n_scans == 4 and raw.n_traj == 12 and len(raw.labels) == 4
+    (record,) = [json.loads(line) for line in sim.stdout.decode().splitlines()]
+    assert (record["output"], record["scans"], record["trajectories"], record["steps"], record["seed"]) == \
+        ("raw.npz", 4, 12, raw.n_steps, 3) and record["seconds"] >= 0
     assert list(raw.scan_insert) == ["St16C9", "St16C9", "St12D13", "St12D13"]
     assert raw.meta["simulation"]["tier"] == "winkler" and raw.meta["history"][-1]["seed"] == 3
     info = json.loads(run_less("info", "raw.npz", "--format", "jsonl", check=True).stdout)

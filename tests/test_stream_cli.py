@@ -32,7 +32,7 @@ def _live_line(rng, t: float) -> str:
 
 def test_replay_matches_batch_prediction_and_writes_frames(files, run_less, tmp_path):
     folder, scans = files
-    proc = run_less("stream", folder / "im.pt", folder / "s.npz", "--emit-every", "4", "--monitor", tmp_path / "fr",
+    proc = run_less("stream", folder / "im.pt", folder / "s.npz", "--emit-every", "4", "-o", tmp_path / "fr",
                     "--rate", "2000", check=True)
     rows = _records(proc)
     offsets = scans.scan_step_offsets()

@@ -16,7 +16,7 @@ All strategies start from the same ``--start`` random touches. The image is upda
 every ``--eval-every`` touches. The summary row gives the raster strategy's final F1, the number of
 touches from which the guided strategy stays at or above it (and when it first reaches it), and the
 mean F1 over the curve per strategy. Without ``--model`` a small 2D model is trained first
-on simulated poke data of other inserts (minutes; cached in ``--work``).
+on simulated poke data of other inserts (minutes; cached in ``--work-dir``).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import os
 
 import click
 
-from lesscli.cli.common import format_option, seed_option
+from lesscli.cli.common import checked_output, format_option, renamed_option, seed_option
 
 TEST_INSERTS = ("St12C9", "St14D13", "St16C5")
 POOL_SPACING_MM = 3.0
@@ -218,14 +218,18 @@ def plot_curves(path: str, means: dict[str, list[tuple]], title: str) -> None:
 
 @click.command("guide")
 @click.option("--quick", is_flag=True, help="Smaller model, budget and seeds (minutes).")
-@click.option("--model", "model_path", default=None, help="Imaging checkpoint (default: train a small 2D model).")
-@click.option("--work", default=".less-bench-guide", show_default=True, help="Cache folder for the trained model.")
+@click.option("--model", "model_path", type=click.Path(), default=None,
+              help="Imaging checkpoint (default: train a small 2D model).")
+@renamed_option("--work", "--work-dir", "work", type=click.Path(), default=".less-bench-guide", show_default=True,
+                help="Cache folder for the trained model.")
 @click.option("--touches", "budget", type=click.IntRange(2), default=None, help="Touch budget (default 60, quick 30).")
 @click.option("--start", "n_start", type=click.IntRange(1), default=3, show_default=True, help="Random first touches.")
 @click.option("--seeds", type=click.IntRange(1), default=None, help="Seeds per phantom (default 3, quick 1).")
-@click.option("--eval-every", type=click.IntRange(1), default=3, show_default=True)
+@click.option("--eval-every", type=click.IntRange(1), default=3, show_default=True,
+              help="Score the image every N touches.")
 @click.option("--batch", type=click.IntRange(1), default=3, show_default=True, help="Guided touches per round.")
-@click.option("--plot", "plot_path", default=None, help="F1 vs touches PNG.")
+@click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
+              help="F1 vs touches PNG.")
 @seed_option()
 @format_option
 def cli(quick, model_path, work, budget, n_start, seeds, eval_every, batch, plot_path, seed, fmt) -> None:

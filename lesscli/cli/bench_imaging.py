@@ -10,7 +10,7 @@ from __future__ import annotations
 import click
 
 from lesscli.bench.timing import best_time
-from lesscli.cli.common import format_option, seed_option
+from lesscli.cli.common import format_option, renamed_option, seed_option
 
 SPACING_MM = (0.9, 0.4774, 0.4774)
 
@@ -59,8 +59,10 @@ def _case(dim: int, batch: int, repeat: int, gen) -> list[dict]:
 
 @click.command("imaging")
 @click.option("--quick", is_flag=True, help="2D only, fewer repeats.")
-@click.option("--repeat", type=click.IntRange(1), default=None, help="Timing repeats (best of; default 5, quick 2).")
-@click.option("--batch", type=click.IntRange(1), default=2, show_default=True)
+@renamed_option("--repeat", "--repeats", "repeat", type=click.IntRange(1), default=None,
+                help="Timing repeats (best of; default 5, quick 2).")
+@renamed_option("--batch", "--batch-size", "batch", type=click.IntRange(1), default=2, show_default=True,
+                help="Scans per timed batch.")
 @click.option("--threads", type=click.IntRange(1), default=None, help="Pin torch's CPU threads.")
 @seed_option()
 @format_option

@@ -10,7 +10,7 @@ from __future__ import annotations
 import click
 
 from lesscli.bench.timing import best_time
-from lesscli.cli.common import format_option, seed_option
+from lesscli.cli.common import format_option, renamed_option, seed_option
 
 GRID_SHAPE = (26, 128, 128)
 GRID_SPACING_MM = (0.9, 0.4774, 0.4774)
@@ -38,8 +38,10 @@ def _volumes(diameter_mm: float, seed: int):
 
 @click.command("metrics")
 @click.option("--quick", is_flag=True, help="Fewer repeats.")
-@click.option("--repeat", type=click.IntRange(1), default=None, help="Timing repeats (best of; default 7, quick 2).")
-@click.option("--diameter-mm", type=click.FloatRange(min=1.0, max=25.0), default=16.0, show_default=True)
+@renamed_option("--repeat", "--repeats", "repeat", type=click.IntRange(1), default=None,
+                help="Timing repeats (best of; default 7, quick 2).")
+@click.option("--diameter-mm", type=click.FloatRange(min=1.0, max=25.0), default=16.0, show_default=True,
+              help="Diameter of the synthetic inclusion.")
 @seed_option()
 @format_option
 def cli(quick: bool, repeat: int | None, diameter_mm: float, seed: int, fmt: str | None) -> None:

@@ -44,7 +44,7 @@ def _threshold_only(image):
 @click.option("--size", type=click.IntRange(min=48), default=None, help="Voxels per axis (cubic volume).")
 @click.option("--insert", "insert_name", default="St12C13", show_default=True, help="Catalogue insert to synthesise.")
 @click.option("--contrast", type=click.Choice(["silicone-darker", "silicone-brighter"]), default="silicone-darker",
-              show_default=True)
+              show_default=True, help="Which tissue is brighter in the synthetic scan.")
 @seed_option()
 @format_option
 def cli(quick: bool, size: int | None, insert_name: str, contrast: str, seed: int, fmt: str | None) -> None:

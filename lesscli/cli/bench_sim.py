@@ -6,7 +6,7 @@ import os
 
 import click
 
-from lesscli.cli.common import format_option
+from lesscli.cli.common import checked_output, format_option
 
 CHECKS = ("sphere", "indentation", "inclusion", "scan", "pipeline")
 DEFAULT_SCENE = os.path.join("examples", "scenes", "poke.toml")
@@ -14,13 +14,14 @@ DEFAULT_SCENE = os.path.join("examples", "scenes", "poke.toml")
 
 @click.command("sim")
 @click.option("--quick", is_flag=True, help="Small phantom and coarse meshes (about a minute).")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, callback=checked_output(),
               help="Also draw error vs time per step to this PNG.")
 @click.option("--check", "checks", multiple=True, type=click.Choice(CHECKS),
               help="Run only these checks (repeatable; default all).")
-@click.option("--scene", "scene_path", default=None,
+@click.option("--scene", "scene_path", type=click.Path(), default=None,
               help=f"Scene timed by the 'pipeline' check (default {DEFAULT_SCENE} when it exists).")
-@click.option("--cache-dir", default=None, help="Compliance cache (default: a fresh temporary one, so "
+@click.option("--cache-dir", type=click.Path(), default=None,
+              help="Compliance cache (default: a fresh temporary one, so "
               "precompute is timed).")
 @format_option
 def cli(quick: bool, plot_path: str | None, checks: tuple[str, ...], scene_path: str | None,

@@ -128,7 +128,8 @@ def measure(imager, stats, steps: int, updates: int, full_repeats: int, rng) -> 
               help="Image dimension of the default model (3 = the 'image fit' default).")
 @click.option("--width", "width_text", default=None,
               help="Comma-separated decoder widths of the default model to time side by side (default: image fit's).")
-@click.option("--model", "model_path", default=None, help="Imaging checkpoint to time instead of the default model.")
+@click.option("--model", "model_path", type=click.Path(), default=None,
+              help="Imaging checkpoint to time instead of the default model.")
 @click.option("--threads", type=click.IntRange(1), default=None, help="torch CPU threads (default: torch's choice).")
 @seed_option()
 @format_option

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import comma_list, format_option, seed_option
+from lesscli.cli.common import checked_output, comma_list, device_option, format_option, seed_option
 
 TABLE_COLUMNS = ["knob", "value", "sim_s", "pretrain_s", "fit_s", "train_s", "train_s_ratio", "latency_ms_per_scan",
                  "f1_single", "f1_multiple", "f1_single_delta", "f1_multiple_delta"]
@@ -33,11 +33,13 @@ def _parse_values(items: tuple[str, ...], knobs: dict, base) -> dict[str, tuple]
 @click.option("--image-epochs", type=click.IntRange(min=1), default=None, help="Imaging epochs per setting.")
 @click.option("--values", "values", multiple=True, metavar="KNOB=V1,V2",
               help="Values tried for a knob, e.g. --values receptive_field=5,10,20 (repeatable).")
-@click.option("--work-dir", default=None, help="Keep the checkpoints here (default: a temporary folder).")
-@click.option("--plot", "plot_path", default=None, help="PNG: F1 on single and multiple vs training time (Pareto).")
-@click.option("--knob-plot", "knob_plot", default=None,
+@click.option("--work-dir", type=click.Path(), default=None,
+              help="Keep the checkpoints here (default: a temporary folder).")
+@click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
+              help="PNG: F1 on single and multiple vs training time (Pareto).")
+@click.option("--knob-plot", "knob_plot", type=click.Path(), default=None, callback=checked_output(),
               help="PNG: F1 on single and multiple against the value of the (one) chosen knob.")
-@click.option("--device", default="cpu", show_default=True, help="cpu, cuda or cuda:N.")
+@device_option()
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="Torch CPU threads.")
 @seed_option()
 @format_option

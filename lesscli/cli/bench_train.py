@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option
+from lesscli.cli.common import device_option, format_option
 
 
 @click.command("train")
@@ -14,7 +14,7 @@ from lesscli.cli.common import format_option
 @click.option("--steps", type=int, default=None, help="Steps per scan.  [default: 1000; quick: 200]")
 @click.option("--batch-size", type=int, default=2, show_default=True, help="Scans per batch.")
 @click.option("--repeats", type=int, default=None, help="Timed repeats after one warm-up.  [default: 3; quick: 1]")
-@click.option("--device", default="auto", show_default=True, help="auto, cpu, cuda or cuda:N.")
+@device_option()
 @click.option("--threads", type=int, default=None, help="CPU threads for torch.  [default: torch's choice]")
 @format_option
 def cli(quick: bool, sizes: tuple[str, ...], steps: int | None, batch_size: int, repeats: int | None,

@@ -62,9 +62,93 @@ def format_option(func):
     )(func)
 
 
-def output_option(required: bool = True, help: str = "Output file ('-' for stdout)."):
-    """``-o/--output PATH``."""
-    return click.option("-o", "--output", "output", type=str, required=required, help=help)
+def deprecated(old: str, new: str) -> None:
+    """The one stderr line for a spelling that still works in this release and goes in the next."""
+    LOG.warning("%s is deprecated and goes in the next release; use %s", old, new)
+
+
+def renamed_option(old: str, *decls: str, **attrs):
+    """A click option spelled ``decls`` that still accepts its old spelling ``old`` for one release.
+
+    The old spelling is a hidden option of the same type; given on the command line it prints one
+    deprecation line on stderr and its value stands in for the new option's default (the new spelling
+    wins when both are given). The new option's own callback, if any, sees the value either way.
+    """
+    new = click.Option(decls, **attrs)
+    spelled = "/".join(new.opts)
+    key = ("renamed", new.name)
+    callback = attrs.pop("callback", None)
+
+    def take_old(ctx: click.Context, param: click.Parameter, value):
+        if value is not None and value != ():
+            deprecated(old, spelled)
+            ctx.meta[key] = value
+        return value
+
+    def take_new(ctx: click.Context, param: click.Parameter, value):
+        from click.core import ParameterSource
+
+        if key in ctx.meta and ctx.get_parameter_source(param.name) in (ParameterSource.DEFAULT, None):
+            value = ctx.meta[key]
+        return callback(ctx, param, value) if callback else value
+
+    alias = click.option(old, "_old_" + new.name, hidden=True, expose_value=False, default=None, type=new.type,
+                         multiple=new.multiple, callback=take_old, help=f"Old spelling of {spelled}.")
+    current = click.option(*decls, callback=take_new, **attrs)
+
+    def decorate(func):
+        return alias(current(func))
+    return decorate
+
+
+def orientation_list(text: str, option: str = "--orientations") -> list[int]:
+    """``'0-7'`` or ``'0,2,4'`` (ranges and lists mix: ``'0-2,6'``) -> orientations k in 0..7, in order.
+
+    Raises:
+        click.BadParameter: on text that does not parse or an orientation outside 0..7.
+    """
+    out: list[int] = []
+    try:
+        for part in text.split(","):
+            first, _, last = part.partition("-")
+            span = range(int(first), int(last or first) + 1)
+            if not span:
+                raise ValueError(part)
+            out.extend(span)
+    except ValueError:
+        raise click.BadParameter(f"'{text}': expected e.g. 0-7 or 0,2,4", param_hint=option) from None
+    if not out or any(not 0 <= k <= 7 for k in out):
+        raise click.BadParameter(f"'{text}': orientations are 0..7 (45 degrees each)", param_hint=option)
+    return out
+
+
+def orientations_option(default: str = "0-7", help: str = "Orientations k (x 45 deg), e.g. 0-7 or 0,2,4."):
+    """``--orientations`` in the one syntax every command shares (see :func:`orientation_list`)."""
+    return click.option("--orientations", default=default, show_default=True, metavar="LIST", help=help,
+                        callback=lambda ctx, param, value: orientation_list(value, "--orientations"))
+
+
+def device_option(help: str = "auto (CUDA when available, else CPU), cpu, cuda or cuda:N."):
+    """``--device``, ``auto`` by default in every command."""
+    return click.option("--device", default="auto", show_default=True, help=help)
+
+
+def checked_output(folder: bool = False):
+    """A click callback that checks an output path (see lesscli.io.atomic.check_output) at parse time,
+    before the command does any work."""
+    def callback(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+        from lesscli.io.atomic import check_output
+
+        if value is not None:
+            check_output(value, folder=folder, option=param.opts[0] if param.opts else "-o")
+        return value
+    return callback
+
+
+def output_option(required: bool = True, help: str = "Output file ('-' for stdout).", folder: bool = False):
+    """``-o/--output PATH``, checked before the command starts (``folder``: the output is a folder)."""
+    return click.option("-o", "--output", "output", type=click.Path(), required=required, help=help,
+                        callback=checked_output(folder))
 
 
 def training_options(default_epochs: int, tables: str, set_example: str):
@@ -79,7 +163,8 @@ def training_options(default_epochs: int, tables: str, set_example: str):
         click.option("--lr", type=float, default=None, help="Adam learning rate (cosine decay).  [default: 1e-4]"),
         click.option("--seed", type=int, default=None, help="Seed for initialisation and sampling.  [default: 0]"),
         click.option("--device", default=None, help="auto, cpu, cuda or cuda:N.  [default: auto]"),
-        click.option("--config", "config_path", default=None, help=f"TOML file with {tables} tables."),
+        click.option("--config", "config_path", type=click.Path(), default=None,
+                     help=f"TOML file with {tables} tables."),
         click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
                      help=f"Override a setting, e.g. {set_example} (repeatable)."),
         click.option("--resume", is_flag=True, help="Continue from <stem>.last.pt with the same settings."),
@@ -112,14 +197,14 @@ def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, outp
     a missing tensorboard package is an error before anything is loaded.
     """
     from lesscli.io.records import emit_records
-    from lesscli.io.scans import append_history, load_scans
+    from lesscli.io.scans import append_history
     from lesscli.train import distributed
     from lesscli.train.watch import TensorBoardScalars, Watch, require_tensorboard
 
     if tensorboard:
         require_tensorboard(tensorboard)
-    train = load_scans(data)
-    val = load_scans(val_path) if val_path else None
+    train = training_scans(data)
+    val = training_scans(val_path) if val_path else None
     env = distributed.setup(cfg.train.device)
     board = TensorBoardScalars(tensorboard) if tensorboard and env.is_main else None
     watch = Watch(progress, progress if STATE.verbose else None, [board] if board else []) if env.is_main else Watch()
@@ -136,6 +221,23 @@ def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, outp
         LOG.warning("%s summary: %s", what, summary)
     else:
         emit_records([summary], fmt)
+
+
+def training_scans(path: str):
+    """Load a scan set to learn from: untouched scans (no steps) teach nothing and are left out with a
+    warning; a set with no touches at all is a DataError."""
+    from lesscli.errors import DataError
+    from lesscli.io.scans import load_scans
+
+    scans = load_scans(path)
+    touched = scans.touched_scans()
+    if len(touched) < scans.n_scans:
+        if not len(touched):
+            raise DataError(f"{path}: no scan has any steps; there is nothing to learn from")
+        LOG.warning("%s: %d of %d scans have no steps (untouched); training leaves them out",
+                    path, scans.n_scans - len(touched), scans.n_scans)
+        scans = scans.select_scans(touched)
+    return scans
 
 
 def comma_list(text: str, cast: type, what: str) -> tuple:

@@ -8,7 +8,7 @@ from lesscli.cli.common import LOG, output_option
 
 
 @click.command("concat")
-@click.argument("paths", metavar="FILE...", nargs=-1, required=True)
+@click.argument("paths", type=click.Path(), metavar="FILE...", nargs=-1, required=True)
 @output_option()
 def cli(paths: tuple[str, ...], output: str) -> None:
     """Concatenate scan sets whose sensor and units agree; identical label volumes are stored once.

@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option
+from lesscli.cli.common import checked_output, device_option, format_option
 
 
 @click.command("guide")
-@click.argument("model")
-@click.argument("partial")
+@click.argument("model", type=click.Path())
+@click.argument("partial", type=click.Path())
 @click.option("--k", "k", type=click.IntRange(min=1), default=5, show_default=True, help="Touch locations to suggest.")
 @click.option("--scan", "scan_index", type=click.IntRange(min=0), default=None,
               help="Only this scan of PARTIAL (default: every scan).")
-@click.option("--plot", "plot_path", default=None,
+@click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
               help="Overlay PNG (image | uncertainty + suggestions | touches); needs one scan.")
 @click.option("--radius-mm", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Disc a touch resolves (default: the model's receptive field).")
@@ -25,7 +25,7 @@ from lesscli.cli.common import format_option
               help="Phantom octagon across flats (default: the scan's label footprint, else 60 mm).")
 @click.option("--score", default="entropy", show_default=True,
               help="Uncertainty to cover: 'entropy' (all classes) or 'inclusion' (inclusion vs the rest).")
-@click.option("--device", default="cpu", show_default=True, help="cpu, cuda or cuda:N.")
+@device_option()
 @format_option
 def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margin_mm, width_mm, score, device,
         fmt) -> None:
@@ -39,15 +39,14 @@ def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margi
     """
     from lesscli.errors import DataError
     from lesscli.infer.guide import UNCERTAINTY, GuideOptions, guide_scan
-    from lesscli.infer.predict import load_imager
+    from lesscli.infer.predict import load_imager, scans_for_model
     from lesscli.io.records import emit_records
-    from lesscli.io.scans import load_scans
     from lesscli.models.registry import lookup
     from lesscli.train.distributed import resolve_device
 
     lookup(UNCERTAINTY, score, "guide score")
     imager, ckpt = load_imager(model, resolve_device(device))
-    scans = load_scans(partial)
+    scans = scans_for_model(partial, ckpt)
     if scan_index is not None and scan_index >= scans.n_scans:
         raise DataError(f"{partial}: has {scans.n_scans} scans, no scan {scan_index}")
     chosen = [scan_index] if scan_index is not None else list(range(scans.n_scans))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option, output_option, training_options
+from lesscli.cli.common import checked_output, device_option, format_option, output_option, training_options
 
 
 @click.group("image")
@@ -14,13 +14,13 @@ def cli() -> None:
 
 
 @cli.command("fit")
-@click.argument("data")
+@click.argument("data", type=click.Path())
 @click.option("--model", "model", type=click.Choice(["less", "forcemap"]), default="less", show_default=True,
               help="less: a learned decoder on --rep; forcemap: calibrate the classical force-map reference.")
-@click.option("--rep", "rep_path", default=None,
+@click.option("--rep", "rep_path", type=click.Path(), default=None,
               help="Representation checkpoint from 'less pretrain' (required for learned models).")
 @output_option(help="Best imaging checkpoint (.pt); beside it <stem>.last.pt (--resume) and <stem>.log.jsonl.")
-@click.option("--val", "val_path", default=None, help="Validation scan set: selects the best epoch.")
+@click.option("--val", "val_path", type=click.Path(), default=None, help="Validation scan set: selects the best epoch.")
 @click.option("--select", type=click.Choice(["f1", "loss"]), default=None,
               help="Best epoch on --val by inclusion F1 (ties: loss) or by loss.  [default: f1]")
 @click.option("--dim", type=click.Choice(["2", "3"]), default=None, help="2: slice image, 3: volume.  [default: 3]")
@@ -66,13 +66,13 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
     given = [f"--{k}" for k, v in learned_only.items() if v]
     if given:
         raise click.UsageError(f"{', '.join(given)} only apply to learned models, not --model forcemap")
-    from lesscli.cli.common import LOG
+    from lesscli.cli.common import LOG, training_scans
     from lesscli.io.records import emit_records
-    from lesscli.io.scans import append_history, load_scans
+    from lesscli.io.scans import append_history
     from lesscli.train.forcemap_fit import fit_forcemap
 
     history = append_history({})["history"]
-    summary = fit_forcemap(load_scans(data), output, int(dim or 3), slice_index, data, history)
+    summary = fit_forcemap(training_scans(data), output, int(dim or 3), slice_index, data, history)
     if output == "-":
         LOG.warning("image fit summary: %s", summary)
     else:
@@ -80,8 +80,8 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
 
 
 @cli.command("predict")
-@click.argument("model")
-@click.argument("data")
+@click.argument("model", type=click.Path())
+@click.argument("data", type=click.Path())
 @output_option(help="Prediction file (less.pred/1 .npz; '-' for stdout).")
 @click.option("--threshold", type=click.FloatRange(0, 1), default=None,
               help="Pillar/inclusion only above this probability (hand-held setting: 0.8). Default: the "
@@ -94,9 +94,11 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
 @click.option("--every", type=click.IntRange(min=1), default=None, help="Image every K-th prefix (and the whole).")
 @click.option("--grow", is_flag=True, help="Extend the particle grid over larger label grids (same spacing).")
 @click.option("--slice", "slice_index", type=int, default=None, help="2D: label slice (default: as trained).")
-@click.option("--nifti", "nifti_dir", default=None, help="Also write label and entropy NIfTI volumes here.")
-@click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True)
-@click.option("--device", default="auto", show_default=True, help="auto, cpu, cuda or cuda:N.")
+@click.option("--nifti", "nifti_dir", type=click.Path(), default=None, callback=checked_output(folder=True),
+              help="Also write label and entropy NIfTI volumes here.")
+@click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True,
+              help="Scans imaged together (memory against speed).")
+@device_option()
 @format_option
 def predict_cmd(model, data, output, threshold, min_volume_mm3, steps, every, grow, slice_index, nifti_dir,
                 batch_size, device, fmt) -> None:

@@ -8,7 +8,7 @@ from lesscli.cli.common import format_option
 
 
 @click.command("info")
-@click.argument("path", metavar="FILE")
+@click.argument("path", type=click.Path(), metavar="FILE")
 @click.option("--full-history", is_flag=True,
               help="Show history entries as stored (time, output file) instead of the summary.")
 @format_option

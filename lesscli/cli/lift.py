@@ -8,17 +8,18 @@ stdout as JSON lines. ``dynamixel_sdk`` is imported only inside the command bodi
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import shlex
 import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import click
 
-from lesscli.cli.common import format_option
+from lesscli.cli.common import checked_output, format_option, orientations_option
 from lesscli.errors import LessError
 
 
@@ -75,19 +76,6 @@ def _parse_ids(ctx, param, value: str | None) -> tuple[int, int] | None:
     return lift_id, rotator_id
 
 
-def _parse_orientations(ctx, param, value: str) -> list[int]:
-    out = []
-    try:
-        for part in value.split(","):
-            first, _, last = part.partition("-")
-            out.extend(range(int(first), int(last or first) + 1))
-    except ValueError:
-        raise click.BadParameter(f"'{value}': expected e.g. 0-7 or 0,2,4") from None
-    if not out or any(not 0 <= k <= 7 for k in out):
-        raise click.BadParameter(f"'{value}': orientations are 0..7")
-    return out
-
-
 @click.group()
 @click.option("--port", envvar="LESS_LIFT_PORT", help="Serial port of the servo bus (env LESS_LIFT_PORT).")
 @click.option("--baud", type=int, default=None, help="Baud rate (default from lift.toml, else 57600).")
@@ -101,6 +89,16 @@ def cli(ctx, port, baud, config_path, ids, fmt) -> None:
     Try it without hardware: 'less lift emulate --link /tmp/lift &' then 'less lift --port /tmp/lift home'.
     """
     ctx.obj = _Options(port, baud, config_path, ids, fmt)
+
+
+def _pass_options(func):
+    """``click.pass_obj`` for the commands that print records; they also take ``--format`` after their
+    name (``less lift status --format table``), which overrides the group's."""
+    @functools.wraps(func)
+    def run(*args, fmt: str | None = None, **kwargs):
+        opts = click.get_current_context().find_object(_Options)
+        return func(replace(opts, fmt=fmt) if fmt else opts, *args, **kwargs)
+    return format_option(run)
 
 
 def _terminated(signum, frame) -> None:
@@ -128,28 +126,28 @@ def _session(opts: _Options, action) -> None:
 
 
 @cli.command()
-@click.pass_obj
+@_pass_options
 def status(opts: _Options) -> None:
     """One telemetry record: homed, height, rotation, orientation, torque, hardware errors."""
     _session(opts, lambda lift, emit: emit(lift.status()))
 
 
 @cli.command()
-@click.pass_obj
+@_pass_options
 def home(opts: _Options) -> None:
     """Reboot faulted servos, find the lower stop, zero the screw count, then lower."""
     _session(opts, lambda lift, emit: (lift.home(), emit(lift.status("done"))))
 
 
 @cli.command("raise")
-@click.pass_obj
+@_pass_options
 def raise_cmd(opts: _Options) -> None:
     """Raise the insert into its shell (raised_height_mm)."""
     _session(opts, lambda lift, emit: (lift.raise_(), emit(lift.status("done"))))
 
 
 @cli.command()
-@click.pass_obj
+@_pass_options
 def lower(opts: _Options) -> None:
     """Lower the insert out of its shell (lowered_height_mm)."""
     _session(opts, lambda lift, emit: (lift.lower(), emit(lift.status("done"))))
@@ -157,7 +155,7 @@ def lower(opts: _Options) -> None:
 
 @cli.command()
 @click.option("--height-mm", type=float, required=True, help="Platform height, within the configured limits.")
-@click.pass_obj
+@_pass_options
 def move(opts: _Options, height_mm: float) -> None:
     """Move the platform to a height in mm."""
     _session(opts, lambda lift, emit: (lift.move_to_height(height_mm), emit(lift.status("done"))))
@@ -165,7 +163,7 @@ def move(opts: _Options, height_mm: float) -> None:
 
 @cli.command()
 @click.argument("orientation", type=click.IntRange(0, 7))
-@click.pass_obj
+@_pass_options
 def rotate(opts: _Options, orientation: int) -> None:
     """Turn the insert to ORIENTATION (0..7, 45 degrees each); the lift must be lowered."""
     _session(opts, lambda lift, emit: (lift.rotate(orientation), emit(lift.status("done"))))
@@ -189,12 +187,11 @@ def _exec_runner(template: str):
 
 
 @cli.command()
-@click.option("--orientations", default="0-7", show_default=True, callback=_parse_orientations,
-              help="Orientations to visit in order, e.g. 0-7 or 0,2,4.")
+@orientations_option(help="Orientations to visit in order, e.g. 0-7 or 0,2,4.")
 @click.option("--exec", "exec_", default=None,
               help="Command run at each orientation once raised; '{orientation}' is replaced (its stdout goes "
                    "to stderr). A failure stops the cycle.")
-@click.pass_obj
+@_pass_options
 def cycle(opts: _Options, orientations: list[int], exec_: str | None) -> None:
     """For each orientation: lower, rotate, raise, then run --exec."""
     run = _exec_runner(exec_) if exec_ else None
@@ -202,7 +199,7 @@ def cycle(opts: _Options, orientations: list[int], exec_: str | None) -> None:
 
 
 @cli.command("torque-off")
-@click.pass_obj
+@_pass_options
 def torque_off(opts: _Options) -> None:
     """Drop torque on both servos (works without homing)."""
     from lesscli.hardware.bus import DynamixelBus
@@ -230,7 +227,8 @@ def torque_off(opts: _Options) -> None:
                    "no-reply/bad-crc to that many replies. Repeatable.")
 @click.option("--time-scale", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
               help="Simulated seconds per wall-clock second (e.g. 100 makes moves take milliseconds).")
-@click.option("--log", "log_path", type=click.Path(dir_okay=False), help="Write goal/fault events as JSON lines.")
+@click.option("--log", "log_path", type=click.Path(dir_okay=False), callback=checked_output(),
+              help="Write goal/fault events as JSON lines.")
 @click.pass_obj
 def emulate(opts: _Options, link: str | None, faults: tuple[str, ...], time_scale: float,
             log_path: str | None) -> None:

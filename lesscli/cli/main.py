@@ -2,8 +2,10 @@
 
 Exit codes: 0 ok, 1 runtime/data error (one line on stderr, traceback with ``-v``), 2 usage error,
 130 interrupted. A closed stdout pipe (``| head``) ends quietly with 0. Started as a pager (no
-subcommand with piped stdin, or a first argument that is not a subcommand) it hands over to the next
-``less`` on PATH so ``git log`` and ``man`` keep working inside the virtual environment.
+subcommand with piped stdin, or a first argument that is an existing file or a pager option) it hands
+over to the next ``less`` on PATH so ``git log`` and ``man`` keep working inside the virtual
+environment; an unknown first word is a usage error naming the closest subcommand. Started as
+``lesscli`` it never pages.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ from lesscli.cli import common
 from lesscli.cli.pager import hand_over_to_pager, wants_pager
 from lesscli.cli.registry import COMMANDS
 from lesscli.errors import LessError
+
+COMPLETE_VAR = "_LESS_COMPLETE"  # shell completion: eval "$(_LESS_COMPLETE=bash_source less)"
 
 
 class PipeClosed(Exception):
@@ -49,7 +53,8 @@ class LazyGroup(click.Group):
         name = args[0] if args else ""
         if name and name not in COMMANDS and not name.startswith("-"):
             hint = common.closest(name, COMMANDS)
-            ctx.fail(f"no such command '{name}'." + (f" Did you mean '{hint}'?" if hint else ""))
+            ctx.fail(f"no such command '{name}' (and no such file)." +
+                     (f" Did you mean '{hint}'?" if hint else " See 'less --help' for the commands."))
         return super().resolve_command(ctx, args)
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
@@ -83,7 +88,7 @@ def main(argv: list[str] | None = None) -> None:
     args = list(sys.argv[1:] if argv is None else argv)
     common.STATE.verbose = sum(a in ("-v", "--verbose") or a.startswith("-vv") for a in args)
     try:
-        cli.main(args=args, prog_name="less", standalone_mode=False)
+        cli.main(args=args, prog_name="less", complete_var=COMPLETE_VAR, standalone_mode=False)
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)
     except click.ClickException as exc:
@@ -119,9 +124,11 @@ def _silence_stdout() -> None:
 
 
 def entry() -> None:
-    """Console-script entry: pager hand-over first, then the CLI."""
+    """Console-script entry: pager hand-over first (never for the ``lesscli`` alias, nor for a shell's
+    completion request, which comes without a subcommand and often without a terminal), then the CLI."""
     args = sys.argv[1:]
-    if wants_pager(args, set(COMMANDS), stdin_is_tty=sys.stdin.isatty()):
+    as_pager = os.path.basename(sys.argv[0]) == "less" and COMPLETE_VAR not in os.environ
+    if as_pager and wants_pager(args, set(COMMANDS), stdin_is_tty=sys.stdin.isatty()):
         hand_over_to_pager(args)
         return
     main(args)

@@ -44,7 +44,7 @@ def load_volume(path: str, scan: int, truth: bool):
 
 
 @click.command("mesh")
-@click.argument("source", type=str)
+@click.argument("source", type=click.Path())
 @output_option(help="Output mesh: .glb (one node per class), .stl or .ply.")
 @click.option("--scan", type=int, default=0, show_default=True, help="Scan of a prediction file to mesh.")
 @click.option("--truth", is_flag=True, help="Mesh the scan's true labels instead of the prediction.")

@@ -68,14 +68,16 @@ def _emit_tables(report, fmt: str, summary_only: bool) -> None:
 
 
 @click.command("metrics")
-@click.argument("preds", nargs=-1, metavar="[PRED.npz ...]")
-@click.option("--truth", "truth_path", type=str, default=None, help="Reference label volume (NIfTI) for --pred.")
-@click.option("--pred", "pred_nifti", type=str, multiple=True, help="Predicted label volume (NIfTI); repeatable.")
+@click.argument("preds", type=click.Path(), nargs=-1, metavar="[PRED.npz ...]")
+@click.option("--truth", "truth_path", type=click.Path(), default=None,
+              help="Reference label volume (NIfTI) for --pred.")
+@click.option("--pred", "pred_nifti", type=click.Path(), multiple=True,
+              help="Predicted label volume (NIfTI); repeatable.")
 @click.option("--cls", type=click.Choice(["inclusion", "pillar"]), default="inclusion", show_default=True,
               help="Class to score.")
 @click.option("--threshold", type=click.FloatRange(0.0, 1.0), default=None,
               help="Re-label from the probabilities: pillar/inclusion only above this probability.")
-@click.option("--baseline-from", "baseline_from", type=str, default=None,
+@click.option("--baseline-from", "baseline_from", type=click.Path(), default=None,
               help="Training scan set with labels: add the average-prediction baseline (model 'average').")
 @click.option("--diameter-points", type=click.Choice(["centres", "corners"]), default="centres", show_default=True,
               help="Diameter between pixel centres (the paper) or pixel corners.")

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import LOG, format_option, output_option, seed_option
+from lesscli.cli.common import (LOG, checked_output, deprecated, format_option, orientation_list, output_option,
+                                renamed_option, seed_option)
 
 CONTRASTS = {"silicone-darker": False, "silicone-brighter": True}
 
@@ -19,13 +20,21 @@ def _triple(text: str, what: str, cast=float) -> tuple:
     return values
 
 
-def _orientation_paths(output: str, count: int) -> list[str]:
-    """``labels.nii.gz`` -> ``labels_0.nii.gz`` ... (one per orientation); one orientation keeps the name."""
-    if count == 1:
+def _orientations(ctx, param, value: str) -> list[int]:
+    """The shared orientation list; the old count '8' (all of them) still works for one release."""
+    if value == "8":
+        deprecated("--orientations 8", "--orientations 0-7")
+        value = "0-7"
+    return orientation_list(value, "--orientations")
+
+
+def _orientation_paths(output: str, ks: list[int]) -> list[str]:
+    """``labels.nii.gz`` -> ``labels_<k>.nii.gz`` per orientation k; one orientation keeps the name."""
+    if len(ks) == 1:
         return [output]
     for ext in (".nii.gz", ".nii", ".npy"):
         if output.endswith(ext):
-            return [f"{output[:-len(ext)]}_{k}{ext}" for k in range(count)]
+            return [f"{output[:-len(ext)]}_{k}{ext}" for k in ks]
     raise click.BadParameter(f"'{output}': expected a .nii.gz/.nii output", param_hint="-o")
 
 
@@ -45,7 +54,7 @@ def _synth(name: str, output: str, truth_out: str | None, spacing: str | None, c
 
 
 def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, grid_shape: str,
-           grid_spacing: str, orientations: int, report: bool, qc: str | None, strict: bool, fmt: str | None) -> None:
+           grid_spacing: str, orientations: list[int], report: bool, qc: str | None, strict: bool, fmt: str | None) -> None:
     from lesscli.errors import DataError
     from lesscli.io.atomic import atomic_path
     from lesscli.io.labels import save_nifti
@@ -69,22 +78,22 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
 
         frame = find_frame(seg.labels, scan.affine, up_hint_from(seg.labels, seg.silicone, scan.affine), scan_path)
         shape, gspacing = _triple(grid_shape, "--grid-shape", int), _triple(grid_spacing, "--grid-spacing-mm")
-        for k, path in enumerate(_orientation_paths(output, orientations)):
+        for i, (k, path) in enumerate(zip(orientations, _orientation_paths(output, orientations))):
             vol = resample(seg.labels, scan.affine, frame, shape, gspacing, k, f"{scan_path}_{k}")
             with atomic_path(path, ".nii.gz" if path.endswith(".gz") else ".nii") as tmp:
                 save_nifti(tmp, vol)
-            if k == 0:
+            if i == 0:
                 aff = zyx_affine(vol.origin_mm, vol.spacing_mm)
                 rows += [rep.frame_row(frame)] + rep.class_rows(vol.data, aff) + rep.inclusion_rows(vol.data, aff)
     if qc:
-        rep.save_qc(qc, seg.corrected, seg.labels, seg.spacing_mm, title=f"{scan_path}: blue insert, orange pillar, "
-                    "red inclusion")
+        rep.save_qc(qc, seg.corrected, seg.labels, seg.spacing_mm, title=f"{scan_path}: blue insert, orange outline "
+                    "pillar, red inclusion")
     if report:
         emit_records(rows + rep.warning_rows(seg.warnings), fmt)
 
 
 @click.command("mri-label")
-@click.argument("scan", required=False)
+@click.argument("scan", type=click.Path(), required=False)
 @output_option(help="Output labels (.nii.gz/.nii; .npy for a numpy scan). With --synth: the synthetic scan.")
 @click.option("--spacing-mm", "spacing", default=None, help="dz,dy,dx voxel size for .npy/.npz scans (and --synth).")
 @click.option("--pillar-max-diameter-mm", type=click.FloatRange(min=0.1), default=4.5, show_default=True,
@@ -97,15 +106,18 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
               help="scan: labels on the input grid with its affine; phantom: the toolkit grid in the phantom frame.")
 @click.option("--grid-shape", default="26,128,128", show_default=True, help="D,H,W of the phantom grid.")
 @click.option("--grid-spacing-mm", default="0.9,0.4774,0.4774", show_default=True, help="dz,dy,dx of the phantom grid.")
-@click.option("--orientations", type=click.Choice(["1", "8"]), default="1", show_default=True,
-              help="8: also write the 45-degree rotated copies OUT_0 ... OUT_7 (with --grid phantom).")
+@click.option("--orientations", default="0", show_default=True, metavar="LIST", callback=_orientations,
+              help="With --grid phantom: orientations k (x 45 deg), e.g. 0-7 writes OUT_0 ... OUT_7; one "
+                   "orientation keeps the name OUT.")
 @click.option("--report", is_flag=True, help="Print class volumes, inclusions, frame and warnings as records.")
-@click.option("--qc", type=str, default=None, help="PNG with orthogonal slices and the label overlay.")
+@renamed_option("--qc", "--plot", "qc", type=click.Path(dir_okay=False), default=None,
+                help="PNG: the three orthogonal planes through each inclusion, labels overlaid, pillar outlined.")
 @click.option("--strict", is_flag=True, help="Treat warnings (no inclusion, pillar not connected, ...) as errors.")
 @click.option("--synth", "synth", default=None, metavar="INSERT",
               help="Instead of labelling: write a synthetic MRI of a catalogue insert (e.g. St12C13) or of the "
                    "first phantom in a .toml/.json file to -o, and its true labels to --truth-out.")
-@click.option("--truth-out", default=None, help="With --synth: where to write the true labels (NIfTI).")
+@click.option("--truth-out", type=click.Path(), default=None, callback=checked_output(),
+              help="With --synth: where to write the true labels (NIfTI).")
 @click.option("--contrast", type=click.Choice(sorted(CONTRASTS)), default="silicone-darker", show_default=True,
               help="With --synth: which tissue is brighter.")
 @click.option("--noise", type=click.FloatRange(min=0.0), default=0.04, show_default=True,
@@ -122,8 +134,8 @@ def cli(scan, output, spacing, pillar_max_diameter_mm, skin_max_thickness_mm, sm
     \b
     Examples:
       less mri-label --synth St12C13 -o scan.nii.gz --truth-out truth.nii.gz --seed 1
-      less mri-label scan.nii.gz -o labels.nii.gz --report --qc qc.png
-      less mri-label scan.nii.gz -o grid.nii.gz --grid phantom --orientations 8
+      less mri-label scan.nii.gz -o labels.nii.gz --report --plot qc.png
+      less mri-label scan.nii.gz -o grid.nii.gz --grid phantom --orientations 0-7
       less mri-label scan.npy --spacing-mm 0.5,0.5,0.5 -o labels.nii.gz
     """
     from lesscli.mri.segment import SegmentParams
@@ -135,13 +147,13 @@ def cli(scan, output, spacing, pillar_max_diameter_mm, skin_max_thickness_mm, sm
         return
     if not scan:
         raise click.UsageError("missing SCAN (a NIfTI file, a DICOM folder or a .npy/.npz array)")
-    if orientations == "8" and grid != "phantom":
-        raise click.UsageError("--orientations 8 needs --grid phantom")
+    if orientations != [0] and grid != "phantom":
+        raise click.UsageError(f"--orientations {','.join(map(str, orientations))} needs --grid phantom")
     allowed = (".nii", ".nii.gz") + ((".npy",) if grid == "scan" else ())
     if not output.endswith(allowed):
         raise click.BadParameter(f"'{output}': expected {', '.join(allowed)}", param_hint="-o")
     if qc and not qc.endswith(".png"):
-        raise click.BadParameter(f"'{qc}': expected a .png file", param_hint="--qc")
+        raise click.BadParameter(f"'{qc}': expected a .png file", param_hint="--plot")
     params = SegmentParams(pillar_max_diameter_mm, skin_max_thickness_mm, smooth_mm)
-    _label(scan, output, spacing, params, grid, grid_shape, grid_spacing_mm, int(orientations), report, qc, strict,
+    _label(scan, output, spacing, params, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict,
            fmt)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import comma_list, format_option, seed_option
+from lesscli.cli.common import checked_output, comma_list, device_option, format_option, seed_option
 
 TABLE_COLUMNS = ["pos_mm", "ang_rad", "repeats", "f1_micro", "f1_micro_std", "f1", "f1_std", "com_error_mm",
                  "com_error_mm_std", "diameter_error_mm"]
@@ -18,22 +18,24 @@ def _levels(text: str, what: str) -> list[float]:
 
 
 @click.command("noise-sweep")
-@click.argument("model", metavar="IMAGER.pt")
-@click.argument("data")
+@click.argument("model", type=click.Path(), metavar="IMAGER.pt")
+@click.argument("data", type=click.Path())
 @click.option("--pos-mm", default="0,0.25,0.5,1,2,4", show_default=True,
               help="Position noise sigmas (x, y, z), mm.")
 @click.option("--ang-rad", default="0,0.02,0.05,0.1,0.2", show_default=True,
               help="Angle noise sigmas (roll, pitch, yaw), rad.")
 @click.option("--repeats", type=click.IntRange(min=1), default=3, show_default=True, help="Noise draws per cell.")
 @seed_option()
-@click.option("--plot", "plot_path", default=None, help="PNG: F1 vs position noise, one line per angle level.")
+@click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
+              help="PNG: F1 vs position noise, one line per angle level.")
 @click.option("--metric", type=click.Choice(["f1_micro", "f1", "com_error_mm", "diameter_error_mm"]),
               default="f1_micro", show_default=True, help="Plotted metric.")
 @click.option("--threshold", type=click.FloatRange(0, 1), default=None,
               help="Pillar/inclusion only above this probability. Default: argmax.")
 @click.option("--grow", is_flag=True, help="Extend the particle grid over larger label grids (same spacing).")
-@click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True)
-@click.option("--device", default="auto", show_default=True, help="auto, cpu, cuda or cuda:N.")
+@click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True,
+              help="Scans imaged together (memory against speed).")
+@device_option()
 @format_option
 def cli(model, data, pos_mm, ang_rad, repeats, seed, plot_path, metric, threshold, grow, batch_size, device,
         fmt) -> None:

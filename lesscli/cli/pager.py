@@ -1,8 +1,11 @@
 """Pager safety: ``less`` installed first on PATH must not break ``git log``, ``man`` or ``less FILE``.
 
-When started with no subcommand and a non-terminal stdin, or with a first argument that is neither a
-subcommand nor one of our global options, we replace ourselves with the next ``less`` on PATH. If
-there is none, we copy the input (stdin or the named files) to stdout, as a pager would on a pipe.
+We replace ourselves with the next ``less`` on PATH only when the call is plainly a pager call: no
+subcommand and a non-terminal stdin (``git log | less``), or a first argument that is an existing
+file (``less README.md``) or a pager option (``less -R``, ``less +G``). Any other first word is a
+toolkit command, so a typo (``less simulat``) gets a usage error with the closest subcommand instead
+of vanishing into the pager. If there is no system pager, we copy the input (stdin or the named
+files) to stdout, as a pager would on a pipe. The ``lesscli`` alias never pages.
 """
 
 from __future__ import annotations
@@ -15,11 +18,13 @@ GLOBAL_FLAGS = {"-v", "--verbose", "-vv", "-vvv", "-q", "--quiet", "-h", "--help
 
 
 def wants_pager(args: list[str], commands: set[str], stdin_is_tty: bool) -> bool:
-    """True when the invocation looks like a pager call rather than a toolkit command."""
+    """True when the invocation is a pager call (see the module docstring), not a toolkit command."""
     for arg in args:
         if arg in GLOBAL_FLAGS:
             continue
-        return arg not in commands
+        if arg in commands:
+            return False
+        return arg.startswith(("-", "+")) or os.path.isfile(arg)
     asked_for_info = any(a in ("-h", "--help", "--version") for a in args)
     return not stdin_is_tty and not asked_for_info
 

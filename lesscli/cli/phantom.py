@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option, output_option
+from lesscli.cli.common import format_option, orientations_option, output_option, renamed_option
 
 
 def _ints(text: str, what: str, count: int | None = None) -> tuple[int, ...]:
@@ -60,13 +60,14 @@ def _floats(text: str | None, what: str) -> tuple[float, float, float] | None:
 @click.option("--stl-frame", type=click.Choice(["auto", "phantom"]), default="auto", show_default=True,
               help="auto: centre the insert's bounding box in x-y, top at z = 0; phantom: use file coordinates.")
 @click.option("--name", default=None, help="Insert name for --stl (default: the file name).")
-@output_option(help="Output folder.")
-@click.option("--orientations", default="0,1,2,3,4,5,6,7", show_default=True, help="Orientations k (x 45 deg).")
+@output_option(help="Output folder.", folder=True)
+@orientations_option()
 @click.option("--limit", type=click.IntRange(1), default=None, help="Only the first N inserts of the set.")
 @click.option("--names", default=None, help="Only these inserts (comma-separated).")
-@click.option("--shape", default="26,128,128", show_default=True, help="Label grid D,H,W (z, y, x).")
-@click.option("--spacing", default=None, help="Voxel size dz,dy,dx mm [default: 0.9,0.4774,0.4774, in-plane "
-              "scaled with the insert width].")
+@renamed_option("--shape", "--grid-shape", "shape", default="26,128,128", show_default=True,
+                help="Label grid D,H,W (z, y, x).")
+@renamed_option("--spacing", "--spacing-mm", "spacing", default=None,
+                help="Voxel size dz,dy,dx mm [default: 0.9,0.4774,0.4774, in-plane scaled with the insert width].")
 @click.option("--mri", is_flag=True, help="Also write a synthetic MRI scan and its true labels per insert and "
               "orientation to OUT/mri/ (lesscli.mri.synth; a few seconds each, use --limit/--names).")
 @format_option
@@ -79,8 +80,10 @@ def cli(set_name, count, seed, random_pairs, stl_insert, stl_inclusion, stl_pill
     volume goes to stdout. --set random draws the randomised single-inclusion family (names
     R<index>s<seed>) that training data comes from; the catalogues are for evaluation.
 
+    \b
     Examples:
       less phantom --set single --limit 2 --orientations 0,2 -o phantoms/
+      less phantom --set single --names St12C13 --orientations 0-7 --grid-shape 26,128,128 -o all/
       less phantom --set random --count 8 --seed 3 --orientations 0 -o train_phantoms/
       less phantom --stl insert.stl --stl-inclusion ball.stl -o cad/
     """
@@ -93,11 +96,9 @@ def cli(set_name, count, seed, random_pairs, stl_insert, stl_inclusion, stl_pill
         raise click.UsageError("--mri needs --set NAME|FILE")
     if set_name != "random" and (count is not None or seed is not None or random_pairs):
         raise click.UsageError("--count, --seed and --random go with --set random")
-    ks = _ints(orientations, "--orientations")
-    if any(not 0 <= k < 8 for k in ks):
-        raise click.BadParameter("orientations must lie in 0..7", param_hint="--orientations")
-    grid = _ints(shape, "--shape", 3)
-    step = _floats(spacing, "--spacing")
+    ks = tuple(orientations)
+    grid = _ints(shape, "--grid-shape", 3)
+    step = _floats(spacing, "--spacing-mm")
     chosen = _random_phantoms(count, seed, random_pairs) if set_name == "random" else None
     if stl_insert is not None:
         rows = write_stl(output, stl_insert, stl_inclusion, stl_pillar, ks, grid, step, stl_frame, name)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option, output_option, progress, seed_option
+from lesscli.cli.common import checked_output, format_option, output_option, progress, seed_option
 
 MAX_FRAME_WARNINGS = 5      # frames without a pose named on stderr before a count takes over
 
@@ -18,13 +18,15 @@ def cli() -> None:
 
 
 @cli.command("track")
-@click.argument("frames", metavar="FRAMES")
-@click.option("--camera", "camera_path", required=True, help="cam.json: fx, fy, cx, cy, width, height, dist.")
+@click.argument("frames", type=click.Path(), metavar="FRAMES")
+@click.option("--camera", "camera_path", type=click.Path(), required=True,
+              help="cam.json: fx, fy, cx, cy, width, height, dist.")
 @output_option(help="Pose rows as JSON lines ('-' for stdout).")
 @click.option("--sensor-tag", type=int, default=1, show_default=True, help="Id of the tag on the sensor handle.")
 @click.option("--global-tag", type=int, default=0, show_default=True, help="Id of the fixed reference tag.")
 @click.option("--tag-size-mm", type=float, default=31.0, show_default=True, help="Side of the black square.")
-@click.option("--tag-to-sensor", "tag_to_sensor", default=None, help="T.json: 4x4 T_Stag<-S in mm (default identity).")
+@click.option("--tag-to-sensor", "tag_to_sensor", type=click.Path(), default=None,
+              help="T.json: 4x4 T_Stag<-S in mm (default identity).")
 @click.option("--refine", type=click.Choice(["apriltag", "subpix", "none"]), default="apriltag", show_default=True,
               help="The detector's corner refinement.")
 @click.option("--edge-fit/--no-edge-fit", default=True, show_default=True,
@@ -69,15 +71,16 @@ def track_cmd(frames: str, camera_path: str, output: str, sensor_tag: int, globa
 
 
 @cli.command("render")
-@click.option("--camera", "camera_path", default=None, help="cam.json (default: 1280x720, f = 900 px).")
-@click.option("--trajectory", "trajectory", default=None,
+@click.option("--camera", "camera_path", type=click.Path(), default=None,
+              help="cam.json (default: 1280x720, f = 900 px).")
+@click.option("--trajectory", "trajectory", type=click.Path(), default=None,
               help="traj.npz: time_s, T_cam_global, T_cam_sensor_tag (mm); default: a generated hand-held motion.")
-@output_option(help="Output folder for the frames, timestamps.txt, camera.json and truth.npz.")
+@output_option(help="Output folder for the frames, timestamps.txt, camera.json and truth.npz.", folder=True)
 @click.option("--frames", "n_frames", type=int, default=30, show_default=True, help="Frames of a generated motion.")
 @click.option("--step", type=int, default=1, show_default=True, help="Generated motion: every step-th 30 fps frame.")
-@click.option("--sensor-tag", type=int, default=1, show_default=True)
-@click.option("--global-tag", type=int, default=0, show_default=True)
-@click.option("--tag-size-mm", type=float, default=31.0, show_default=True)
+@click.option("--sensor-tag", type=int, default=1, show_default=True, help="Id of the tag drawn on the sensor handle.")
+@click.option("--global-tag", type=int, default=0, show_default=True, help="Id of the fixed reference tag drawn.")
+@click.option("--tag-size-mm", type=float, default=31.0, show_default=True, help="Side of the black square.")
 @click.option("--blur-px", type=float, default=0.7, show_default=True, help="Gaussian blur sigma, px.")
 @click.option("--noise", "noise_gray", type=float, default=2.0, show_default=True, help="Noise sigma, grey levels.")
 @seed_option()
@@ -111,8 +114,8 @@ def render_cmd(camera_path: str | None, trajectory: str | None, output: str, n_f
 
 
 @cli.command("calibrate")
-@click.argument("estimated", metavar="ESTIMATED")
-@click.argument("robot", metavar="ROBOT")
+@click.argument("estimated", type=click.Path(), metavar="ESTIMATED")
+@click.argument("robot", type=click.Path(), metavar="ROBOT")
 @output_option(help="Calibration .npz (r_pos, t_pos, R_ori, R_pre, time_offset_s).")
 @click.option("--threshold-mm", type=float, default=3.0, show_default=True, help="RANSAC inlier distance.")
 @click.option("--max-offset-s", type=float, default=0.5, show_default=True,
@@ -145,10 +148,11 @@ def calibrate_cmd(estimated: str, robot: str, output: str, threshold_mm: float, 
 
 
 @cli.command("accuracy")
-@click.argument("estimated", metavar="ESTIMATED")
-@click.argument("reference", metavar="ROBOT")
-@click.option("--calibration", default=None, help="Calibration .npz applied to ESTIMATED first.")
-@click.option("--plot", "plot_path", default=None, help="PNG of the per-axis errors over time.")
+@click.argument("estimated", type=click.Path(), metavar="ESTIMATED")
+@click.argument("reference", type=click.Path(), metavar="ROBOT")
+@click.option("--calibration", type=click.Path(), default=None, help="Calibration .npz applied to ESTIMATED first.")
+@click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
+              help="PNG of the per-axis errors over time.")
 @format_option
 def accuracy_cmd(estimated: str, reference: str, calibration: str | None, plot_path: str | None,
                  fmt: str | None) -> None:
@@ -169,8 +173,8 @@ def accuracy_cmd(estimated: str, reference: str, calibration: str | None, plot_p
 
 
 @cli.command("apply")
-@click.argument("calibration", metavar="CALIB")
-@click.argument("scans", metavar="SCANS")
+@click.argument("calibration", type=click.Path(), metavar="CALIB")
+@click.argument("scans", type=click.Path(), metavar="SCANS")
 @output_option(help="Output scan set .npz ('-' for stdout).")
 def apply_cmd(calibration: str, scans: str, output: str) -> None:
     """Apply a calibration (p <- p r_pos^T + t_pos, R <- R_pre R R_ori) to a scan set's poses.

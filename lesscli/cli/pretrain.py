@@ -8,9 +8,9 @@ from lesscli.cli.common import format_option, output_option, training_options
 
 
 @click.command("pretrain")
-@click.argument("data")
+@click.argument("data", type=click.Path())
 @output_option(help="Best checkpoint (.pt); beside it <stem>.last.pt (for --resume) and <stem>.log.jsonl.")
-@click.option("--val", "val_path", default=None, help="Validation scan set: selects the best epoch.")
+@click.option("--val", "val_path", type=click.Path(), default=None, help="Validation scan set: selects the best epoch.")
 @click.option("--model", "model_name", default=None, help="Encoder: less (particles) or global.  [default: less]")
 @click.option("--receptive-field-mm", type=float, default=None, help="Receptive-field radius.  [default: 10]")
 @click.option("--spacing-mm", type=float, default=None, help="Particle spacing.  [default: 6]")

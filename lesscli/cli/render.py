@@ -74,8 +74,9 @@ def _render_compare(paths, loaded, chosen, tmp: str, output: str) -> list[dict]:
 
 
 @click.command("render")
-@click.argument("predictions", nargs=-1, required=True, metavar="PRED.npz [PRED.npz ...]")
-@output_option(help="Output folder for the PNG files (created if missing).")
+@click.argument("predictions", type=click.Path(), nargs=-1, required=True,
+                metavar="PRED.npz [PRED.npz ...]")
+@output_option(help="Output folder for the PNG files (created if missing).", folder=True)
 @click.option("--scan", "scans", type=int, multiple=True, help="Render only these scans (0-based; repeatable).")
 @format_option
 def cli(predictions: tuple[str, ...], output: str, scans: tuple[int, ...], fmt: str | None) -> None:

@@ -4,34 +4,44 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import output_option, parse_shard
+from lesscli.cli.common import format_option, output_option, parse_shard
 
 
 @click.command("simulate")
-@click.argument("scene_path", metavar="SCENE.toml")
+@click.argument("scene_path", type=click.Path(), metavar="SCENE.toml")
 @output_option(help="Output scan set (.npz, '-' for stdout).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Override a scene value, e.g. --set motion.n_traj=10 --set contact.tier=winkler.")
 @click.option("--seed", type=int, default=None, help="Override the scene's seed.")
 @click.option("--jobs", type=click.IntRange(1), default=1, show_default=True, help="Worker processes (over scans).")
 @click.option("--shard", default=None, metavar="I/N", help="Simulate only shard I of N (0-based, contiguous).")
+@format_option
 def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | None, jobs: int,
-        shard: str | None) -> None:
+        shard: str | None, fmt: str | None) -> None:
     """Simulate the scans of SCENE.toml into a less.scans/1 scan set with label volumes.
 
     One scan per insert and orientation; the output is byte-identical for a given seed, whatever
-    --jobs is, and the shards of --shard i/n concatenate to the full set.
+    --jobs is, and the shards of --shard i/n concatenate to the full set. One summary record (scans,
+    trajectories, steps, seconds, output) goes to stdout (to stderr with -o -).
 
     Example: less simulate examples/scenes/demo.toml -o demo.npz --set motion.n_traj=20
     """
+    import sys
+    import time
+
     from lesscli.cli.common import progress
+    from lesscli.io.records import emit_records
     from lesscli.io.scans import append_history, save_scans
     from lesscli.sim.scene import load_scene
     from lesscli.sim.simulate import simulate
 
+    t0 = time.perf_counter()
     i_n = parse_shard(shard)
     scene = load_scene(scene_path, [*overrides, *([f"seed={seed}"] if seed is not None else [])])
     scans = simulate(scene, jobs=jobs, shard=i_n,
                      progress=lambda it, total: progress(it, total=total, desc="scans", unit="scan"))
     scans.meta = append_history(scans.meta, seed=scene.seed)
     save_scans(output, scans)
+    summary = {"output": output, "scans": scans.n_scans, "trajectories": scans.n_traj, "steps": scans.n_steps,
+               "seed": scene.seed, "shard": f"{i_n[0]}/{i_n[1]}", "seconds": round(time.perf_counter() - t0, 2)}
+    emit_records([summary], fmt, stream=sys.stderr if output == "-" else sys.stdout)

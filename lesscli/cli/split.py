@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option, seed_option
+from lesscli.cli.common import format_option, output_option, seed_option
 
 
 @click.command("split")
-@click.argument("path", metavar="FILE")
+@click.argument("path", type=click.Path(), metavar="FILE")
 @click.option("--by", type=click.Choice(["insert", "scan"]), default="insert", show_default=True,
               help="Unit kept whole: 'insert' (no insert in two splits) or 'scan'.")
 @click.option("--test", type=click.FloatRange(0, 1, max_open=True), default=0.2, show_default=True,
@@ -16,7 +16,7 @@ from lesscli.cli.common import format_option, seed_option
 @click.option("--val", type=click.FloatRange(0, 1, max_open=True), default=0.0, show_default=True,
               help="Share for validation (0: no val.npz).")
 @seed_option()
-@click.option("-o", "--output", "output", required=True, help="Output folder (train.npz, val.npz, test.npz).")
+@output_option(help="Output folder (train.npz, val.npz, test.npz).", folder=True)
 @format_option
 def cli(path: str, by: str, test: float, val: float, seed: int, output: str, fmt: str | None) -> None:
     """Split a scan set into DIR/train.npz, DIR/val.npz (with --val) and DIR/test.npz.

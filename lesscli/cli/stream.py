@@ -7,24 +7,27 @@ import time
 
 import click
 
+from lesscli.cli.common import checked_output, device_option, renamed_option
+
 EMIT_DEFAULT = 10
 LATENCY_PERCENTILES = (50, 90, 99)
 
 
 @click.command("stream")
-@click.argument("model")
-@click.argument("source")
+@click.argument("model", type=click.Path())
+@click.argument("source", type=click.Path())
 @click.option("--rate", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Replay a scan set at this many samples per second (default: as fast as possible).")
 @click.option("--emit-every", type=click.IntRange(min=1), default=EMIT_DEFAULT, show_default=True,
               help="Write a record (and a monitor frame) every N samples, and at the end of each scan.")
-@click.option("--monitor", "monitor_dir", default=None, help="Write PNG frames (image | uncertainty | touches) here.")
+@renamed_option("--monitor", "-o", "--output", "monitor_dir", type=click.Path(), default=None,
+                callback=checked_output(folder=True), help="Write PNG frames (image | uncertainty | touches) here.")
 @click.option("--on-error", type=click.Choice(["skip", "stop"]), default="skip", show_default=True,
               help="Live input: a malformed line is reported with its line number and skipped, or stops the stream.")
 @click.option("--threshold", type=click.FloatRange(0, 1), default=None,
               help="Pillar/inclusion only above this probability (hand-held setting: 0.8). Default: argmax.")
 @click.option("--defer", is_flag=True, help="Re-decode patches only when a record is written (same images, faster).")
-@click.option("--device", default="cpu", show_default=True, help="cpu, cuda or cuda:N.")
+@device_option()
 def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer, device) -> None:
     """Image SOURCE incrementally with the imaging checkpoint MODEL.
 
@@ -33,9 +36,9 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer
     {"t": 0.01, "pose": [x, y, z, roll, pitch, yaw], "force": [[fx, fy, fz], ...]} (mm, rad, raw
     sensor units as in the training data). Each sample advances only the particles whose receptive
     field contains it. Every --emit-every samples a JSON line goes to stdout with the entropy summary
-    (and a PNG frame to --monitor); per-update latency percentiles go to stderr at the end.
+    (and a PNG frame to -o DIR); per-update latency percentiles go to stderr at the end.
 
-    Example: less stream imager.pt test.npz --emit-every 50 --monitor frames/
+    Example: less stream imager.pt test.npz --emit-every 50 -o frames/
     """
     import os
 
@@ -49,7 +52,7 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer
     emitter = Emitter(emit_every, monitor_dir, threshold)
     try:
         if source == "-":
-            run_live(imager, ckpt, click.get_text_stream("stdin"), emitter, on_error, defer)
+            run_live(imager, ckpt, sys.stdin.buffer, emitter, on_error, defer)
         else:
             replay_scans(imager, ckpt, source, emitter, rate, defer)
     finally:
@@ -139,11 +142,10 @@ def _push(stream, emitter: Emitter, pose, force, t) -> None:
 def replay_scans(imager, ckpt: dict, path: str, emitter: Emitter, rate: float | None, defer: bool) -> None:
     """Replay every scan of a scan set from a fresh state, paced at ``rate`` samples/s when given."""
     from lesscli.data.image_labels import AUTO_SLICE
-    from lesscli.infer.predict import scan_grid
+    from lesscli.infer.predict import scan_grid, scans_for_model
     from lesscli.infer.stream import StreamingImager
-    from lesscli.io.scans import load_scans
 
-    scans = load_scans(path)
+    scans = scans_for_model(path, ckpt)
     image_cfg = ckpt["config"]["image"]
     dim, slice_index = int(image_cfg["dim"]), int(image_cfg.get("slice", AUTO_SLICE))
     offsets = scans.scan_step_offsets()
@@ -162,22 +164,25 @@ def replay_scans(imager, ckpt: dict, path: str, emitter: Emitter, rate: float | 
 
 
 def run_live(imager, ckpt: dict, lines, emitter: Emitter, on_error: str, defer: bool) -> None:
-    """Image live JSON lines from ``lines``; malformed lines are reported with their number."""
+    """Image live JSON lines from ``lines`` (bytes or text); malformed lines, lines that are not UTF-8
+    and samples whose time goes backwards are reported with their number."""
     from lesscli.cli.common import LOG
     from lesscli.errors import DataError
     from lesscli.infer.stream import StreamingImager, parse_live_line
 
     stream = StreamingImager(imager, ckpt["norm_stats"], defer_decode=defer)
     emitter.start(0, "live")
+    last_t = None
     for number, text in enumerate(lines, 1):
         if not text.strip():
             continue
         try:
-            sample = parse_live_line(text, stream.force_dim)
+            sample = parse_live_line(text, stream.force_dim, last_t)
         except ValueError as exc:
             if on_error == "stop":
                 raise DataError(f"-: line {number}: {exc}; stopping (--on-error stop)") from None
             LOG.warning("-: line %d: %s; skipped", number, exc)
             continue
+        last_t = last_t if sample.t is None else sample.t
         _push(stream, emitter, sample.pose, sample.force, sample.t)
     emitter.finish(stream)

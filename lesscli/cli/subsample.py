@@ -8,7 +8,7 @@ from lesscli.cli.common import LOG, output_option, seed_option
 
 
 @click.command("subsample")
-@click.argument("path", metavar="FILE")
+@click.argument("path", type=click.Path(), metavar="FILE")
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True,
               help="Keep every N-th step within each trajectory (50 for pokes, 10 for primitives).")
 @click.option("--trajectories", type=click.IntRange(min=1), default=None,

@@ -88,9 +88,23 @@ def compute_norm_stats(scans: ScanSet, mode: str = "global") -> dict:
             "n_steps": int(scans.n_steps), "force_units": str(units)}
 
 
+def normalise_forces(force: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """Raw forces (n, T, 3) or (n, F) -> (n, F) float32 normalised; n may be 0 (an untouched scan)."""
+    force = np.asarray(force, np.float64)
+    return ((force.reshape(force.shape[0], mean.shape[0]) - mean) / std).astype(np.float32)
+
+
 def force_dim(norm_stats: dict) -> int:
     """F, the number of force features the statistics describe."""
     return len(norm_stats["force_mean"])
+
+
+def check_force_features(scans: ScanSet, norm_stats: dict, name: str) -> None:
+    """DataError naming ``name`` unless the scans' force features match the model's statistics."""
+    features = scans.n_taxels * 3
+    if features != force_dim(norm_stats):
+        raise DataError(f"{name}: force has {scans.n_taxels} taxels x 3 = {features} features, "
+                        f"but the normalisation statistics have {force_dim(norm_stats)}")
 
 
 class ScanDataset(torch.utils.data.Dataset):
@@ -103,10 +117,7 @@ class ScanDataset(torch.utils.data.Dataset):
     """
 
     def __init__(self, scans: ScanSet, norm_stats: dict, name: str = "scan set") -> None:
-        features = scans.n_taxels * 3
-        if features != force_dim(norm_stats):
-            raise DataError(f"{name}: force has {scans.n_taxels} taxels x 3 = {features} features, "
-                            f"but the normalisation statistics have {force_dim(norm_stats)}")
+        check_force_features(scans, norm_stats, name)
         self.scans = scans
         self.offsets = scans.scan_step_offsets()
         self.mean = np.asarray(norm_stats["force_mean"], np.float64)
@@ -117,8 +128,7 @@ class ScanDataset(torch.utils.data.Dataset):
 
     def __getitem__(self, s: int) -> dict:
         lo, hi = int(self.offsets[s]), int(self.offsets[s + 1])
-        force = self.scans.force[lo:hi].reshape(hi - lo, -1)
-        force = ((force - self.mean) / self.std).astype(np.float32)
+        force = normalise_forces(self.scans.force[lo:hi], self.mean, self.std)
         return {"pose": torch.from_numpy(np.ascontiguousarray(self.scans.pose[lo:hi], np.float32)),
                 "force": torch.from_numpy(force), "scan_index": int(s)}
 

@@ -35,11 +35,13 @@ import numpy as np
 from lesscli.data import preprocess as pp
 from lesscli.data.sources import FolderSource, ZipSource, load_array, open_source
 from lesscli.errors import DataError
+from lesscli.io import checks
 from lesscli.io.labels import LabelVolume
 from lesscli.io.scans import ScanSet, concat, default_meta
 from lesscli.io.sensor import xela_uscu
 
 SPACING_MM = (0.9, 0.4774, 0.4774)
+LABEL_INPLANE = (128, 128)   # published labels: the 61.1 mm field of view resampled to 128 x 128 px
 LARGE_INPLANE_FACTOR = 2.0
 SENSOR_TAXELS = 30
 CALIBRATION_NAME = "est_to_robot_calibration.npz"
@@ -161,12 +163,15 @@ def _reference_pose(h5, path: str) -> tuple[np.ndarray, np.ndarray]:
 def load_calibration(source: FolderSource | ZipSource, rel: str) -> dict:
     """``est_to_robot_calibration.npz`` -> {'r_pos' (3,3), 't_pos' (3,), 'R_ori' (3,3)}."""
     arrays = load_array(source, rel, "calibration .npz")
+    where = source.where(rel)
     try:
-        calib = {k: np.asarray(arrays[k], np.float64) for k in ("r_pos", "t_pos", "R_ori")}
+        calib = {k: checks.numbers(arrays[k], k, where) for k in ("r_pos", "t_pos", "R_ori")}
     except (KeyError, TypeError, IndexError) as exc:
-        raise DataError(f"{source.where(rel)}: calibration lacks key {exc}") from None
+        raise DataError(f"{where}: calibration lacks key {exc}") from None
     if calib["r_pos"].size != 9 or calib["t_pos"].size != 3 or calib["R_ori"].size != 9:
-        raise DataError(f"{source.where(rel)}: calibration needs r_pos (3, 3), t_pos (3,), R_ori (3, 3)")
+        raise DataError(f"{where}: calibration needs r_pos (3, 3), t_pos (3,), R_ori (3, 3)")
+    for key, value in calib.items():
+        checks.finite(value.reshape(1, -1), key, where, "array")
     return calib
 
 
@@ -196,6 +201,10 @@ def label_volume(raw: np.ndarray, insert: str, orientation: int, name: str, top_
     """
     if raw.ndim != 3:
         raise DataError(f"{name}: label has shape {raw.shape}, expected (D, H, W)")
+    if raw.shape[1:] != LABEL_INPLANE:
+        raise DataError(f"{name}: label is {' x '.join(map(str, raw.shape))}, but the published layout is "
+                        f"D x {LABEL_INPLANE[0]} x {LABEL_INPLANE[1]} (spacing {SPACING_MM[1]} mm in-plane); "
+                        "a resampled or cropped label would get the wrong field of view, use the original file")
     data = pp.rotate_label(pp.map_label_codes(raw, name), -pp.ORIENTATION_STEP_DEG * orientation)
     data = data[:, :, ::-1]
     if top_slice == "first":

@@ -146,13 +146,24 @@ def open_source(path: str) -> FolderSource | ZipSource:
 
 
 def load_array(source: FolderSource | ZipSource, rel: str, what: str) -> np.ndarray | dict:
-    """A ``.npy`` array or the arrays of a ``.npz`` from ``source``; DataError naming the file."""
+    """A ``.npy`` array or the arrays of a ``.npz`` (by ``rel``'s extension) from ``source``, without
+    pickle; DataError naming the file."""
+    from lesscli.io.scans import check_magic, unreadable
+
+    where = source.where(rel)
     try:
         with source.open(rel) as fh:
+            if isinstance(fh, str):                                 # a folder's file: its path
+                with open(fh, "rb") as raw:
+                    head = raw.read(8)
+            else:
+                head = fh.read(8)
+                fh.seek(0)
+            check_magic(head, where, what, npz=rel.lower().endswith(".npz"))
             loaded = np.load(fh, allow_pickle=False)
             if isinstance(loaded, np.lib.npyio.NpzFile):
                 with loaded:
                     return {k: loaded[k] for k in loaded.files}
             return loaded
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise DataError(f"{source.where(rel)}: not a readable {what} ({exc})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise unreadable(where, what, exc) from None

@@ -44,11 +44,11 @@ Example ``lift.toml`` (every key optional; defaults shown)::
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, fields, replace
 
 from lesscli.errors import DataError
 from lesscli.hardware.protocol import TICKS_PER_TURN
+from lesscli.io.toml_files import read_toml
 
 ORIENTATIONS = 8
 TICKS_PER_ORIENTATION = TICKS_PER_TURN // ORIENTATIONS  # 45 degrees = 512 ticks
@@ -162,13 +162,7 @@ def load_config(path: str | None = None, **overrides) -> LiftConfig:
     values: dict = {}
     geometry: dict = {}
     if path:
-        try:
-            with open(path, "rb") as fh:
-                data = tomllib.load(fh)
-        except OSError as exc:
-            raise DataError(f"{path}: cannot read lift config: {exc.strerror}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise DataError(f"{path}: not valid TOML: {exc}") from None
+        data = read_toml(path, "lift config")
         geometry_keys = {f.name for f in fields(ScissorGeometry)}
         for section, table in data.items():
             known = geometry_keys if section == "geometry" else _SECTIONS.get(section)

@@ -18,11 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from lesscli.data.batching import ScanDataset, collate
+from lesscli.data.batching import ScanDataset, check_force_features, collate
 from lesscli.data.image_labels import AUTO_SLICE, grid_of, target_volume
-from lesscli.errors import DataError
+from lesscli.errors import DataError, LessError
 from lesscli.infer import forcemap
-from lesscli.io.predictions import PredictionSet, ScanPrediction, labels_from_probs
+from lesscli.io.predictions import PredictionSet, ScanPrediction, labels_from_probs, nothing_known
 from lesscli.io.scans import ScanSet, load_scans
 from lesscli.models.imager import Imager, grid_from_dict
 from lesscli.models.patch_decoder import ImageGrid
@@ -72,12 +72,39 @@ def load_imager(path: str, map_location: str | torch.device = "cpu",
     if missing:
         raise DataError(f"{path}: not an imaging checkpoint (config lacks {', '.join(missing)}); "
                         "make one with 'less image fit'")
-    imager = Imager(build_encoder(cfg["encoder"]), build_decoder(cfg["decoder"]), grid_from_dict(cfg["grid"]))
+    check_image_config(cfg["image"], path)
+    try:
+        imager = Imager(build_encoder(cfg["encoder"]), build_decoder(cfg["decoder"]), grid_from_dict(cfg["grid"]))
+    except LessError as exc:
+        raise DataError(f"{path}: {exc}") from None
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise DataError(f"{path}: malformed model config ({type(exc).__name__}: {exc})") from None
     try:
         imager.load_state_dict(ckpt["model_state"])
     except RuntimeError as exc:
         raise DataError(f"{path}: weights do not match the model config ({str(exc).splitlines()[0]})") from None
     return imager.to(map_location).eval(), ckpt
+
+
+def check_image_config(image, path: str) -> None:
+    """An imaging checkpoint's ``config['image']``: dim 2 or 3, slice a whole number, threshold None or 0..1."""
+    if not isinstance(image, dict):
+        raise DataError(f"{path}: config 'image' must be a table, got {type(image).__name__}")
+    if image.get("dim") not in (2, 3):
+        raise DataError(f"{path}: config image.dim must be 2 or 3, got {image.get('dim')!r}")
+    if not isinstance(image.get("slice", AUTO_SLICE), int):
+        raise DataError(f"{path}: config image.slice must be a whole number, got {image.get('slice')!r}")
+    threshold = image.get("threshold")
+    if threshold is not None and (isinstance(threshold, bool) or not isinstance(threshold, (int, float))
+                                  or not 0 <= threshold <= 1):
+        raise DataError(f"{path}: config image.threshold must be a probability 0..1, got {threshold!r}")
+
+
+def scans_for_model(path: str, ckpt: dict) -> ScanSet:
+    """The scan set at ``path``, checked against the model's force features (DataError names the file)."""
+    scans = load_scans(path)
+    check_force_features(scans, ckpt["norm_stats"], path)
+    return scans
 
 
 def prefix_lengths(n_steps: int, steps: int | None = None, every: int | None = None) -> list[int]:
@@ -121,6 +148,9 @@ def predict_scan(imager: Imager, item: dict, lengths: list[int], grid: ImageGrid
 
 def _scan_prediction(scans: ScanSet, s: int, probs: np.ndarray, grid: ImageGrid, truth: np.ndarray | None,
                      steps: int, threshold: float | None, min_volume_mm3: float) -> ScanPrediction:
+    """One prediction record; a prefix of 0 steps images as nothing known (uniform probabilities)."""
+    if steps == 0:
+        probs = nothing_known(probs.shape)
     return ScanPrediction(probs=probs, origin_mm=np.array(grid.origin_mm),
                           spacing_mm=np.array(grid.spacing_mm), truth=truth, insert=str(scans.scan_insert[s]),
                           orientation=int(scans.scan_orientation[s]), steps=int(steps),

@@ -255,10 +255,10 @@ class StreamingImager:
         Args:
             pose: (n, 6) raw poses; force: (n, T, 3) raw forces. Replaces any earlier samples.
         """
-        from lesscli.data.batching import collate
+        from lesscli.data.batching import collate, normalise_forces
 
         n = int(pose.shape[0])
-        flat = ((np.asarray(force, np.float64).reshape(n, -1) - self.mean) / self.std).astype(np.float32)
+        flat = normalise_forces(force, self.mean, self.std)
         item = {"pose": torch.from_numpy(np.ascontiguousarray(pose, np.float32)), "force": torch.from_numpy(flat),
                 "scan_index": 0}
         batch = collate([item]).to(self.device)
@@ -272,9 +272,14 @@ class StreamingImager:
         self.flush()
 
     def logits(self) -> Tensor:
-        """(C, D, H, W) float32 logits of the image after the samples so far (flushes deferred decodes)."""
+        """(C, D, H, W) float32 logits of the image after the samples so far (flushes deferred decodes).
+
+        Before the first sample nothing is known: all logits 0, uniform probabilities (as
+        lesscli.io.predictions.nothing_known), whatever the decoder.
+        """
         self.flush()
-        return self.canvas.logits()
+        logits = self.canvas.logits()
+        return torch.zeros_like(logits) if self.n_steps == 0 else logits
 
     def probs(self) -> np.ndarray:
         """(C, D, H, W) float32 class probabilities."""
@@ -302,14 +307,24 @@ class LiveSample:
     force: np.ndarray
 
 
-def parse_live_line(text: str, force_dim: int) -> LiveSample:
+def parse_live_line(text: str | bytes, force_dim: int, after_t: float | None = None) -> LiveSample:
     """Parse ``{"t": s, "pose": [6 numbers], "force": [[x, y, z], ...] or [F numbers]}``.
+
+    Args:
+        text: one input line (bytes are decoded as UTF-8).
+        force_dim: values the model expects in 'force' (taxels x 3).
+        after_t: the time of the previous accepted sample; time may not go backwards.
 
     Raises:
         ValueError: with a short description of what is wrong (the caller adds the line number).
     """
     import json
 
+    if isinstance(text, bytes):
+        try:
+            text = text.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"not UTF-8 text (byte {exc.start + 1})") from None
     try:
         obj = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -328,15 +343,20 @@ def parse_live_line(text: str, force_dim: int) -> LiveSample:
     t = obj.get("t")
     if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or not np.isfinite(t)):
         raise ValueError(f"'t' must be a finite number of seconds, got {t!r}")
+    if t is not None and after_t is not None and t < after_t:
+        raise ValueError(f"'t' goes back in time ({t} s after {after_t} s); samples must come in time order")
     return LiveSample(None if t is None else float(t), pose, force)
 
 
 def _numbers(value, key: str) -> np.ndarray:
-    """A JSON (nested) list of finite numbers as float64, or ValueError naming ``key``."""
+    """A JSON (nested) list of numbers finite in float32 (the model's precision) as float64, or
+    ValueError naming ``key``."""
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(f"'{key}' must be a list of numbers (nested lists of equal length)") from None
-    if arr.dtype != np.float64 or arr.ndim == 0 or not np.isfinite(arr).all():
+    if arr.dtype != np.float64 or arr.ndim == 0 or arr.size == 0 or not np.isfinite(arr).all():
         raise ValueError(f"'{key}' must be a non-empty list of finite numbers")
+    if np.abs(arr).max() > np.finfo(np.float32).max:
+        raise ValueError(f"'{key}' holds {np.abs(arr).max():g}, beyond float32 range (the model's precision)")
     return arr

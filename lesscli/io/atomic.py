@@ -1,7 +1,10 @@
 """Atomic outputs: write to a temporary sibling, rename on success, remove on failure.
 
 A failed or interrupted command therefore never leaves a partial file. ``-`` means stdout for
-binary outputs, which are refused when stdout is a terminal.
+binary outputs, which are refused when stdout is a terminal. A finished output gets the mode a plain
+``open()`` / ``mkdir`` would give it (0666 / 0777 less the umask: 0644 / 0755 under umask 022), not
+the private mode of the temporary file. :func:`check_output` tests an output path before any work
+starts, so a typo in ``-o`` fails at once and not after an hour of training.
 """
 
 from __future__ import annotations
@@ -17,10 +20,49 @@ from collections.abc import Iterator
 from lesscli.errors import LessError
 
 
+def _umask() -> int:
+    """The process umask, read without changing it where the system tells it (Linux), else set back."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def publish_mode(path: str) -> None:
+    """Give ``path`` the mode ``open()`` (a file) or ``mkdir`` (a folder) would under the current umask."""
+    os.chmod(path, (0o777 if os.path.isdir(path) else 0o666) & ~_umask())
+
+
+def check_output(path: str, folder: bool = False, option: str = "-o") -> None:
+    """Raise LessError unless ``path`` can be written: its folder exists and is writable, and it is
+    not a folder (for a file output) or a file (for a folder output). ``-`` (stdout) passes for files.
+    """
+    if path == "-":
+        if folder:
+            raise LessError(f"{option} -: this output is a folder and cannot go to stdout; name a folder")
+        return
+    if not path:
+        raise LessError(f"{option}: empty output path")
+    parent = os.path.dirname(os.path.abspath(path))
+    if folder and os.path.exists(path) and not os.path.isdir(path):
+        raise LessError(f"{path}: is a file, but {option} names an output folder here; choose a folder name")
+    if not folder and os.path.isdir(path):
+        raise LessError(f"{path}: is a folder, but {option} names an output file here; name a file inside it")
+    if not os.path.isdir(parent):
+        raise LessError(f"{path}: folder '{parent}' does not exist; create it first (mkdir -p)")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise LessError(f"{path}: folder '{parent}' is not writable")
+
+
 def _tmp_sibling(path: str, suffix: str) -> str:
+    check_output(path)
     folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise LessError(f"{path}: folder '{folder}' does not exist")
     fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".part" + suffix, dir=folder)
     os.close(fd)
     return tmp
@@ -51,6 +93,7 @@ def atomic_path(path: str, suffix: str = "") -> Iterator[str]:
     tmp = _tmp_sibling(path, suffix)
     try:
         yield tmp
+        publish_mode(tmp)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -61,13 +104,13 @@ def atomic_path(path: str, suffix: str = "") -> Iterator[str]:
 @contextlib.contextmanager
 def atomic_dir(path: str) -> Iterator[str]:
     """Yield a temporary folder; on success its files move into ``path`` (created if needed)."""
+    check_output(path, folder=True)
     parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent):
-        raise LessError(f"{path}: folder '{parent}' does not exist")
     tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(os.path.abspath(path))}.", suffix=".part", dir=parent)
     try:
         yield tmp
         if not os.path.exists(path):
+            publish_mode(tmp)
             os.replace(tmp, path)
             return
         for root, _dirs, files in os.walk(tmp):

@@ -71,9 +71,17 @@ class LabelVolume:
 
 
 def check_codes(data: np.ndarray, where: str) -> None:
-    """Raise if ``data`` holds codes outside 0..3."""
-    if data.size and int(data.max()) >= N_CLASSES:
-        raise DataError(f"{where}: label codes must be 0..3 (background, insert, pillar, inclusion), found {int(data.max())}")
+    """Raise if ``data`` holds codes outside 0..3 (or values that are not whole numbers)."""
+    if data.dtype.kind not in "biuf":
+        raise DataError(f"{where}: label codes must be numbers 0..3, found {data.dtype} values")
+    if not data.size:
+        return
+    if data.dtype.kind == "f" and not (np.isfinite(data).all() and (data == np.round(data)).all()):
+        raise DataError(f"{where}: label codes must be whole numbers 0..3 (found NaN, inf or fractions)")
+    low, high = int(data.min()), int(data.max())
+    if low < 0 or high >= N_CLASSES:
+        raise DataError(f"{where}: label codes must be 0..3 (background, insert, pillar, inclusion), "
+                        f"found {high if high >= N_CLASSES else low}")
 
 
 def save_nifti(path: str, volume: LabelVolume, dtype=np.uint8) -> None:
@@ -109,17 +117,17 @@ def load_nifti_labels(path: str) -> LabelVolume:
         raise DataError(f"{path}: expected a 3D label volume, got shape {data.shape}")
     aff = np.asarray(img.affine, dtype=np.float64)
     lin = aff[:3, :3]
+    if not np.isfinite(aff).all():
+        raise DataError(f"{path}: the affine holds NaN or inf; the file's geometry is broken")
     if not np.allclose(lin, np.diag(np.diag(lin)), atol=1e-6 * np.abs(lin).max()):
         raise DataError(f"{path}: affine is rotated or sheared; resample to an axis-aligned grid first")
+    if (np.diag(lin) == 0).any():
+        raise DataError(f"{path}: the affine gives a voxel size of 0 on an axis")
     flips = np.diag(lin) < 0
     for axis in np.flatnonzero(flips):
         data = np.flip(data, axis=axis)
     spacing_xyz = np.abs(np.diag(lin))
     origin_xyz = aff[:3, 3] + np.where(flips, np.diag(lin) * (np.array(data.shape) - 1), 0.0)
-    if not np.all(np.isfinite(data)):
-        raise DataError(f"{path}: label volume contains NaN or inf")
-    if np.any(data < 0) or np.any(data != np.round(data)):
-        raise DataError(f"{path}: label codes must be non-negative integers")
-    data = np.transpose(data, (2, 1, 0)).astype(np.int64)
     check_codes(data, path)
+    data = np.transpose(data, (2, 1, 0))
     return LabelVolume(data.astype(np.uint8), origin_xyz[::-1], spacing_xyz[::-1], os.path.basename(path))

@@ -30,8 +30,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lesscli.errors import DataError
+from lesscli.io import checks
 from lesscli.io.atomic import atomic_path
-from lesscli.io.labels import INCLUSION, PILLAR, LabelVolume
+from lesscli.io.labels import INCLUSION, N_CLASSES, PILLAR, LabelVolume, check_codes
 from lesscli.io.scans import read_npz
 
 SCHEMA, VERSION = "less.pred", 1
@@ -66,6 +67,12 @@ def labels_from_probs(probs: np.ndarray, threshold: float | None = None, min_vol
             speck = small[regions]
             labels[speck] = probs[:2].argmax(axis=0)[speck]
     return labels
+
+
+def nothing_known(shape: tuple[int, ...]) -> np.ndarray:
+    """The image of a scan without touches: uniform class probabilities (C, ...) float32, so maximum
+    entropy ln C everywhere. Every predictor (learned, force map, streaming) applies this one rule."""
+    return np.full(shape, 1.0 / shape[0], np.float32)
 
 
 def entropy(probs: np.ndarray) -> np.ndarray:
@@ -112,7 +119,7 @@ def _flat(arrays: list[np.ndarray], dtype) -> np.ndarray:
 
 
 def save_predictions(path: str, preds: PredictionSet) -> None:
-    """Write atomically to ``path`` (``-`` = stdout)."""
+    """Check (as :func:`load_predictions` does) and write atomically to ``path`` (``-`` = stdout)."""
     scans = preds.scans
     meta = {"schema": SCHEMA, "version": VERSION, **{k: v for k, v in preds.meta.items() if k not in ("schema", "version")}}
     arrays = {
@@ -129,41 +136,85 @@ def save_predictions(path: str, preds: PredictionSet) -> None:
         "scan_steps": np.array([p.steps for p in scans], np.int64),
         "meta": np.array(json.dumps(meta)),
     }
+    _checked_arrays(arrays, path)   # a writer never stores what its reader would refuse
     with atomic_path(path, ".npz") as tmp:
         np.savez_compressed(tmp, **arrays)
+
+
+WHAT = f"{SCHEMA}/{VERSION} prediction file"
+PROB_SUM_TOL = 0.02  # |sum of class probabilities - 1| allowed after float16 storage
+
+
+def _check_probs(probs: np.ndarray, shapes: np.ndarray, name: str) -> None:
+    """Class probabilities: finite, in [0, 1], summing to 1 over the classes of every voxel."""
+    checks.finite(probs.reshape(-1, 1), "probs_data", name, "value")
+    if probs.size and (probs.min() < 0 or probs.max() > 1):
+        raise DataError(f"{name}: 'probs_data' must be probabilities in 0..1, found {float(probs.min()):g}.."
+                        f"{float(probs.max()):g}")
+    offset = 0
+    for i, shp in enumerate(shapes):
+        size = int(np.prod(shp))
+        total = probs[offset:offset + size].reshape(shp).astype(np.float32).sum(axis=0)
+        offset += size
+        if total.size and np.abs(total - 1).max() > PROB_SUM_TOL:
+            raise DataError(f"{name}: 'probs_data' of scan {i} does not sum to 1 over the classes "
+                            f"(found {float(total.min()):.3g}..{float(total.max()):.3g})")
+
+
+def _checked_arrays(arrays: dict, name: str) -> dict:
+    """Every key of a prediction file, type-, shape- and value-checked (see the module docstring)."""
+    shapes = checks.numbers(checks.require(arrays, "probs_shape", name, WHAT), "probs_shape", name, integer=True)
+    checks.shape(shapes, "probs_shape", name, (None, 4), "(S, 4): C, D, H, W of each scan")
+    if shapes.size and (shapes.min() < 1 or (shapes[:, 0] != N_CLASSES).any()):
+        raise DataError(f"{name}: 'probs_shape' must give {N_CLASSES} classes and at least 1 voxel per axis")
+    n = len(shapes)
+    out = {"probs_shape": shapes}
+    for key in ("has_truth", "scan_orientation", "scan_steps", "scan_insert", "origin_mm", "spacing_mm"):
+        arr = checks.require(arrays, key, name, WHAT)
+        arr = checks.text_array(arr, key, name, "insert names") if key == "scan_insert" else \
+            checks.numbers(arr, key, name, integer=key != "origin_mm" and key != "spacing_mm")
+        checks.shape(arr, key, name, (n, 3) if key.endswith("_mm") else (n,),
+                     f"({n}, 3)" if key.endswith("_mm") else f"({n},): one entry per scan")
+        out[key] = arr
+    checks.in_range(out["has_truth"], "has_truth", name, 0, 1, " (true/false)")
+    checks.finite(out["origin_mm"], "origin_mm", name, "scan")
+    checks.positive(out["spacing_mm"], "spacing_mm", name, "scan")
+    vox = shapes[:, 1:].prod(axis=1)
+    sizes = {"probs_data": int(shapes.prod(axis=1).sum()), "label_data": int(vox.sum()),
+             "entropy_data": int(vox.sum()), "truth_data": int((vox * out["has_truth"]).sum())}
+    for key, size in sizes.items():
+        arr = checks.numbers(checks.require(arrays, key, name, WHAT), key, name)
+        if arr.ndim != 1 or arr.size != size:
+            raise DataError(f"{name}: '{key}' has {arr.size} values, 'probs_shape' and 'has_truth' need {size}")
+        out[key] = arr
+    _check_probs(out["probs_data"], shapes, name)
+    for key in ("label_data", "truth_data"):
+        check_codes(out[key], f"{name}: '{key}'")
+    checks.finite(out["entropy_data"].reshape(-1, 1), "entropy_data", name, "value")
+    if out["entropy_data"].size and out["entropy_data"].min() < 0:
+        raise DataError(f"{name}: 'entropy_data' must be non-negative (nats)")
+    return out
 
 
 def load_predictions(path: str) -> PredictionSet:
     """Read and check a prediction file; problems raise DataError naming the file and key."""
     name = "<stdin>" if path == "-" else path
-    arrays = read_npz(path, what="prediction file")
-    try:
-        meta = json.loads(str(arrays["meta"][()]))
-    except (KeyError, json.JSONDecodeError):
-        raise DataError(f"{name}: missing or unreadable 'meta' (not a {SCHEMA} file?)") from None
-    if meta.get("schema") != SCHEMA or meta.get("version") != VERSION:
-        raise DataError(f"{name}: schema {meta.get('schema')}/{meta.get('version')}, expected {SCHEMA}/{VERSION}")
-    for key in ("probs_data", "probs_shape", "label_data", "entropy_data", "truth_data", "has_truth",
-                "origin_mm", "spacing_mm", "scan_insert", "scan_orientation", "scan_steps"):
-        if key not in arrays:
-            raise DataError(f"{name}: missing key '{key}'")
-    shapes = arrays["probs_shape"].reshape(-1, 4)
+    arrays = read_npz(path, what=WHAT)
+    meta = checks.schema_meta(arrays, name, SCHEMA, VERSION, "prediction file")
+    a = _checked_arrays(arrays, name)
+    shapes = a["probs_shape"]
     vox = shapes[:, 1:].prod(axis=1)
-    size = shapes.prod(axis=1)
-    if arrays["probs_data"].size != size.sum() or arrays["label_data"].size != vox.sum():
-        raise DataError(f"{name}: array sizes do not match 'probs_shape'")
-    probs_off, vox_off = np.concatenate([[0], np.cumsum(size)]), np.concatenate([[0], np.cumsum(vox)])
-    truth_off = np.concatenate([[0], np.cumsum(np.where(arrays["has_truth"], vox, 0))])
-    if arrays["truth_data"].size != truth_off[-1]:
-        raise DataError(f"{name}: 'truth_data' size does not match 'has_truth'")
+    probs_off, vox_off = np.concatenate([[0], np.cumsum(shapes.prod(axis=1))]), np.concatenate([[0], np.cumsum(vox)])
+    truth_off = np.concatenate([[0], np.cumsum(np.where(a["has_truth"] > 0, vox, 0))])
     scans = []
     for i, shp in enumerate(shapes):
         sl = slice(vox_off[i], vox_off[i + 1])
-        truth = arrays["truth_data"][truth_off[i]:truth_off[i + 1]].reshape(shp[1:]) if arrays["has_truth"][i] else None
+        truth = a["truth_data"][truth_off[i]:truth_off[i + 1]].reshape(shp[1:]).astype(np.uint8) \
+            if a["has_truth"][i] else None
         scans.append(ScanPrediction(
-            probs=arrays["probs_data"][probs_off[i]:probs_off[i + 1]].reshape(shp),
-            origin_mm=arrays["origin_mm"][i], spacing_mm=arrays["spacing_mm"][i], truth=truth,
-            insert=str(arrays["scan_insert"][i]), orientation=int(arrays["scan_orientation"][i]),
-            steps=int(arrays["scan_steps"][i]), label=arrays["label_data"][sl].reshape(shp[1:]),
-            entropy=arrays["entropy_data"][sl].reshape(shp[1:])))
+            probs=a["probs_data"][probs_off[i]:probs_off[i + 1]].reshape(shp).astype(np.float16),
+            origin_mm=a["origin_mm"][i], spacing_mm=a["spacing_mm"][i], truth=truth,
+            insert=str(a["scan_insert"][i]), orientation=int(a["scan_orientation"][i]),
+            steps=int(a["scan_steps"][i]), label=a["label_data"][sl].reshape(shp[1:]).astype(np.uint8),
+            entropy=a["entropy_data"][sl].reshape(shp[1:]).astype(np.float16)))
     return PredictionSet(scans, meta)

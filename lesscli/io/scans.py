@@ -29,6 +29,7 @@ sees a scan as its trajectories concatenated in time.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shlex
@@ -42,6 +43,7 @@ import numpy as np
 
 from lesscli import __version__
 from lesscli.errors import DataError
+from lesscli.io import checks
 from lesscli.io.atomic import atomic_path, open_input_bytes
 from lesscli.io.labels import LabelVolume, check_codes
 
@@ -119,6 +121,20 @@ class ScanSet:
         o = self.scan_step_offsets()
         return slice(int(o[s]), int(o[s + 1]))
 
+    def touched_scans(self) -> np.ndarray:
+        """Indices of the scans with at least one step (an untouched scan has none)."""
+        return np.flatnonzero(np.diff(self.scan_step_offsets()) > 0)
+
+    def fingerprint(self) -> str:
+        """Content hash of the steps, trajectories, scans and label volumes (meta and history excluded)."""
+        h = hashlib.sha1()
+        for arr in (self.pose, self.force, self.time_s, self.traj_offsets, self.traj_scan, self.scan_insert,
+                    self.scan_orientation, self.scan_label):
+            h.update(np.ascontiguousarray(arr).tobytes())
+        for vol in self.labels:
+            h.update(vol.content_hash().encode())
+        return h.hexdigest()
+
     def label_of(self, s: int) -> LabelVolume | None:
         idx = int(self.scan_label[s])
         return None if idx < 0 else self.labels[idx]
@@ -165,109 +181,171 @@ class ScanSet:
 
 # ---------------------------------------------------------------------------------------------- validation
 
-def _require(arrays: dict, key: str, name: str) -> np.ndarray:
-    if key not in arrays:
-        raise DataError(f"{name}: missing key '{key}' (not a {SCHEMA}/{VERSION} scan set?)")
-    return arrays[key]
-
-
-def _check_shape(arr: np.ndarray, key: str, name: str, ndim: int, expected: str, tail: tuple = ()) -> None:
-    if arr.ndim != ndim or (tail and tuple(arr.shape[ndim - len(tail):]) != tail):
-        raise DataError(f"{name}: '{key}' has shape {arr.shape}, expected {expected}")
-
-
-def _check_finite(arr: np.ndarray, key: str, name: str) -> None:
-    bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1) if arr.size else np.zeros(0, bool)
-    if bad.any():
-        raise DataError(f"{name}: '{key}' has NaN or inf at step {int(np.flatnonzero(bad)[0])} "
-                        f"({int(bad.sum())} steps affected)")
+WHAT = f"{SCHEMA}/{VERSION} scan set"
+MAX_ORIENTATION = 7  # orientations are multiples of 45 degrees: 0..7
 
 
 def parse_meta(arrays: dict, name: str) -> dict:
-    raw = _require(arrays, "meta", name)
-    try:
-        meta = json.loads(str(raw[()]))
-    except (json.JSONDecodeError, TypeError, ValueError):
-        raise DataError(f"{name}: 'meta' is not a JSON string") from None
-    if meta.get("schema") != SCHEMA:
-        raise DataError(f"{name}: schema is '{meta.get('schema')}', expected '{SCHEMA}'")
-    if meta.get("version") != VERSION:
-        raise DataError(f"{name}: unsupported {SCHEMA} version {meta.get('version')!r} "
-                        f"(this toolkit reads version {VERSION})")
+    """The checked ``meta`` object: schema, version, history, sensor, units and sample rate."""
+    meta = checks.schema_meta(arrays, name, SCHEMA, VERSION, "scan set")
+    sensor = checks.meta_field(meta, "sensor", name, (dict,), "an object (the sensor layout)") or {}
+    taxels = checks.meta_field(sensor, "taxels", name, (int,), "a whole number", prefix="sensor.")
+    if taxels is not None and taxels < 1:
+        raise DataError(f"{name}: meta 'sensor.taxels' must be at least 1, got {taxels}")
+    checks.meta_field(meta, "units", name, (dict,), "an object (units of pose, force, time)")
+    rate = checks.meta_field(meta, "sample_rate_hz", name, (int, float), "a number of samples per second")
+    if rate is not None and not (np.isfinite(rate) and rate > 0):
+        raise DataError(f"{name}: meta 'sample_rate_hz' must be positive and finite, got {rate}")
     return meta
 
 
 def _labels_from(arrays: dict, name: str) -> list[LabelVolume]:
-    shapes = np.asarray(_require(arrays, "label_shape", name), dtype=np.int64).reshape(-1, 3)
-    data = _require(arrays, "label_data", name)
+    shapes = checks.numbers(checks.require(arrays, "label_shape", name, WHAT), "label_shape", name, integer=True)
+    checks.shape(shapes, "label_shape", name, (None, 3), "(L, 3): D, H, W of each label volume")
+    if shapes.size and shapes.min() < 1:
+        raise DataError(f"{name}: 'label_shape' must be at least 1 voxel on each axis, found {int(shapes.min())}")
+    n = len(shapes)
+    data = checks.require(arrays, "label_data", name, WHAT)
+    checks.shape(data, "label_data", name, (None,), "(V,): the volumes flattened one after another")
     sizes = shapes.prod(axis=1)
-    if data.ndim != 1 or data.shape[0] != sizes.sum():
+    if data.shape[0] != sizes.sum():
         raise DataError(f"{name}: 'label_data' has {data.size} values, 'label_shape' needs {int(sizes.sum())}")
-    offsets = np.concatenate([[0], np.cumsum(sizes)])
-    origin = np.asarray(_require(arrays, "label_origin_mm", name), np.float64).reshape(-1, 3)
-    spacing = np.asarray(_require(arrays, "label_spacing_mm", name), np.float64).reshape(-1, 3)
-    names = arrays.get("label_name", np.array([""] * len(shapes)))
-    if not (len(origin) == len(spacing) == len(shapes) == len(names)):
-        raise DataError(f"{name}: label geometry arrays disagree in length")
-    if len(spacing) and not (np.isfinite(spacing).all() and (spacing > 0).all() and np.isfinite(origin).all()):
-        raise DataError(f"{name}: 'label_spacing_mm' must be positive and finite")
     check_codes(data, f"{name}: 'label_data'")
-    return [LabelVolume(data[offsets[i]:offsets[i + 1]].reshape(shapes[i]), origin[i], spacing[i], str(names[i]))
-            for i in range(len(shapes))]
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    geometry = {}
+    for key in ("label_origin_mm", "label_spacing_mm"):
+        geometry[key] = checks.numbers(checks.require(arrays, key, name, WHAT), key, name)
+        checks.shape(geometry[key], key, name, (n, 3), f"({n}, 3): z, y, x per label volume")
+    checks.finite(geometry["label_origin_mm"], "label_origin_mm", name, "label volume")
+    checks.positive(geometry["label_spacing_mm"], "label_spacing_mm", name, "label volume")
+    names = checks.text_array(arrays.get("label_name", np.array([""] * n)), "label_name", name, "volume names")
+    checks.shape(names, "label_name", name, (n,), f"({n},)")
+    return [LabelVolume(data[offsets[i]:offsets[i + 1]].reshape(shapes[i]), geometry["label_origin_mm"][i],
+                        geometry["label_spacing_mm"][i], str(names[i])) for i in range(n)]
 
 
-def validate(arrays: dict, name: str) -> ScanSet:
-    """Check every key, shape, dtype and value; return the ScanSet or raise DataError naming the problem."""
-    meta = parse_meta(arrays, name)
-    pose, force = _require(arrays, "pose", name), _require(arrays, "force", name)
-    _check_shape(pose, "pose", name, 2, "(N, 6)", (6,))
-    _check_shape(force, "force", name, 3, "(N, T, 3)", (3,))
+def _steps(arrays: dict, name: str, meta: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """pose (N, 6), force (N, T, 3) and time_s (N,), checked for type, shape and finite values."""
+    pose = checks.numbers(checks.require(arrays, "pose", name, WHAT), "pose", name)
+    force = checks.numbers(checks.require(arrays, "force", name, WHAT), "force", name)
+    checks.shape(pose, "pose", name, (None, 6), "(N, 6)")
+    checks.shape(force, "force", name, (None, None, 3), "(N, T, 3)")
     n = pose.shape[0]
     if force.shape[0] != n:
         raise DataError(f"{name}: 'force' has {force.shape[0]} steps but 'pose' has {n}")
     taxels = (meta.get("sensor") or {}).get("taxels")
     if taxels is not None and force.shape[1] != taxels:
         raise DataError(f"{name}: 'force' has {force.shape[1]} taxels, meta sensor says {taxels}")
-    _check_finite(pose, "pose", name)
-    _check_finite(force, "force", name)
-    time_s = np.asarray(arrays.get("time_s", np.zeros(n)), np.float64)
-    _check_shape(time_s, "time_s", name, 1, f"({n},)")
-    offsets = np.asarray(_require(arrays, "traj_offsets", name), np.int64)
+    time_s = checks.numbers(arrays.get("time_s", np.zeros(n)), "time_s", name)
+    checks.shape(time_s, "time_s", name, (n,), f"({n},)")
+    for key, arr in (("pose", pose), ("force", force)):
+        checks.finite(arr, key, name, dtype=np.float32)  # stored and computed in float32
+    checks.finite(time_s, "time_s", name)
+    return pose, force, time_s
+
+
+def _trajectories(arrays: dict, name: str, n: int, n_scans: int) -> tuple[np.ndarray, np.ndarray, dict]:
+    """traj_offsets (R+1,), traj_scan (R,) and the per-trajectory attributes, checked."""
+    offsets = checks.numbers(checks.require(arrays, "traj_offsets", name, WHAT), "traj_offsets", name, integer=True)
     if offsets.ndim != 1 or offsets.size < 1 or offsets[0] != 0 or offsets[-1] != n or np.any(np.diff(offsets) < 0):
         raise DataError(f"{name}: 'traj_offsets' must rise from 0 to the step count {n}")
-    traj_scan = np.asarray(_require(arrays, "traj_scan", name), np.int64)
-    scan_insert = np.asarray(_require(arrays, "scan_insert", name)).astype(str)
-    n_scans = scan_insert.shape[0]
-    if traj_scan.shape != (offsets.size - 1,):
-        raise DataError(f"{name}: 'traj_scan' has shape {traj_scan.shape}, expected ({offsets.size - 1},)")
+    traj_scan = checks.numbers(checks.require(arrays, "traj_scan", name, WHAT), "traj_scan", name, integer=True)
+    checks.shape(traj_scan, "traj_scan", name, (offsets.size - 1,), f"({offsets.size - 1},)")
     if traj_scan.size and (np.any(np.diff(traj_scan) < 0) or traj_scan[0] < 0 or traj_scan[-1] >= n_scans):
         raise DataError(f"{name}: 'traj_scan' must be non-decreasing scan indices in 0..{n_scans - 1}")
-    orient = np.asarray(arrays.get("scan_orientation", np.zeros(n_scans)), np.int64)
-    scan_label = np.asarray(arrays.get("scan_label", -np.ones(n_scans)), np.int64)
-    labels = _labels_from(arrays, name) if "label_shape" in arrays else []
-    if orient.shape != (n_scans,) or scan_label.shape != (n_scans,):
-        raise DataError(f"{name}: 'scan_orientation'/'scan_label' must have one entry per scan ({n_scans})")
-    if np.any(scan_label >= len(labels)) or np.any(scan_label < -1):
-        raise DataError(f"{name}: 'scan_label' points past the {len(labels)} label volumes")
     attrs = {}
     for key, kind in TRAJ_ATTRS.items():
         arr = arrays.get(f"traj_{key}")
         if arr is None:
             arr = np.full(traj_scan.shape, "" if kind is str else np.nan, dtype=object if kind is str else kind)
-        arr = np.asarray(arr).astype(kind)
-        if arr.shape != traj_scan.shape:
-            raise DataError(f"{name}: 'traj_{key}' has shape {arr.shape}, expected {traj_scan.shape}")
-        attrs[key] = arr
+        elif kind is str:
+            arr = checks.text_array(arr, f"traj_{key}", name, "names")
+        else:
+            arr = checks.numbers(arr, f"traj_{key}", name)
+        checks.shape(np.asarray(arr), f"traj_{key}", name, traj_scan.shape, str(traj_scan.shape))
+        attrs[key] = np.asarray(arr).astype(kind)
+    return offsets, traj_scan, attrs
+
+
+def validate(arrays: dict, name: str) -> ScanSet:
+    """Check every key, shape, dtype and value; return the ScanSet or raise DataError naming the problem."""
+    meta = parse_meta(arrays, name)
+    pose, force, time_s = _steps(arrays, name, meta)
+    scan_insert = checks.text_array(checks.require(arrays, "scan_insert", name, WHAT), "scan_insert", name,
+                                    "insert names")
+    checks.shape(scan_insert, "scan_insert", name, (None,), "(S,)")
+    n_scans = scan_insert.shape[0]
+    offsets, traj_scan, attrs = _trajectories(arrays, name, pose.shape[0], n_scans)
+    labels = _labels_from(arrays, name) if "label_shape" in arrays or "label_data" in arrays else []
+    per_scan = {}
+    for key, default in (("scan_orientation", 0), ("scan_label", -1)):
+        per_scan[key] = checks.numbers(arrays.get(key, np.full(n_scans, default)), key, name, integer=True)
+        checks.shape(per_scan[key], key, name, (n_scans,), f"({n_scans},): one entry per scan")
+    checks.in_range(per_scan["scan_orientation"], "scan_orientation", name, 0, MAX_ORIENTATION,
+                    " (multiples of 45 degrees)")
+    checks.in_range(per_scan["scan_label"], "scan_label", name, -1, len(labels) - 1,
+                    f" (-1 = no label, else one of the {len(labels)} label volumes)")
     return ScanSet(pose.astype(np.float32), force.astype(np.float32), time_s, offsets, traj_scan, scan_insert,
-                   orient, scan_label, labels, attrs, meta)
+                   per_scan["scan_orientation"], per_scan["scan_label"], labels, attrs, meta)
 
 
 # ---------------------------------------------------------------------------------------------- read / write
 
-def read_npz(path: str, what: str = "scan set") -> dict[str, np.ndarray]:
+NPZ_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")  # a zip archive (with members / empty)
+NPY_MAGIC = b"\x93NUMPY"
+
+
+def _sniff(src, name: str, what: str, npz: bool = True) -> None:
+    """Refuse what is not a .npz archive (``npz``) or a .npy array at all, saying what the file is
+    instead of numpy's advice to unpickle it."""
+    if isinstance(src, str):
+        if os.path.isdir(src):
+            raise DataError(f"{name}: is a folder, not a {what}")
+        with open(src, "rb") as fh:
+            head = fh.read(8)
+    else:
+        head = src.getvalue()[:8]
+    check_magic(head, name, what, npz)
+
+
+def check_magic(head: bytes, name: str, what: str, npz: bool = True) -> None:
+    """DataError unless ``head`` (a file's first bytes) opens a .npz archive (``npz``) or a .npy array."""
+    if head.startswith(NPZ_MAGIC if npz else (NPY_MAGIC,)):
+        return
+    if not head:
+        raise DataError(f"{name}: not a {what}: the file is empty")
+    if head.startswith(NPY_MAGIC):
+        raise DataError(f"{name}: not a {what}: it is a single .npy array, expected a .npz archive")
+    if head.startswith(NPZ_MAGIC):
+        raise DataError(f"{name}: not a {what}: it is a .npz archive, expected a single .npy array")
+    raise DataError(f"{name}: not a {what}: not a {'.npz archive' if npz else '.npy array'} "
+                    f"(starts with {head[:4]!r})")
+
+
+def unreadable(name: str, what: str, exc: Exception) -> DataError:
+    """The error for a .npy/.npz that numpy cannot read: pickled objects refused, else truncated or corrupt."""
+    if isinstance(exc, ValueError) and ("allow_pickle" in str(exc) or "Object arrays" in str(exc)):
+        return DataError(f"{name}: holds a pickled Python object; a {what} must be a plain array "
+                         "(refusing to unpickle)")
+    return DataError(f"{name}: not a readable {what} (truncated or corrupt: {exc})")
+
+
+def read_npy(path: str, what: str) -> np.ndarray:
+    """One ``.npy`` array without pickle; a missing, foreign, truncated or pickled file raises DataError."""
+    if not os.path.exists(path):
+        raise DataError(f"{path}: no such file")
+    _sniff(path, path, what, npz=False)
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise unreadable(path, what, exc) from None
+
+
+def read_npz(path: str, what: str = WHAT) -> dict[str, np.ndarray]:
     """All arrays of a ``.npz`` without pickle; corrupt, truncated or pickled files raise DataError."""
     name = "<stdin>" if path == "-" else path
     src = open_input_bytes(path)
+    _sniff(src, name, what)
     try:
         with np.load(src, allow_pickle=False) as npz:
             arrays = {}

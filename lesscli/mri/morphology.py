@@ -5,11 +5,8 @@
 - Inclusions: the opening of the remaining silicone by a ball thicker than the thickest pillar and
   skin (radius ``max(pillar, skin) / 2`` plus a quarter voxel): compact bodies survive, thin ones
   vanish; the rim (one voxel) that the opening shaves off a noisy sphere is given back.
-- Pillars: what is left, per connected component, if it is a thin elongated column (second principal
-  standard deviation of a solid cylinder of the largest allowed diameter, plus half a voxel) running
-  along the insert axis (its smallest principal direction: the inserts are wider than tall); its foot
-  is then restored into the shell, down to the base. A column touching no inclusion is kept as pillar
-  with a warning.
+- Pillars: traced from each inclusion towards the base along the insert axis
+  (:mod:`lesscli.mri.pillar`); an inclusion without one gets a warning.
 - Everything else (the skin, partial-volume speckle) stays insert.
 
 Openings and dilations use Euclidean distance transforms with the voxel spacing, so balls are round
@@ -22,16 +19,20 @@ import math
 
 import numpy as np
 
+from lesscli.mri.pillar import find_pillars
+
 SHELL_VOXELS = 1.5              # shell thickness along the insert surface, in (largest) voxels
-ELONGATION = 1.5                # first / second principal std of a column
-MIN_PILLAR_LENGTH_VOXELS = 4.0  # shorter remnants are speckle
-RIM_VOXELS = 1.0                # rim given back to each inclusion after the opening, in voxels
-MAX_PILLAR_TILT_DEG = 30.0      # a pillar runs along the insert axis, within this angle
+RIM_VOXELS = 1.0                # an inclusion's surface moves at most this far from the opening, in voxels
+JUNCTION_STEPS = 4
+LEVEL_VOXELS = (2.0, 4.0)       # the filling's level is measured this far outside an inclusion, in voxels
 AXIS_SAMPLES = 200_000
 BALL_MARGIN_VOXELS = 0.25       # the opening ball's radius exceeds the thickest pillar's by this
+BOUNDARY_VOXELS = (1.0, 2.5)    # the layer around a body in which its surroundings are measured
+MAX_BOUNDARY_SILICONE = 0.3     # an inclusion lies in the filling; more silicone around: a pillar's foot, a corner
 
 
-def _crop(mask: np.ndarray, pad: int) -> tuple[slice, ...]:
+def crop_box(mask: np.ndarray, pad: int) -> tuple[slice, ...]:
+    """The bounding box of ``mask`` widened by ``pad`` voxels (clipped to the array)."""
     idx = np.argwhere(mask)
     lo = np.maximum(idx.min(axis=0) - pad, 0)
     hi = np.minimum(idx.max(axis=0) + pad + 1, mask.shape)
@@ -67,56 +68,84 @@ def insert_axis(insert: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     return _principal(idx * spacing)[1][:, 2]
 
 
-def _is_column(coords_mm: np.ndarray, max_diameter_mm: float, voxel_mm: float, axis: np.ndarray) -> bool:
-    """A thin elongated body running along the insert axis."""
-    stds, vectors = _principal(coords_mm)
-    length_mm = stds[0] * math.sqrt(12.0)          # std of a uniform segment of that length
-    return bool(stds[1] <= max_diameter_mm / 4 + 0.5 * voxel_mm and stds[0] >= ELONGATION * stds[1]
-                and length_mm >= MIN_PILLAR_LENGTH_VOXELS * voxel_mm
-                and abs(float(vectors[:, 0] @ axis)) >= math.cos(math.radians(MAX_PILLAR_TILT_DEG)))
-
-
-def _pillars(rest: np.ndarray, inclusion: np.ndarray, spacing: np.ndarray, max_diameter_mm: float,
-             axis: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, list[str], set[int]]:
-    """Column components of ``rest``; warnings for columns not touching an inclusion; touched inclusion ids."""
+def _in_filling(bodies: np.ndarray, silicone: np.ndarray, insert: np.ndarray, spacing: np.ndarray) -> np.ndarray:
+    """The bodies mostly surrounded by filling: silicone covers at most MAX_BOUNDARY_SILICONE of the layer
+    BOUNDARY_VOXELS around each (inside the insert; a voxel away, so that the body's own rim does not
+    count); thick spots where a pillar meets the base, or skin meets skin in a corner, are surrounded by
+    silicone on one side."""
     from scipy import ndimage
-    from skimage.measure import label, regionprops
 
-    voxel_mm = float(spacing.max())
-    inc_ids, _ = ndimage.label(inclusion)
-    near = ndimage.grey_dilation(inc_ids, size=3)
-    pillar = np.zeros(rest.shape, dtype=bool)
-    warnings, touched = [], set()
-    for region in regionprops(label(rest, connectivity=1)):
-        coords = region.coords
-        if not _is_column(coords * spacing, max_diameter_mm, voxel_mm, axis):
+    comps, n = ndimage.label(bodies)
+    keep = np.zeros(bodies.shape, dtype=bool)
+    gap, reach = (v * float(spacing.max()) for v in BOUNDARY_VOXELS)
+    pad = int(np.ceil(reach / float(spacing.min()))) + 1
+    for i, sl in enumerate(ndimage.find_objects(comps), start=1):
+        box = tuple(slice(max(a.start - pad, 0), a.stop + pad) for a in sl)
+        own = comps[box] == i
+        dist = ndimage.distance_transform_edt(~own, sampling=spacing)
+        near = (dist > gap) & (dist <= reach) & insert[box]
+        if near.any() and float(silicone[box][near].mean()) <= MAX_BOUNDARY_SILICONE:
+            keep[box] |= own
+    return keep
+
+
+def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray, spacing: np.ndarray,
+                   reach_mm: float) -> np.ndarray:
+    """Each body's surface at half-way between its own interior level and the filling's level around it.
+
+    The opening leaves a body's surface where the global threshold put it, up to the roughness that
+    noise gives; here each inclusion is re-thresholded with its local contrast, within ``reach_mm`` of it.
+    """
+    from scipy import ndimage
+
+    comps, _n = ndimage.label(bodies)
+    out = np.zeros(bodies.shape, dtype=bool)
+    voxel = float(spacing.max())
+    pad = int(np.ceil(LEVEL_VOXELS[1] * voxel / float(spacing.min()))) + 1
+    for i, sl in enumerate(ndimage.find_objects(comps), start=1):
+        box = tuple(slice(max(a.start - pad, 0), a.stop + pad) for a in sl)
+        own, frac = comps[box] == i, fraction[box]
+        outside = ndimage.distance_transform_edt(~own, sampling=spacing)
+        inside = ndimage.distance_transform_edt(own, sampling=spacing)
+        interior = own & (inside > voxel) if (own & (inside > voxel)).any() else own
+        ring = allowed[box] & (outside > LEVEL_VOXELS[0] * voxel) & (outside <= LEVEL_VOXELS[1] * voxel)
+        if not ring.any():
+            out[box] |= own
             continue
-        hit = set(np.unique(near[tuple(coords.T)]).tolist()) - {0}
-        pillar[tuple(coords.T)] = True
-        if not hit:
-            centre = (np.round(coords.mean(axis=0)).astype(int) + offset).tolist()
-            warnings.append(f"pillar not connected: a silicone column near voxel {centre} touches no inclusion")
-        touched |= hit
-    return pillar, warnings, touched
+        level = 0.5 * (float(np.median(frac[interior])) + float(np.median(frac[ring])))
+        out[box] |= (outside <= reach_mm) & allowed[box] & (frac > level)
+    return out
 
 
-def _unanchored(pillar: np.ndarray, depth: np.ndarray, reach_mm: float, offset: np.ndarray) -> list[str]:
-    """Warnings for pillar components that stop short of the insert's surface (the base)."""
+def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray) -> np.ndarray:
+    """The ``pillar`` voxels inside the sphere of each body's centroid and volume.
+
+    Where a pillar meets an inclusion the image shows one silicone body; the inclusion's surface is
+    continued across the pillar as the sphere of the same volume and centre (the body plus the pillar
+    voxels inside that sphere, found by a few fixed-point steps).
+    """
     from scipy import ndimage
 
-    comps, n = ndimage.label(pillar)
-    if n == 0:
-        return []
-    lowest = ndimage.minimum(depth, comps, index=np.arange(1, n + 1))
-    out = []
-    for i in np.flatnonzero(np.asarray(lowest) > reach_mm) + 1:
-        centre = (np.round(ndimage.center_of_mass(comps == i)).astype(int) + offset).tolist()
-        out.append(f"pillar not connected to the base: the pillar near voxel {centre} stops inside the insert")
+    comps, _n = ndimage.label(bodies)
+    out = np.zeros(bodies.shape, dtype=bool)
+    cand = np.argwhere(pillar)
+    if not len(cand):
+        return out
+    cand_mm, voxel_mm3 = cand * spacing, float(np.prod(spacing))
+    for i, sl in enumerate(ndimage.find_objects(comps), start=1):
+        own_mm = (np.argwhere(comps[sl] == i) + [s.start for s in sl]) * spacing
+        inside = np.zeros(len(cand), dtype=bool)
+        for _ in range(JUNCTION_STEPS):
+            centre = (own_mm.sum(axis=0) + cand_mm[inside].sum(axis=0)) / (len(own_mm) + inside.sum())
+            radius = (3.0 * (len(own_mm) + inside.sum()) * voxel_mm3 / (4 * math.pi)) ** (1 / 3)
+            inside = np.sum((cand_mm - centre) ** 2, axis=1) <= radius ** 2
+        out[tuple(cand[inside].T)] = True
     return out
 
 
 def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_max_diameter_mm: float,
-                   skin_max_thickness_mm: float) -> tuple[np.ndarray, np.ndarray, list[str]]:
+                   skin_max_thickness_mm: float,
+                   fraction: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Pillar and inclusion masks from the silicone mask of an insert.
 
     Args:
@@ -125,6 +154,8 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
         spacing_mm: (3,) voxel size per axis.
         pillar_max_diameter_mm: thickest pillar.
         skin_max_thickness_mm: thickest skin.
+        fraction: float image of the silicone fraction (0 hydrogel, 1 silicone) for tracing pillars;
+            None uses the silicone mask itself.
 
     Returns:
         (pillar mask, inclusion mask, warnings), masks of the input's shape.
@@ -137,7 +168,7 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     inclusion_full = np.zeros(insert.shape, dtype=bool)
     if not silicone.any():
         return pillar_full, inclusion_full, ["no inclusion found (no silicone inside the insert)"]
-    box = _crop(insert, 2)
+    box = crop_box(insert, 2)
     # one voxel of padding: the distance transforms must see air beyond a scan's border too
     sil, ins = np.pad(silicone[box], 1), np.pad(insert[box], 1)
     voxel_mm = float(spacing.max())
@@ -151,20 +182,17 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     comps = label(opened, connectivity=1)
     sizes = np.bincount(comps.ravel())
     keep = np.flatnonzero(sizes >= min_voxels)
-    inclusion = np.isin(comps, keep[keep > 0])
-    if inclusion.any():     # give back the rim an opening shaves off a noisy, barely larger sphere
-        inclusion |= core & (ndimage.distance_transform_edt(~inclusion, sampling=spacing) <= RIM_VOXELS * fine_mm)
+    frac = np.pad(fraction[box], 1) if fraction is not None else sil.astype(np.float32)
+    bodies = _in_filling(np.isin(comps, keep[keep > 0]), sil, ins, spacing)
     offset = np.array([b.start for b in box]) - 1              # padded crop -> input voxel index
-    pillar, warnings, touched = _pillars(core & ~inclusion, inclusion, spacing, pillar_max_diameter_mm,
-                                         insert_axis(ins, spacing), offset)
-    if pillar.any():
-        reach = ndimage.distance_transform_edt(~pillar, sampling=spacing) <= shell_mm + voxel_mm
-        pillar |= sil & ~core & reach & ~inclusion
-        warnings += _unanchored(pillar, depth, shell_mm + voxel_mm, offset)
-    inc_ids, n_inclusions = ndimage.label(inclusion)
-    if n_inclusions == 0:
-        warnings.append("no inclusion found")
-    for i in sorted(set(range(1, n_inclusions + 1)) - touched):
+    inc_ids, n_inclusions = ndimage.label(bodies)
+    warnings = [] if n_inclusions else ["no inclusion found"]
+    pillar, missing, _side = find_pillars(frac, ins, inc_ids, n_inclusions, spacing, insert_axis(ins, spacing),
+                                          pillar_max_diameter_mm)
+    inclusion = _local_surface(bodies, frac, ins & (depth > shell_mm) & ~pillar, spacing, RIM_VOXELS * fine_mm)
+    inclusion |= _junctions(inclusion, pillar, spacing)
+    pillar &= ~inclusion
+    for i in missing:
         centre = (np.round(ndimage.center_of_mass(inc_ids == i)).astype(int) + offset).tolist()
         warnings.append(f"pillar not connected: no pillar found under the inclusion near voxel {centre}")
     inner = (slice(1, -1),) * 3

@@ -8,7 +8,9 @@ import numpy as np
 
 from lesscli.io.labels import BACKGROUND, CLASS_NAMES, INCLUSION, INSERT, PILLAR
 
-OVERLAY_RGBA = {INSERT: (0.2, 0.5, 1.0, 0.25), PILLAR: (1.0, 0.6, 0.0, 0.7), INCLUSION: (1.0, 0.1, 0.1, 0.6)}
+OVERLAY_RGBA = {INSERT: (0.2, 0.5, 1.0, 0.25), INCLUSION: (1.0, 0.1, 0.1, 0.6)}
+OUTLINE_RGB = (1.0, 0.6, 0.0)           # pillar outline
+QC_DPI = 90
 
 
 def class_rows(labels: np.ndarray, affine: np.ndarray) -> list[dict]:
@@ -64,14 +66,29 @@ def warning_rows(warnings: list[str]) -> list[dict]:
 
 
 def _overlay(labels2d: np.ndarray) -> np.ndarray:
+    """RGBA fill of insert and inclusion (the pillar is outlined, not filled, so its intensity shows)."""
     rgba = np.zeros(labels2d.shape + (4,))
     for code, colour in OVERLAY_RGBA.items():
         rgba[labels2d == code] = colour
     return rgba
 
 
+def qc_centres(labels: np.ndarray) -> list[np.ndarray]:
+    """Voxel centres the QC planes pass through: each inclusion (largest first), else the insert's centre."""
+    from scipy import ndimage
+
+    comps, n = ndimage.label(labels == INCLUSION)
+    if n:
+        sizes = ndimage.sum_labels(np.ones(labels.shape), comps, np.arange(1, n + 1))
+        order = np.argsort(-np.asarray(sizes)) + 1
+        return [np.round(ndimage.center_of_mass(comps == i)).astype(int) for i in order]
+    body = labels != BACKGROUND
+    return [np.round(np.argwhere(body).mean(axis=0)).astype(int) if body.any() else np.array(labels.shape) // 2]
+
+
 def save_qc(path: str, image: np.ndarray, labels: np.ndarray, spacing_mm, title: str = "") -> None:
-    """PNG with three orthogonal slices (through the largest inclusion, else the insert) and the label overlay.
+    """PNG: for each inclusion a row of the three orthogonal planes through its centre, labels overlaid
+    (insert blue, inclusion red) and the pillar outlined in orange.
 
     Args:
         path: output .png (written atomically).
@@ -84,23 +101,29 @@ def save_qc(path: str, image: np.ndarray, labels: np.ndarray, spacing_mm, title:
 
     from lesscli.io.atomic import atomic_path
 
-    target = labels == INCLUSION if (labels == INCLUSION).any() else labels != BACKGROUND
-    centre = np.round(np.argwhere(target).mean(axis=0)).astype(int) if target.any() else np.array(labels.shape) // 2
     spacing = np.asarray(spacing_mm, dtype=np.float64)
     lo, hi = np.percentile(image, [1, 99.5])
-    fig, axes = plt.subplots(1, 3, figsize=(12, 4.5))
-    for ax, axis in zip(axes, range(3)):
-        keep = [a for a in range(3) if a != axis]
-        img2d = np.take(image, centre[axis], axis=axis)
-        lab2d = np.take(labels, centre[axis], axis=axis)
-        extent = (0, img2d.shape[1] * spacing[keep[1]], img2d.shape[0] * spacing[keep[0]], 0)
-        ax.imshow(img2d, cmap="gray", vmin=lo, vmax=hi, extent=extent, interpolation="nearest")
-        ax.imshow(_overlay(lab2d), extent=extent, interpolation="nearest")
-        ax.set_title(f"axis {axis} = {centre[axis]}")
-        ax.set_xlabel(f"axis {keep[1]} (mm)")
-        ax.set_ylabel(f"axis {keep[0]} (mm)")
-    fig.suptitle(title or "labels: blue insert, orange pillar, red inclusion")
+    centres = qc_centres(labels)
+    fig, axes = plt.subplots(len(centres), 3, figsize=(12, 4.2 * len(centres)), squeeze=False)
+    for row, centre in enumerate(centres):
+        for axis in range(3):
+            ax, keep = axes[row, axis], [a for a in range(3) if a != axis]
+            img2d, lab2d = np.take(image, centre[axis], axis=axis), np.take(labels, centre[axis], axis=axis)
+            h_mm, w_mm = img2d.shape[0] * spacing[keep[0]], img2d.shape[1] * spacing[keep[1]]
+            extent = (0, w_mm, h_mm, 0)
+            ax.imshow(img2d, cmap="gray", vmin=lo, vmax=hi, extent=extent, interpolation="nearest")
+            ax.imshow(_overlay(lab2d), extent=extent, interpolation="nearest")
+            pillar = (lab2d == PILLAR).astype(float)
+            if pillar.any():
+                xs = (np.arange(img2d.shape[1]) + 0.5) * spacing[keep[1]]
+                ys = (np.arange(img2d.shape[0]) + 0.5) * spacing[keep[0]]
+                ax.contour(xs, ys, pillar, levels=[0.5], colors=[OUTLINE_RGB], linewidths=1.2)
+            name = f"inclusion {row}" if (labels == INCLUSION).any() else "insert"
+            ax.set_title(f"{name}: axis {axis} = {centre[axis]}")
+            ax.set_xlabel(f"axis {keep[1]} (mm)")
+            ax.set_ylabel(f"axis {keep[0]} (mm)")
+    fig.suptitle(title or "labels: blue insert, orange outline pillar, red inclusion")
     fig.tight_layout()
     with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, dpi=90)
+        fig.savefig(tmp, dpi=QC_DPI)
     plt.close(fig)

@@ -67,15 +67,15 @@ def _load_nifti(path: str) -> MRIScan:
 def _load_numpy(path: str, spacing_mm) -> MRIScan:
     if spacing_mm is None:
         raise DataError(f"{path}: a .npy/.npz scan needs --spacing-mm dz,dy,dx")
-    try:
-        obj = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zlib.error) as exc:
-        raise DataError(f"{path}: not a readable numpy file ({exc})") from None
-    if isinstance(obj, np.lib.npyio.NpzFile):
-        keys = list(obj.keys())
-        if len(keys) != 1 and "image" not in keys:
-            raise DataError(f"{path}: expected one array (or one named 'image'), found {keys}")
-        obj = obj["image" if "image" in keys else keys[0]]
+    from lesscli.io.scans import read_npy, read_npz
+
+    if path.endswith(".npz"):
+        arrays = read_npz(path, what="numpy scan (.npz)")
+        if len(arrays) != 1 and "image" not in arrays:
+            raise DataError(f"{path}: expected one array (or one named 'image'), found {list(arrays)}")
+        obj = arrays["image" if "image" in arrays else next(iter(arrays))]
+    else:
+        obj = read_npy(path, "numpy scan (.npy)")
     return MRIScan(np.asarray(obj), zyx_affine((0.0, 0.0, 0.0), spacing_mm), path, "numpy")
 
 

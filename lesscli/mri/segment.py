@@ -14,8 +14,8 @@ Pipeline (:func:`segment`):
 6. which tissue is silicone: the minority tissue of the insert (the filling is hydrogel), so either
    contrast works;
 7. silicone morphology (:mod:`lesscli.mri.morphology`): inclusions = opening with a ball thicker
-   than any pillar or skin; pillars = thin elongated silicone columns touching an inclusion; the
-   rest of the silicone (the skin shell) stays insert.
+   than any pillar or skin; pillars traced from each inclusion to the base in the silicone fraction
+   image (:mod:`lesscli.mri.pillar`); the rest of the silicone (skin, base) stays insert.
 """
 
 from __future__ import annotations
@@ -35,6 +35,11 @@ MAD_TO_SIGMA = 1.4826
 SPREAD_EPS = 1e-6
 HIST_SAMPLES = 400_000          # voxels used for histograms and fits
 SAMPLE_SEED = 0                 # fixed subsampling: the segmentation is deterministic
+SURFACE_BAND_VOXELS = 1.5       # the outer surface is re-decided this close to it
+SURFACE_LAYER_VOXELS = 1.0      # the tissue level is read in a layer from this deep (past the partial volume)
+SURFACE_LAYER_MM = 1.0          # ... this thick
+SURFACE_SIGMA_MM = 3.0          # ... averaged along the surface over this
+SURFACE_MIN_WEIGHT = 0.01       # band voxels with no layer nearby keep the global decision
 
 
 @dataclass(frozen=True)
@@ -145,6 +150,42 @@ def _topology(tissue: np.ndarray, spacing: np.ndarray, where: str) -> tuple[np.n
     return ndimage.binary_fill_holes(insert), warnings
 
 
+def _surface(corrected: np.ndarray, insert: np.ndarray, levels: tuple[float, float, float],
+             spacing: np.ndarray) -> np.ndarray:
+    """The insert's outer surface at half-way between the air and the tissue just inside it, locally.
+
+    The global air threshold sits half-way to the darker tissue; where the surface is the brighter one
+    (a silicone skin brighter than the filling), that is well below the partial-volume midpoint and the
+    insert would grow. Within SURFACE_BAND_VOXELS of the surface each voxel is compared with half-way
+    between the air and the tissue of the layer beneath (its level averaged over SURFACE_SIGMA_MM and
+    snapped to the nearer of the two tissue levels, so that partial volume does not blur the choice).
+
+    Args:
+        levels: (air, dark tissue, bright tissue) levels of ``corrected``.
+    """
+    from scipy import ndimage
+
+    from lesscli.mri.morphology import crop_box
+
+    air, dark, bright = levels
+    box = crop_box(insert, int(np.ceil(2 * SURFACE_BAND_VOXELS)) + 1)
+    ins, img = insert[box], corrected[box]
+    voxel = float(spacing.max())
+    inside = ndimage.distance_transform_edt(ins, sampling=spacing)
+    outside = ndimage.distance_transform_edt(~ins, sampling=spacing)
+    band_mm = SURFACE_BAND_VOXELS * voxel
+    layer = ins & (inside > SURFACE_LAYER_VOXELS * voxel) & (inside <= SURFACE_LAYER_VOXELS * voxel + SURFACE_LAYER_MM)
+    sigma = SURFACE_SIGMA_MM / spacing
+    weight = ndimage.gaussian_filter(layer.astype(np.float32), sigma)
+    level = ndimage.gaussian_filter(np.where(layer, img, 0.0).astype(np.float32), sigma) / np.maximum(weight, 1e-6)
+    band = ((ins & (inside <= band_mm)) | (~ins & (outside <= band_mm))) & (weight > SURFACE_MIN_WEIGHT)
+    tissue = np.where(np.abs(level - dark) <= np.abs(level - bright), dark, bright)
+    refined = np.where(band, img > 0.5 * (air + tissue), ins)
+    out = insert.copy()
+    out[box] = ndimage.binary_fill_holes(refined)
+    return out
+
+
 def _check_contrast(corrected: np.ndarray, insert: np.ndarray, where: str) -> None:
     inside, outside = _sample(corrected[insert]), _sample(corrected[~insert])
     spread = max(MAD_TO_SIGMA * float(np.median(np.abs(outside - np.median(outside)))), SPREAD_EPS)
@@ -188,17 +229,19 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     t_air, t_tissue = 0.5 * (air + dark), 0.5 * (dark + bright)
     insert, warnings = _topology(corrected > t_air, spacing, where)
     _check_contrast(corrected, insert, where)
+    insert = _surface(corrected, insert, (air, dark, bright), spacing)
     bright_mask = insert & (corrected > t_tissue)
     n_bright, n_insert = int(bright_mask.sum()), int(insert.sum())
     silicone_brighter = n_bright < n_insert - n_bright
     silicone = bright_mask if silicone_brighter else insert & ~bright_mask
+    sil_level, gel_level = (bright, dark) if silicone_brighter else (dark, bright)
+    fraction = (corrected - np.float32(gel_level)) / np.float32(sil_level - gel_level)
     pillar, inclusion, more = split_silicone(silicone, insert, spacing, params.pillar_max_diameter_mm,
-                                             params.skin_max_thickness_mm)
+                                             params.skin_max_thickness_mm, fraction)
     labels = np.full(arr.shape, BACKGROUND, dtype=np.uint8)
     labels[insert] = INSERT
     labels[pillar] = PILLAR
     labels[inclusion] = INCLUSION
-    levels = {"air": air, "silicone": bright if silicone_brighter else dark,
-              "hydrogel": dark if silicone_brighter else bright}
+    levels = {"air": air, "silicone": sil_level, "hydrogel": gel_level}
     return Segmentation(labels, spacing, silicone_brighter, levels, (t_air, t_tissue), corrected.astype(np.float32),
                         silicone, warnings + more)

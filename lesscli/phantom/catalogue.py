@@ -17,6 +17,7 @@ import os
 from collections.abc import Callable
 
 from lesscli.errors import DataError
+from lesscli.io.toml_files import read_toml
 from lesscli.phantom.geometry import Phantom, Pillar, Sphere
 
 FAMILY_ANGLE_DEG = {"C": 45.0, "D": 22.5}
@@ -114,10 +115,7 @@ def load_phantom_file(path: str) -> list[Phantom]:
         raise DataError(f"{path}: no such file")
     try:
         if path.endswith(".toml"):
-            import tomllib
-
-            with open(path, "rb") as fh:
-                doc = tomllib.load(fh)
+            doc = read_toml(path, "phantom set")
             unknown = set(doc) - {"phantom"}
             if unknown:
                 raise DataError(f"{path}: unknown top-level key '{min(unknown)}'; expected [[phantom]] tables")
@@ -125,7 +123,7 @@ def load_phantom_file(path: str) -> list[Phantom]:
         else:
             import json
 
-            with open(path) as fh:
+            with open(path, encoding="utf-8") as fh:
                 doc = json.load(fh)
             entries = doc if isinstance(doc, list) else doc.get("phantoms", [doc]) if isinstance(doc, dict) else doc
     except (ValueError, OSError) as exc:

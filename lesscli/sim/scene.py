@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 
 from lesscli.errors import DataError
 from lesscli.io.sensor import xela_uscu
+from lesscli.io.toml_files import read_toml
 from lesscli.phantom.catalogue import CATALOGUES, load_phantom_file
 from lesscli.phantom.geometry import DEFAULT_LABEL_SHAPE, Phantom, default_label_spacing
 from lesscli.phantom.randomised import RandomRanges, random_set
@@ -283,11 +284,5 @@ def parse_scene(doc: dict, where: str = "<scene>", base_dir: str = ".") -> Scene
 
 def load_scene(path: str, overrides: list[str] | tuple[str, ...] = ()) -> Scene:
     """Read, override and validate a scene file; errors name the file."""
-    if not os.path.exists(path):
-        raise DataError(f"{path}: no such scene file")
-    try:
-        with open(path, "rb") as fh:
-            doc = tomllib.load(fh)
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: not valid TOML ({exc})") from None
+    doc = read_toml(path, "scene file")
     return parse_scene(apply_overrides(doc, list(overrides), path), path, os.path.dirname(os.path.abspath(path)))

@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import os
 import tomllib
 import types
 import typing
 from dataclasses import dataclass, field
 
 from lesscli.errors import LessError
+from lesscli.io.toml_files import read_toml
 
 
 @dataclass
@@ -111,14 +111,7 @@ def load_config(cls, path: str | None = None, overrides: typing.Iterable[str] = 
     """Defaults, then a TOML file, then ``explicit`` (``{"section.field": value}``), then ``--set`` pairs."""
     cfg = cls()
     if path:
-        if not os.path.exists(path):
-            raise LessError(f"{path}: no such config file")
-        try:
-            with open(path, "rb") as fh:
-                data = tomllib.load(fh)
-        except tomllib.TOMLDecodeError as exc:
-            raise LessError(f"{path}: invalid TOML ({exc})")
-        cfg = from_dict(cls, data, where=path)
+        cfg = from_dict(cls, read_toml(path, "config file"), where=path)
     for key, value in (explicit or {}).items():
         if value is not None:
             _assign(cfg, key, value, "option")

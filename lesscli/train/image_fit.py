@@ -27,7 +27,7 @@ from lesscli.models.registry import lookup
 from lesscli.train import distributed
 from lesscli.train.checkpoint import load_checkpoint, load_representation, save_checkpoint
 from lesscli.train.config import LoopConfig, check_rules, to_dict
-from lesscli.train.loop import FitResult, fit
+from lesscli.train.loop import FitResult, data_identity, fit
 from lesscli.train.state_cache import CachedImager, cache_states, collate_states
 from lesscli.train.watch import Watch
 
@@ -234,7 +234,8 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
                             collate_fn=collate, output=output, config=config, norm_stats=stats, env=env,
                             resume=resume, history=[*(h for h in rep.get("history", []) if "epoch" not in h),
                                                     *(history or [])],
-                            watch=watch, val_fn=image_val_fn(cfg.loss, by_f1))
+                            watch=watch, val_fn=image_val_fn(cfg.loss, by_f1),
+                            data=data_identity(train, stats, names[0]))
     summary = {"output": output, "dim": cfg.image.dim, "decoder": dec["name"], "encoder": enc_cfg["name"],
                "frozen": not cfg.image.finetune, "trainable_parameters": sum(
                    p.numel() for p in model.parameters() if p.requires_grad),

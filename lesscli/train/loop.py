@@ -75,6 +75,13 @@ def rank(score: float | None, loss: float) -> tuple[float, float]:
     return (math.inf if score is None else -score, loss)
 
 
+def data_identity(scans, norm_stats: dict, name: str) -> dict:
+    """What ``--resume`` must find unchanged: the training data's content and its normalisation."""
+    h = hashlib.sha1(scans.fingerprint().encode())
+    h.update(json.dumps(norm_stats, sort_keys=True).encode())
+    return {"name": name, "fingerprint": h.hexdigest()[:16]}
+
+
 def side_paths(output: str) -> tuple[str, str]:
     """(last-epoch checkpoint, JSON-lines log) beside ``output``."""
     stem = output.removesuffix(".pt")
@@ -157,6 +164,12 @@ class _Trainer:
         if _strip(ckpt["config"]) != _strip(self.ckpt_info["config"]):
             raise TrainingError(f"{self.last_path}: its config differs from this run's; resume with the same options")
         extra = ckpt["extra"]
+        before, now = extra.get("data"), self.ckpt_info.get("data")
+        if before and now and before.get("fingerprint") != now.get("fingerprint"):
+            raise TrainingError(f"{self.last_path}: was trained on {before.get('name')} (data fingerprint "
+                                f"{before.get('fingerprint')}), but this run's {now['name']} differs "
+                                f"({now['fingerprint']}, data or normalisation); resume with the same data or "
+                                "start afresh without --resume")
         self.raw.load_state_dict(ckpt["model_state"])
         self.opt.load_state_dict(extra["optimizer"])
         self.sched.load_state_dict(extra["scheduler"])
@@ -246,8 +259,9 @@ class _Trainer:
             save_checkpoint(self.output, self.result.best_state, info["config"], info["norm_stats"],
                             [*info.get("history", []), *self.result.history], info.get("extra"))
             self.saved_any = True
-        extra = {"optimizer": self.opt.state_dict(), "scheduler": self.sched.state_dict(), "epoch": epoch, "step": self.step, "best_epoch": self.result.best_epoch,
-                 "best_loss": self.result.best_loss, "best_score": self.result.best_score}
+        extra = {"optimizer": self.opt.state_dict(), "scheduler": self.sched.state_dict(), "epoch": epoch,
+                 "step": self.step, "best_epoch": self.result.best_epoch, "best_loss": self.result.best_loss,
+                 "best_score": self.result.best_score, "data": info.get("data")}
         save_checkpoint(self.last_path, self.raw.state_dict(), info["config"], info["norm_stats"],
                         self.result.history, extra)
 
@@ -265,7 +279,7 @@ class _Trainer:
 def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, *, collate_fn, output: str,
         config: dict, norm_stats: dict, env: distributed.DistEnv | None = None, resume: bool = False,
         history: list | None = None, extra: dict | None = None, watch: Watch | None = None,
-        val_fn: ValFn | None = None, record_extra: dict | None = None) -> FitResult:
+        val_fn: ValFn | None = None, record_extra: dict | None = None, data: dict | None = None) -> FitResult:
     """Train ``model`` by minimising ``loss_fn`` and keep the best checkpoint.
 
     Args:
@@ -280,6 +294,8 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
         resume: continue from ``<stem>.last.pt``.
         watch: the epoch bar, batch bars and per-epoch callbacks (:class:`lesscli.train.watch.Watch`;
             default: nothing shown).
+        data: :func:`data_identity` of the training data, stored in ``<stem>.last.pt``; ``resume``
+            refuses a run whose data differs.
         val_fn: ``val_fn(model, loader, device) -> (mean loss, score)``, one pass over the validation
             loader (called in evaluation mode without gradients). A score (higher is better; None or
             NaN: none) selects the best epoch, ties broken by the loss. Default: :func:`loss_only`.
@@ -292,7 +308,7 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
         TrainingError: non-finite loss or gradient (names the epoch, batch and global step).
     """
     env = env or distributed.DistEnv()
-    info = {"config": config, "norm_stats": norm_stats, "history": history or [], "extra": extra}
+    info = {"config": config, "norm_stats": norm_stats, "history": history or [], "extra": extra, "data": data}
     watch = watch or Watch()
     trainer = _Trainer(model, loss_fn, cfg, env, output, info, watch)
     train_loader = _loader(train_set, cfg, collate_fn, env, True, trainer.data_gen)

@@ -14,7 +14,7 @@ from lesscli.models.registry import ENCODERS, lookup
 from lesscli.models.ssl_loss import ForcePredictor
 from lesscli.train import distributed
 from lesscli.train.config import PretrainConfig, check_pretrain_config, to_dict
-from lesscli.train.loop import EVAL_SEED, FitResult, fit
+from lesscli.train.loop import EVAL_SEED, FitResult, data_identity, fit
 from lesscli.train.watch import Watch
 
 
@@ -109,7 +109,7 @@ def pretrain(train: ScanSet, val: ScanSet | None, cfg: PretrainConfig, output: s
         if has_val else None
     result: FitResult = fit(model, ssl_loss_fn, train_set, val_set, cfg.train, collate_fn=collate, output=output,
                             config=config, norm_stats=stats, env=env, resume=resume, history=history,
-                            watch=watch, record_extra=baseline)
+                            watch=watch, record_extra=baseline, data=data_identity(train, stats, names[0]))
     summary = {"output": output, "model": cfg.model.name, "particles": model.encoder.n_particles,
                "parameters": sum(p.numel() for p in model.parameters()), "epochs": cfg.train.epochs,
                "best_epoch": result.best_epoch + 1, "best_loss": result.best_loss,

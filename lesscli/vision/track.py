@@ -35,7 +35,7 @@ from lesscli.vision.detect import (
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 GLOBAL_OUTLIER_PX = 2.0     # a frame whose global-tag corners sit this far from the median is left out of the fit
 ORTHO_TOL = 1e-3            # |R^T R - I| tolerance for a tag-to-sensor rotation
-
+UNREADABLE = "unreadable image"  # the note of a frame that could not be decoded
 
 @dataclass
 class Frame:
@@ -97,7 +97,7 @@ def _image_frames(folder: str, fps: float | None) -> Iterator[Frame]:
         raise DataError(f"{folder}: no timestamps.txt; give the frame rate with --fps")
     for i, name in enumerate(names):
         image = cv2.imread(os.path.join(folder, name), cv2.IMREAD_GRAYSCALE)
-        yield Frame(i, float(times[i]), name, image, "" if image is not None else "unreadable image")
+        yield Frame(i, float(times[i]), name, image, "" if image is not None else UNREADABLE)
 
 
 def _video_frames(path: str, fps: float | None) -> Iterator[Frame]:
@@ -252,11 +252,18 @@ def solve_frames(camera: Camera, detections: list[dict], opts: TrackOptions) -> 
 
 def track(path: str, camera: Camera, opts: TrackOptions, fps: float | None = None, edge_fit: bool = True,
           progress=None) -> list[dict]:
-    """Detect and solve every frame of ``path`` (folder or video); one row per frame."""
+    """Detect and solve every frame of ``path`` (folder or video); one row per frame.
+
+    Frames that cannot be read give rows with ``ok`` false; when no frame at all can be read the
+    input is not a usable recording and DataError says so.
+    """
     if opts.global_tag == opts.sensor_tag:
         raise DataError(f"the sensor and global tags must differ (both are id {opts.sensor_tag})")
     if opts.tag_size_mm <= 0:
         raise DataError(f"the tag size must be positive (got {opts.tag_size_mm} mm)")
     detector = TagDetector(opts.refine, camera=camera, edge_fit=edge_fit)
     detections = detect_all(iter_frames(path, fps), detector, camera, progress)
-    return list(solve_frames(camera, detections, opts))
+    rows = list(solve_frames(camera, detections, opts))
+    if rows and all(r.get("note") == UNREADABLE for r in rows):
+        raise DataError(f"{path}: none of the {len(rows)} frames could be read as an image (corrupt or not images)")
+    return rows

@@ -1,0 +1,297 @@
+"""Pillars: the thin silicone post between each inclusion and the base, traced along the insert axis.
+
+Nothing here assumes a pillar's diameter, intensity or which end of the insert the base is at. For
+each inclusion, the insert's voxels near the line through its centre along the insert axis are cut
+into slabs one voxel thick, on both sides of the inclusion. Per slab (``fraction``: 0 hydrogel, 1
+silicone):
+
+- the ring (an annulus around the core) gives the local background: hydrogel between the inclusion
+  and the base, silicone once the ring enters the base or the skin. The trace ends there, or where
+  the ring leaves the insert (a pillar standing on the insert's outer surface): that is the base
+  surface, placed where the ring crosses half-way;
+- the core's silicone in excess of the ring level, summed over the slab, is the pillar's cross-section
+  (mm^2). A sum is unchanged by partial volume and blur, so a pillar 1-2 voxels wide is measured as
+  well as a wide one, and no intensity threshold is involved;
+- the weighted centroid of the excess locates the pillar in the slab.
+
+The base is on the side where the inclusions together show more excess silicone (on the skin side
+there is none). On that side an inclusion has a pillar when the median cross-section exceeds a disc of
+``MIN_RADIUS_MM`` and ``NOISE_Z`` standard errors of the slab-to-slab scatter. The pillar is then the
+cylinder of the measured area around the straight line fitted to the slab centroids, from the
+inclusion down to the base surface.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+MIN_RADIUS_MM = 0.5             # thinner posts are not told apart from noise
+NOISE_Z = 3.0                   # median cross-section over its standard error
+CORE_MARGIN_VOXELS = 1.5        # the core reaches this far beyond the pillar (blur, partial volume)
+RING_GAP_VOXELS = 0.5
+RING_WIDTH_MM = 2.5
+HALF = 0.5                      # ring level / insert coverage at the base surface
+MAX_TILT = math.tan(math.radians(30.0))
+SHORT_GAP_SLABS = 2.5           # a closer base leaves too few slabs to measure a cross-section
+GAP_AXIS_MM = 0.75              # the voxels this close to the line decide whether a short gap holds a post
+MAD_TO_SIGMA = 1.4826
+MEDIAN_SE = 1.2533              # standard error of a median / (sigma / sqrt(n)) for normal scatter
+SCALE_EPS = 1e-3
+
+
+@dataclass
+class Trace:
+    """Slabs beyond one side of an inclusion, up to the base surface.
+
+    Attributes:
+        t_mm: (n,) slab centres, mm from the inclusion centre along the traced direction.
+        area_mm2: (n,) excess silicone cross-section per slab.
+        centroid_mm: (n, 2) lateral position of the excess per slab.
+        end_mm: the base surface (where the ring turns silicone or leaves the insert).
+    """
+
+    t_mm: np.ndarray
+    area_mm2: np.ndarray
+    centroid_mm: np.ndarray
+    end_mm: float
+
+    def median_area(self) -> float:
+        return float(np.median(self.area_mm2)) if len(self.area_mm2) else 0.0
+
+    def significant(self) -> bool:
+        """The median cross-section is a post, not noise."""
+        n = len(self.area_mm2)
+        med = self.median_area()
+        if med < math.pi * MIN_RADIUS_MM ** 2:
+            return False
+        if n < 3:
+            return True
+        scatter = MAD_TO_SIGMA * float(np.median(np.abs(self.area_mm2 - med)))
+        return med >= NOISE_Z * MEDIAN_SE * scatter / math.sqrt(n)
+
+
+@dataclass
+class _Column:
+    """Insert voxels near the line through one inclusion (flat arrays over the selected voxels)."""
+
+    index: tuple[np.ndarray, ...]
+    t: np.ndarray                   # mm along the axis from the inclusion centre
+    uv: np.ndarray                  # (n, 2) lateral mm
+    value: np.ndarray               # silicone fraction
+    inside: np.ndarray              # in the insert
+    free: np.ndarray                # in the insert and in no inclusion
+    other: np.ndarray               # in another inclusion
+    start: dict                     # direction sign -> t of the inclusion's surface along it
+
+
+def _basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    ref = np.eye(3)[int(np.argmin(np.abs(axis)))]
+    e1 = ref - (ref @ axis) * axis
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(axis, e1)
+
+
+def _column(fraction, insert, inc_ids, label, centre_mm, axis, spacing, reach_mm) -> _Column:
+    grids = [np.arange(n, dtype=np.float32) * np.float32(s) - np.float32(c)
+             for n, s, c in zip(fraction.shape, spacing, centre_mm)]
+    d = np.meshgrid(*grids, indexing="ij", sparse=True)
+    t = d[0] * np.float32(axis[0]) + d[1] * np.float32(axis[1]) + d[2] * np.float32(axis[2])
+    r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2] - t * t
+    index = np.nonzero(r2 <= reach_mm ** 2)
+    offsets = np.stack([d[k].ravel()[index[k]] for k in range(3)], axis=1).astype(np.float64)
+    e1, e2 = _basis(axis)
+    ids = inc_ids[index]
+    t_sel = t[index].astype(np.float64)
+    own = ids == label
+    start = {sign: float((sign * t_sel[own]).max()) if own.any() else 0.0 for sign in (1, -1)}
+    inside = insert[index]
+    return _Column(index, t_sel, np.stack([offsets @ e1, offsets @ e2], axis=1), fraction[index].astype(np.float64),
+                   inside, inside & (ids == 0), (ids != 0) & ~own, start)
+
+
+def _crossing(t: np.ndarray, level: np.ndarray, k: int) -> float:
+    """Where ``level`` crosses HALF between slab k-1 and slab k (linear), else slab k's centre."""
+    if k == 0 or level[k] == level[k - 1]:
+        return float(t[k])
+    w = (HALF - level[k - 1]) / (level[k] - level[k - 1])
+    return float(t[k - 1] + np.clip(w, 0.0, 1.0) * (t[k] - t[k - 1]))
+
+
+def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: tuple[float, float],
+           step_mm: float, voxel_mm3: float, contrast: tuple[float, float]) -> Trace:
+    """Slab profile beyond the inclusion on side ``sign``, around ``line`` = (offset (2,), slope (2,)).
+
+    ``contrast`` = (local hydrogel level, local silicone - hydrogel) of the fraction image.
+    """
+    half = contrast[0] + HALF * contrast[1]
+    st = sign * col.t
+    beyond = st > col.start[sign]
+    slab = np.floor((st - col.start[sign]) / step_mm).astype(np.int64)
+    rho = np.linalg.norm(col.uv - line[0] - st[:, None] * line[1], axis=1)
+    core, ring = rho <= core_mm, (rho > ring_mm[0]) & (rho <= ring_mm[1])
+    ts, areas, cents = [], [], []
+    levels, cover = [], []
+    for k in range(int(slab[beyond].max()) + 1 if beyond.any() else 0):
+        here = beyond & (slab == k)
+        ring_here = here & ring
+        ring_free = ring_here & col.free
+        if not ring_here.any() or not ring_free.any():
+            break
+        level = float(np.median(col.value[ring_free]))
+        cover.append(float(col.inside[ring_here].mean()))
+        levels.append(level)
+        ts.append(float(st[here].mean()))
+        if level > half or cover[-1] < HALF:
+            break
+        sel = here & core & col.free
+        excess = col.value[sel] - level
+        areas.append(float(excess.sum()) * voxel_mm3 / step_mm / contrast[1])
+        w = np.clip(excess, 0.0, None)
+        cents.append((w @ col.uv[sel]) / w.sum() if w.sum() > 0 else np.full(2, np.nan))
+    t_arr = np.asarray(ts)
+    if not ts:
+        end = col.start[sign]
+    elif levels[-1] > half:
+        end = _crossing(t_arr, (np.asarray(levels) - contrast[0]) / contrast[1], len(ts) - 1)
+    elif cover[-1] < HALF:
+        end = _crossing(t_arr, 1.0 - np.asarray(cover), len(ts) - 1)
+    else:
+        end = float(t_arr[-1]) + 0.5 * step_mm
+    n = len(areas)
+    return Trace(t_arr[:n], np.asarray(areas), np.asarray(cents).reshape(n, 2), end)
+
+
+def _fit_line(trace: Trace, fallback: np.ndarray) -> np.ndarray:
+    """(offset, slope) of the lateral position against t, weighted by the excess; slope bounded."""
+    ok = np.isfinite(trace.centroid_mm[:, 0]) & (trace.area_mm2 > 0)
+    if ok.sum() == 0:
+        return fallback
+    w, t, c = trace.area_mm2[ok], trace.t_mm[ok], trace.centroid_mm[ok]
+    if ok.sum() < 3:
+        return np.stack([(w @ c) / w.sum(), np.zeros(2)])
+    a = np.column_stack([np.ones_like(t), t]) * np.sqrt(w)[:, None]
+    sol = np.linalg.lstsq(a, c * np.sqrt(w)[:, None], rcond=None)[0]
+    slope = np.clip(sol[1], -MAX_TILT, MAX_TILT)
+    return np.stack([sol[0], slope])
+
+
+def _inner(trace: Trace) -> Trace:
+    """Leave out the slab next to the inclusion and, from 3 slabs, the one next to the base (partial volume)."""
+    n = len(trace.area_mm2)
+    if n < 2:
+        return trace
+    keep = slice(1, n - 1 if n >= 3 else n)
+    return Trace(trace.t_mm[keep], trace.area_mm2[keep], trace.centroid_mm[keep], trace.end_mm)
+
+
+def _short_gap(trace: Trace, col: _Column, sign: int, step_mm: float) -> bool:
+    """The base lies within SHORT_GAP_SLABS slabs of the inclusion: too close for cross-sections."""
+    return trace.end_mm - col.start[sign] <= SHORT_GAP_SLABS * step_mm
+
+
+def _gap_radius(col: _Column, sign: int, end_mm: float, contrast: tuple[float, float], core_mm: float,
+                step_mm: float, voxel_mm3: float, found: dict) -> float | None:
+    """Radius of the post across a short gap between an inclusion and the base, or None (no post).
+
+    Along the line the gap holds silicone (the inclusion seen reaching the base counts) or not; the
+    radius is the median of the scan's measured pillars, else the area of the core's silicone in the gap.
+    """
+    st = sign * col.t
+    gap = col.free & (st > col.start[sign]) & (st <= end_mm)
+    rho = np.linalg.norm(col.uv, axis=1)
+    axis_voxels = gap & (rho <= GAP_AXIS_MM)
+    half = contrast[0] + HALF * contrast[1]
+    if axis_voxels.any() and float(np.median(col.value[axis_voxels])) <= half:
+        return None
+    if found:
+        return float(np.median([r for _line, r, _end in found.values()]))
+    in_core = gap & (rho <= core_mm)
+    length = max(end_mm - col.start[sign], step_mm)
+    area = float((col.value[in_core] > half).sum()) * voxel_mm3 / length
+    return math.sqrt(area / math.pi) if area >= math.pi * MIN_RADIUS_MM ** 2 else None
+
+
+def _contrast(fraction: np.ndarray, inc_ids: np.ndarray, label: int, col: _Column, ring_mm,
+              spacing) -> tuple[float, float]:
+    """(hydrogel level, silicone - hydrogel): the inclusion's interior against the column's ring."""
+    from scipy import ndimage
+
+    sl = ndimage.find_objects(inc_ids, max_label=label)[label - 1]
+    own = np.pad(inc_ids[sl] == label, 1)
+    depth = ndimage.distance_transform_edt(own, sampling=spacing)[1:-1, 1:-1, 1:-1]
+    interior = (depth > float(spacing.max())) if (depth > float(spacing.max())).any() else own[1:-1, 1:-1, 1:-1]
+    silicone = float(np.median(fraction[sl][interior]))
+    rho = np.linalg.norm(col.uv, axis=1)
+    ring = col.free & (rho > ring_mm[0]) & (rho <= ring_mm[1])
+    hydrogel = float(np.median(col.value[ring])) if ring.any() else 0.0
+    return hydrogel, max(silicone - hydrogel, SCALE_EPS)
+
+
+def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, n_inclusions: int,
+                 spacing_mm, axis: np.ndarray, max_diameter_mm: float) -> tuple[np.ndarray, list[int], int]:
+    """The pillar under each inclusion, traced towards the base.
+
+    Args:
+        fraction: 3D float silicone fraction (0 hydrogel, 1 silicone; bias-corrected, any smoothing).
+        insert: bool mask of the insert (holes filled); inc_ids: int labels 1..n of the inclusions.
+        n_inclusions: number of inclusion labels.
+        spacing_mm: (3,) voxel size per axis.
+        axis: (3,) unit insert axis (array-axis components of mm vectors), either sign.
+        max_diameter_mm: thickest pillar (sizes the search around each inclusion's line).
+
+    Returns:
+        (pillar mask, labels of the inclusions without a pillar, base side: +1 along ``axis``, -1 against).
+    """
+    spacing = np.asarray(spacing_mm, dtype=np.float64)
+    pillar = np.zeros(insert.shape, dtype=bool)
+    if n_inclusions == 0:
+        return pillar, [], 1
+    from scipy import ndimage
+
+    voxel = float(spacing.max())
+    step, voxel_mm3 = float(np.abs(axis) @ spacing), float(np.prod(spacing))
+
+    def rings(core):
+        inner = core + RING_GAP_VOXELS * voxel
+        return inner, inner + max(RING_WIDTH_MM, 2 * voxel)
+
+    core0 = 0.5 * max_diameter_mm + CORE_MARGIN_VOXELS * voxel
+    labels = list(range(1, n_inclusions + 1))
+    centres = np.asarray(ndimage.center_of_mass(inc_ids > 0, inc_ids, labels)).reshape(-1, 3) * spacing
+    columns, contrasts, traces = {}, {}, {}
+    for label, centre in zip(labels, centres):
+        col = _column(fraction, insert, inc_ids, label, centre, axis, spacing, rings(core0)[1])
+        columns[label], contrasts[label] = col, _contrast(fraction, inc_ids, label, col, rings(core0), spacing)
+        for sign in (1, -1):
+            traces[label, sign] = _trace(col, sign, np.zeros((2, 2)), core0, rings(core0), step, voxel_mm3,
+                                         contrasts[label])
+    side = 1 if sum(_inner(traces[k, 1]).median_area() - _inner(traces[k, -1]).median_area()
+                    for k in labels) >= 0 else -1
+    found, short, missing = {}, [], []
+    for label in labels:
+        first = _inner(traces[label, side])
+        if not first.significant():
+            (short if _short_gap(traces[label, side], columns[label], side, step) else missing).append(label)
+            continue
+        col, line = columns[label], _fit_line(first, np.zeros((2, 2)))
+        core = min(core0, math.sqrt(first.median_area() / math.pi) + CORE_MARGIN_VOXELS * voxel)
+        second = _trace(col, side, line, core, rings(core), step, voxel_mm3, contrasts[label])
+        final = _inner(second) if len(second.area_mm2) else first
+        found[label] = (line, min(math.sqrt(max(final.median_area(), 0.0) / math.pi), core), second.end_mm)
+    for label in short:                 # too close to the base to measure: silicone across the gap, or none
+        col, end = columns[label], traces[label, side].end_mm
+        radius = _gap_radius(col, side, end, contrasts[label], core0, step, voxel_mm3, found)
+        if radius is None:
+            missing.append(label)
+        else:
+            found[label] = (np.zeros((2, 2)), radius, end)
+    for label, (line, radius, end) in found.items():
+        col = columns[label]
+        st = side * col.t
+        rho = np.linalg.norm(col.uv - line[0] - st[:, None] * line[1], axis=1)
+        sel = col.inside & ~col.other & (rho <= radius) & (st >= 0) & (st <= end)
+        pillar[tuple(i[sel] for i in col.index)] = True
+    return pillar, sorted(missing), side

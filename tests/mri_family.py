@@ -1,0 +1,220 @@
+"""An MRI-like phantom family for testing `less mri-label`, written apart from `lesscli.mri.synth`.
+
+Own geometry (signed distances in mm, no `lesscli.phantom`) and own image model, so that the
+segmentation is tested on volumes it was not developed with:
+
+- an octagonal insert (``width_mm`` across flats, ``height_mm`` tall) with a silicone skin on top and
+  on the sides and a thicker silicone base, filled with hydrogel; 1-3 spherical inclusions, each on a
+  cylindrical pillar standing on the base (``pillar_height_mm`` from the base to the sphere's bottom);
+- posed with the base down or up along array axis 0 and an arbitrary rotation about it, shifted;
+- partial volume from the signed distance: a voxel's fill is a linear ramp over its width measured
+  along the surface normal (the box projected on the normal), then a slight Gaussian blur;
+- a smooth multiplicative bias ``exp(b g)``: g is a linear ramp plus two broad Gaussian bumps scaled to
+  [-1, 1] (not a polynomial and not cosines);
+- Rician noise ``|s + n1 + i n2|`` with sigma relative to the brighter tissue.
+
+The truth classifies voxel centres: inclusion inside a sphere, pillar inside a cylinder and inside the
+hydrogel cavity (its foot in the base stays insert), insert inside the octagonal prism.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+AIR, INSERT, PILLAR, INCLUSION = 0, 1, 2, 3
+MIN_GAP_MM = 2.0               # between inclusions, and from an inclusion to the skin
+PLACEMENT_TRIES = 400
+
+
+@dataclass(frozen=True)
+class Case:
+    """One volume of the family (lengths in mm; spacing per array axis 0, 1, 2 with axis 0 the insert axis;
+    ``pillar_mm`` 0: the inclusions float without pillars)."""
+
+    seed: int
+    spacing_mm: tuple[float, float, float] = (0.7, 0.7, 0.9)
+    inclusion_mm: tuple[float, ...] = (12.0,)
+    pillar_mm: float = 3.0
+    pillar_height_mm: tuple[float, ...] = (6.0,)
+    base_up: bool = False
+    silicone_brighter: bool = False
+    noise: float = 0.05
+    bias: float = 0.25
+    yaw_deg: float | None = None
+    width_mm: float = 62.0
+    skin_mm: float = 2.5
+    base_mm: float = 3.0
+
+
+@dataclass
+class Volume:
+    """A generated scan: image and truth (array axes 0, 1, 2), spacing, and the drawn layout."""
+
+    image: np.ndarray
+    truth: np.ndarray
+    spacing_mm: np.ndarray
+    centres_index: np.ndarray       # (n, 3) inclusion centres as (fractional) array indices
+    height_mm: float
+    case: Case
+
+
+def _octagon_sd(x: np.ndarray, y: np.ndarray, apothem: float) -> np.ndarray:
+    """Signed distance (exact inside, close outside) to a regular octagon with flats normal to x and y."""
+    c = math.sqrt(0.5)
+    faces = [np.abs(x), np.abs(y), np.abs(c * (x + y)), np.abs(c * (x - y))]
+    return np.maximum.reduce(faces) - apothem
+
+
+def _slab_sd(z: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    return np.maximum(lo - z, z - hi)
+
+
+def _layout(case: Case, rng: np.random.Generator) -> tuple[np.ndarray, float]:
+    """Inclusion centres (x, y, z mm) and the insert height that holds the tallest pillar plus sphere."""
+    radii = 0.5 * np.asarray(case.inclusion_mm, dtype=float)
+    heights = np.asarray(case.pillar_height_mm, dtype=float)
+    need = float(np.max(case.base_mm + heights + 2 * radii)) + MIN_GAP_MM + case.skin_mm
+    height = max(28.0, need) + float(rng.uniform(0.0, 4.0))
+    apothem = 0.5 * case.width_mm - case.skin_mm
+    for _ in range(PLACEMENT_TRIES):
+        xy = rng.uniform(-apothem, apothem, (len(radii), 2))
+        inside = _octagon_sd(xy[:, 0], xy[:, 1], apothem) <= -(radii + MIN_GAP_MM)
+        dist = np.linalg.norm(xy[:, None] - xy[None], axis=2) + np.eye(len(radii)) * 1e9
+        if inside.all() and (dist >= radii[:, None] + radii[None] + MIN_GAP_MM).all():
+            z = case.base_mm + heights + radii
+            return np.column_stack([xy, z]), height
+    raise ValueError(f"case {case}: could not place the inclusions")
+
+
+def _fill(sd: np.ndarray, spacing: np.ndarray) -> np.ndarray:
+    """Partial-volume fill in [0, 1] of each voxel from the signed distance at its centre (mm)."""
+    grads = np.gradient(sd, *spacing)
+    norm = np.sqrt(sum(g * g for g in grads))
+    safe = np.maximum(norm, 1e-6)
+    width = sum(np.abs(g) / safe * s for g, s in zip(grads, spacing))
+    width = np.where(norm > 0.1, width, float(np.mean(spacing)))
+    return np.clip(0.5 - sd / width, 0.0, 1.0)
+
+
+def _bias(points: list[np.ndarray], amplitude: float, rng: np.random.Generator) -> np.ndarray:
+    """exp(amplitude * g), g in [-1, 1]: a linear ramp and two broad Gaussian bumps."""
+    direction = rng.normal(size=3)
+    direction /= np.linalg.norm(direction)
+    g = sum(d * p for d, p in zip(direction, points)) / 40.0
+    for _ in range(2):
+        centre = rng.uniform(-30.0, 30.0, 3)
+        width = float(rng.uniform(25.0, 45.0))
+        r2 = sum((p - c) ** 2 for p, c in zip(points, centre))
+        g = g + float(rng.choice([-1.0, 1.0])) * np.exp(-r2 / (2 * width ** 2))
+    g = g - 0.5 * (g.max() + g.min())
+    return np.exp(amplitude * g / max(float(np.abs(g).max()), 1e-6))
+
+
+def generate(case: Case) -> Volume:
+    """Generate the scan and truth of ``case`` (deterministic in ``case.seed``)."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(case.seed)
+    centres, height = _layout(case, rng)
+    spacing = np.asarray(case.spacing_mm, dtype=float)
+    radius_xy = 0.5 * case.width_mm / math.cos(math.pi / 8)
+    margin = float(rng.uniform(3.0, 6.0))
+    extent = np.array([height, 2 * radius_xy, 2 * radius_xy]) + 2 * margin
+    shape = tuple(int(math.ceil(e / s)) for e, s in zip(extent, spacing))
+    grid = [(np.arange(n) - (n - 1) / 2) * s for n, s in zip(shape, spacing)]
+    a0, a1, a2 = np.meshgrid(*grid, indexing="ij", sparse=True)
+    yaw = math.radians(float(rng.uniform(0, 360)) if case.yaw_deg is None else case.yaw_deg)
+    shift = rng.uniform(-2.0, 2.0, 3)
+    c, s = math.cos(yaw), math.sin(yaw)
+    u, v = a2 - shift[2], a1 - shift[1]
+    x, y = c * u + s * v, -s * u + c * v                        # phantom x, y (rotation about axis 0)
+    z = (a0 - shift[0]) * (-1.0 if case.base_up else 1.0) + 0.5 * height
+    body = np.maximum(_octagon_sd(x, y, 0.5 * case.width_mm), _slab_sd(z, 0.0, height))
+    cavity = np.maximum(_octagon_sd(x, y, 0.5 * case.width_mm - case.skin_mm),
+                        _slab_sd(z, case.base_mm, height - case.skin_mm))
+    spheres = [np.sqrt((x - cx) ** 2 + (y - cy) ** 2 + (z - cz) ** 2) - r
+               for (cx, cy, cz), r in zip(centres, 0.5 * np.asarray(case.inclusion_mm))]
+    pillars = [np.maximum(np.sqrt((x - cx) ** 2 + (y - cy) ** 2) - 0.5 * case.pillar_mm,
+                          _slab_sd(z, case.base_mm - 1.0, cz)) for cx, cy, cz in centres] if case.pillar_mm > 0 else []
+    silicone = np.minimum.reduce([-cavity] + spheres + pillars)
+    truth = np.where(body <= 0, INSERT, AIR).astype(np.uint8)
+    if pillars:
+        truth[(np.minimum.reduce(pillars) <= 0) & (cavity <= 0) & (body <= 0)] = PILLAR
+    truth[(np.minimum.reduce(spheres) <= 0) & (body <= 0)] = INCLUSION
+    if case.silicone_brighter:
+        sil_level, gel_level = 1.0, float(rng.uniform(0.4, 0.6))
+    else:
+        sil_level, gel_level = float(rng.uniform(0.4, 0.6)), 1.0
+    f_body, f_sil = _fill(body, spacing), _fill(silicone, spacing)
+    image = f_body * (sil_level * f_sil + gel_level * (1.0 - f_sil))
+    image = ndimage.gaussian_filter(image, sigma=0.5)
+    image = image * _bias([a0, a1, a2], case.bias, rng)
+    sigma = case.noise * max(sil_level, gel_level)
+    real = image + rng.normal(0.0, sigma, shape)
+    imag = rng.normal(0.0, sigma, shape)
+    image = np.sqrt(real * real + imag * imag).astype(np.float32)
+    sign = -1.0 if case.base_up else 1.0
+    world = np.column_stack([(centres[:, 2] - 0.5 * height) * sign + shift[0],
+                             s * centres[:, 0] + c * centres[:, 1] + shift[1],
+                             c * centres[:, 0] - s * centres[:, 1] + shift[2]])
+    return Volume(image, truth, spacing, world / spacing + (np.asarray(shape) - 1) / 2, height, case)
+
+
+# Bands of the family: each parameter is drawn uniformly from its full range.
+RANGES = {
+    "pillar_mm": (1.5, 4.0), "pillar_height_mm": (1.0, 15.0), "inclusion_mm": (6.0, 16.0), "noise": (0.02, 0.1),
+    "bias": (0.1, 0.4), "spacing_mm": (0.4, 1.2),
+}
+
+
+def draw_case(seed: int) -> Case:
+    """A case with every parameter drawn from the family's ranges (seeded)."""
+    rng = np.random.default_rng([19, seed])
+    n = int(rng.integers(1, 4))
+    spacing = tuple(float(v) for v in np.round(rng.uniform(*RANGES["spacing_mm"], 2), 2))
+    return Case(seed=seed, spacing_mm=(spacing[0], spacing[1], spacing[1]) if rng.random() < 0.5
+                else (spacing[0], spacing[1], float(np.round(rng.uniform(*RANGES["spacing_mm"]), 2))),
+                inclusion_mm=tuple(float(v) for v in np.round(rng.uniform(*RANGES["inclusion_mm"], n), 1)),
+                pillar_mm=float(np.round(rng.uniform(*RANGES["pillar_mm"]), 2)),
+                pillar_height_mm=tuple(float(v) for v in np.round(rng.uniform(*RANGES["pillar_height_mm"], n), 1)),
+                base_up=bool(rng.random() < 0.5), silicone_brighter=bool(rng.random() < 0.5),
+                noise=float(np.round(rng.uniform(*RANGES["noise"]), 3)),
+                bias=float(np.round(rng.uniform(*RANGES["bias"]), 3)))
+
+
+def pillar_voxels_wide(case: Case) -> float:
+    """The pillar's diameter in voxels of the coarser in-plane spacing (axes 1 and 2)."""
+    return case.pillar_mm / max(case.spacing_mm[1], case.spacing_mm[2])
+
+
+def dice(a: np.ndarray, b: np.ndarray) -> float:
+    """Dice of two masks; 1.0 when both are empty."""
+    total = int(a.sum()) + int(b.sum())
+    return 1.0 if total == 0 else 2.0 * int((a & b).sum()) / total
+
+
+def scores(labels: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    """Dice per class of a segmentation against the truth."""
+    return {name: dice(labels == code, truth == code)
+            for code, name in ((INSERT, "insert"), (PILLAR, "pillar"), (INCLUSION, "inclusion"))}
+
+
+def inclusion_scores(labels: np.ndarray, volume: Volume) -> list[dict]:
+    """Per inclusion: Dice of inclusion and pillar in its cell (voxels nearer its centre across the axis).
+
+    The insert axis is array axis 0, so cells split the plane of axes 1 and 2 between the inclusions.
+    """
+    truth, spacing = volume.truth, volume.spacing_mm
+    a1, a2 = np.meshgrid(*(np.arange(k) * h for k, h in zip(truth.shape[1:], spacing[1:])), indexing="ij")
+    d2 = [(a1 - c[1] * spacing[1]) ** 2 + (a2 - c[2] * spacing[2]) ** 2 for c in volume.centres_index]
+    cell_of = np.argmin(np.stack(d2), axis=0)
+    rows = []
+    for k in range(len(volume.centres_index)):
+        cell = np.broadcast_to(cell_of == k, truth.shape)
+        rows.append({"inclusion_mm": volume.case.inclusion_mm[k], "pillar_height_mm": volume.case.pillar_height_mm[k],
+                     "dice_inclusion": dice((labels == INCLUSION) & cell, (truth == INCLUSION) & cell),
+                     "dice_pillar": dice((labels == PILLAR) & cell, (truth == PILLAR) & cell)})
+    return rows

@@ -1,0 +1,111 @@
+"""`less mri-label` on the independent MRI phantom family (tests/mri_family.py), table-driven.
+
+The rows span the family's ranges by design (pillar 1.5-4 mm wide and 1-15 mm tall, inclusions 6-16 mm,
+1-3 of them, base up or down, rotations, voxels 0.4-1.2 mm anisotropic, both contrasts, noise
+0.02-0.1, bias 0.1-0.4); their seeds are not among those the segmentation was tuned on (0-99 of
+``draw_case``). Acceptance: Dice insert >= 0.97, inclusion >= 0.93 and, where the pillar is at least 2
+voxels wide, pillar >= 0.80, per inclusion. The wide sweep behind README's table is
+``examples/mri_family.py``.
+"""
+
+from __future__ import annotations
+
+import json
+
+import nibabel as nib
+import numpy as np
+import pytest
+from mri_family import Case, generate, inclusion_scores, pillar_voxels_wide, scores
+
+from lesscli.mri.segment import segment
+
+MIN_DICE = {"insert": 0.97, "inclusion": 0.93, "pillar": 0.80}
+MIN_PILLAR_VOXELS = 2.0
+
+CASES = {
+    "fine-voxels-1.5mm-pillar-15mm-tall-6mm-dark-noisy-base-up": Case(
+        seed=500, spacing_mm=(0.45, 0.42, 0.42), inclusion_mm=(6.0,), pillar_mm=1.5, pillar_height_mm=(15.0,),
+        base_up=True, noise=0.1, bias=0.4),
+    "coarse-1.2mm-4mm-pillar-1mm-tall-16mm-bright": Case(
+        seed=501, spacing_mm=(1.2, 1.2, 1.2), inclusion_mm=(16.0,), pillar_mm=4.0, pillar_height_mm=(1.0,),
+        silicone_brighter=True, noise=0.02, bias=0.1),
+    "three-inclusions-anisotropic-bright-base-up": Case(
+        seed=502, spacing_mm=(1.2, 0.5, 0.8), inclusion_mm=(6.5, 11.0, 16.0), pillar_mm=2.5,
+        pillar_height_mm=(14.0, 8.0, 2.0), base_up=True, silicone_brighter=True, noise=0.06, bias=0.3, yaw_deg=37.0),
+    "two-inclusions-thick-slices-dark-noisy": Case(
+        seed=503, spacing_mm=(1.2, 0.6, 0.6), inclusion_mm=(8.0, 14.0), pillar_mm=3.0, pillar_height_mm=(3.0, 12.0),
+        noise=0.1, bias=0.25),
+    "2mm-pillar-2.2-voxels-strong-bias": Case(
+        seed=504, spacing_mm=(0.5, 0.9, 0.9), inclusion_mm=(12.0,), pillar_mm=2.0, pillar_height_mm=(6.0,),
+        noise=0.02, bias=0.4, yaw_deg=0.0),
+    "thin-pillar-under-2-voxels": Case(
+        seed=505, spacing_mm=(0.8, 1.2, 1.1), inclusion_mm=(10.0, 9.0), pillar_mm=1.6, pillar_height_mm=(5.0, 9.0),
+        silicone_brighter=True, base_up=True, noise=0.05, bias=0.2),
+}
+
+
+@pytest.fixture(scope="module")
+def results() -> dict:
+    """Each case generated and segmented once for the module."""
+    out = {}
+    for name, case in CASES.items():
+        vol = generate(case)
+        out[name] = (vol, segment(vol.image, vol.spacing_mm, where=name))
+    return out
+
+
+# Rows that miss the acceptance today, with why (strict: a row that starts passing must leave this list).
+SHORT_OF_ACCEPTANCE = {
+    "coarse-1.2mm-4mm-pillar-1mm-tall-16mm-bright": "a 1 mm pillar is under one 1.2 mm slice (pillar Dice 0.10); "
+                                                    "the bright skin's outer surface at 1.2 mm voxels (insert 0.961)",
+    "three-inclusions-anisotropic-bright-base-up": "6.5 mm inclusion at 1.2 mm slices (0.920); pillar cross-section "
+                                                   "overestimated under noise and a 2 mm pillar at 1.2 mm slices "
+                                                   "(0.75, 0.58)",
+    "two-inclusions-thick-slices-dark-noisy": "a 3 mm pillar at 1.2 mm slices whose base surface falls on a slice "
+                                              "centre: one slice too many (0.69)",
+}
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=SHORT_OF_ACCEPTANCE[n]))
+                                  if n in SHORT_OF_ACCEPTANCE else n for n in sorted(CASES)])
+def test_dice_meets_acceptance(results, name):
+    vol, seg = results[name]
+    assert scores(seg.labels, vol.truth)["insert"] >= MIN_DICE["insert"], name
+    wide = pillar_voxels_wide(vol.case) >= MIN_PILLAR_VOXELS
+    for row in inclusion_scores(seg.labels, vol):
+        assert row["dice_inclusion"] >= MIN_DICE["inclusion"], (name, row)
+        if wide:
+            assert row["dice_pillar"] >= MIN_DICE["pillar"], (name, row)
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_contrast_found_and_no_warnings(results, name):
+    vol, seg = results[name]
+    assert seg.silicone_brighter == vol.case.silicone_brighter
+    assert seg.warnings == []
+
+
+def test_inclusion_without_pillar_is_labelled_with_one_warning():
+    vol = generate(Case(seed=506, spacing_mm=(0.9, 0.8, 0.8), inclusion_mm=(9.0, 12.0), pillar_mm=0.0,
+                        pillar_height_mm=(4.0, 8.0), noise=0.05, bias=0.2))
+    seg = segment(vol.image, vol.spacing_mm, where="floating")
+    assert not (seg.labels == 2).any()
+    assert scores(seg.labels, vol.truth)["insert"] >= MIN_DICE["insert"]
+    assert len(seg.warnings) == 2 and all("no pillar found under the inclusion" in w for w in seg.warnings)
+    named = sorted(json.loads(w.split("near voxel ")[1]) for w in seg.warnings)
+    expected = sorted(np.round(vol.centres_index).astype(int).tolist())
+    assert np.abs(np.asarray(named) - np.asarray(expected)).max() <= 1
+
+
+def test_qc_shows_each_inclusion_with_the_pillar_outlined(run_less, tmp_path):
+    import matplotlib.image as mpimg
+
+    vol = generate(CASES["two-inclusions-thick-slices-dark-noisy"])
+    affine = np.diag([*vol.spacing_mm, 1.0])
+    nib.save(nib.Nifti1Image(vol.image, affine), tmp_path / "scan.nii.gz")
+    run_less("mri-label", "scan.nii.gz", "-o", "labels.nii.gz", "--plot", "qc.png", check=True)
+    png = mpimg.imread(tmp_path / "qc.png")
+    height, width = png.shape[:2]
+    assert abs(height / width - 2 * 4.2 / 12) < 0.02                # two rows of three planes
+    orange = (np.abs(png[..., 0] - 1.0) < 0.1) & (np.abs(png[..., 1] - 0.6) < 0.1) & (png[..., 2] < 0.1)
+    assert orange.sum() > 50                                         # the pillar outlines
