@@ -20,7 +20,7 @@ hydrogel cavity (its foot in the base stays insert), insert inside the octagonal
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -123,7 +123,7 @@ def generate(case: Case) -> Volume:
     radius_xy = 0.5 * case.width_mm / math.cos(math.pi / 8)
     margin = float(rng.uniform(3.0, 6.0))
     extent = np.array([height, 2 * radius_xy, 2 * radius_xy]) + 2 * margin
-    shape = tuple(int(math.ceil(e / s)) for e, s in zip(extent, spacing))
+    shape = tuple(math.ceil(e / s) for e, s in zip(extent, spacing))
     grid = [(np.arange(n) - (n - 1) / 2) * s for n, s in zip(shape, spacing)]
     a0, a1, a2 = np.meshgrid(*grid, indexing="ij", sparse=True)
     yaw = math.radians(float(rng.uniform(0, 360)) if case.yaw_deg is None else case.yaw_deg)

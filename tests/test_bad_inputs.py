@@ -208,7 +208,8 @@ def _raw_npz(path, arrays):
 
 
 def _npy_file(path):
-    np.save(open(path, "wb"), np.zeros(3))
+    with open(path, "wb") as fh:
+        np.save(fh, np.zeros(3))
     return path
 
 
@@ -560,7 +561,7 @@ LIVE_CASES = {
     "no pose": (json.dumps({"force": GOOD_FORCE}), "missing 'pose'"),
     "pose of 5": (json.dumps({"pose": [0] * 5, "force": GOOD_FORCE}), "'pose' has 5 values"),
     "pose strings": (json.dumps({"pose": ["a"] * 6, "force": GOOD_FORCE}), "'pose' must be"),
-    "pose NaN": ('{"pose": [NaN, 0, 0, 0, 0, 0], "force": %s}' % json.dumps(GOOD_FORCE), "finite"),
+    "pose NaN": (f'{{"pose": [NaN, 0, 0, 0, 0, 0], "force": {json.dumps(GOOD_FORCE)}}}', "finite"),
     "pose 1e308": (json.dumps({"pose": [1e308, 0, 0, 0, 0, 0], "force": GOOD_FORCE}), "beyond float32"),
     "pose empty": (json.dumps({"pose": [], "force": GOOD_FORCE}), "'pose' must be"),
     "force of 89": (json.dumps({"pose": [0] * 6, "force": [0.0] * 89}), "'force' has 89 values"),

@@ -4,6 +4,7 @@ import hashlib
 import http.server
 import json
 import threading
+import typing
 
 import pytest
 from published_fixture import write_archive
@@ -21,11 +22,11 @@ class Archive(http.server.BaseHTTPRequestHandler):
     overrides the bytes sent for a file (a corrupt copy); ``log`` records (path, Range header).
     """
 
-    records: dict = {}
-    files: dict = {}
-    served: dict = {}
-    cut: set = set()
-    log: list = []
+    records: typing.ClassVar[dict] = {}
+    files: typing.ClassVar[dict] = {}
+    served: typing.ClassVar[dict] = {}
+    cut: typing.ClassVar[set] = set()
+    log: typing.ClassVar[list] = []
 
     def log_message(self, *args):          # keep the test output clean
         pass
@@ -68,7 +69,8 @@ def _entry(base, name, data):
 @pytest.fixture
 def archive(tmp_path):
     """A running server and its base URL; record 101 holds dataset_poke.zip (first transfer cut)."""
-    zipped = open(write_archive(str(tmp_path / "src" / "dataset_poke.zip")), "rb").read()
+    with open(write_archive(str(tmp_path / "src" / "dataset_poke.zip")), "rb") as fh:
+        zipped = fh.read()
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Archive)
     base = f"http://127.0.0.1:{server.server_address[1]}"
     corrupt = bytearray(zipped)

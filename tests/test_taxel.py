@@ -8,6 +8,8 @@ import math
 import numpy as np
 import pytest
 import torch
+from factories import random_scanset
+from test_pretrain import tiny_cfg
 
 from lesscli.data.batching import Batch, compute_norm_stats
 from lesscli.errors import DataError
@@ -15,8 +17,6 @@ from lesscli.io.sensor import xela_uscu
 from lesscli.models.registry import ENCODERS, build_encoder
 from lesscli.models.taxel import TaxelParticleEncoder, taxel_xy
 from lesscli.train.pretrain import build_model, pretrain
-from factories import random_scanset
-from test_pretrain import tiny_cfg
 
 torch.set_num_threads(1)
 LAYOUT = xela_uscu()["taxel_xy_mm"]
@@ -223,6 +223,7 @@ def test_less_taxel_without_layout_is_a_clear_error():
 def test_cli_less_taxel_pretrain_fit_predict_round_trip(run_less, tmp_path):
     """Through the CLI: pretrain --model less-taxel, image fit --val (threshold chosen and stored), predict."""
     from imaging_factory import learnable_scanset
+
     from lesscli.io.scans import save_scans
 
     save_scans(str(tmp_path / "tr.npz"), learnable_scanset(3, seed=1))

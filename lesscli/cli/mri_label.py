@@ -4,8 +4,16 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import (LOG, checked_output, deprecated, format_option, orientation_list, output_option,
-                                renamed_option, seed_option)
+from lesscli.cli.common import (
+    LOG,
+    checked_output,
+    deprecated,
+    format_option,
+    orientation_list,
+    output_option,
+    renamed_option,
+    seed_option,
+)
 
 CONTRASTS = {"silicone-darker": False, "silicone-brighter": True}
 

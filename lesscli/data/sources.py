@@ -100,7 +100,7 @@ class ZipSource:
     def __init__(self, path: str) -> None:
         try:
             self.zip = zipfile.ZipFile(path)
-            self._fh = open(path, "rb")
+            self._fh = open(path, "rb")  # noqa: SIM115 (closed by close(); held for the life of the source)
         except (OSError, zipfile.BadZipFile) as exc:
             raise DataError(f"{path}: not a readable zip archive ({exc})") from None
         self.path = path

@@ -75,7 +75,7 @@ def _in_filling(bodies: np.ndarray, silicone: np.ndarray, insert: np.ndarray, sp
     silicone on one side."""
     from scipy import ndimage
 
-    comps, n = ndimage.label(bodies)
+    comps, _ = ndimage.label(bodies)
     keep = np.zeros(bodies.shape, dtype=bool)
     gap, reach = (v * float(spacing.max()) for v in BOUNDARY_VOXELS)
     pad = int(np.ceil(reach / float(spacing.min()))) + 1

@@ -19,8 +19,8 @@ import numpy as np
 
 from lesscli.errors import DataError
 from lesscli.io.records import read_jsonl
-from lesscli.plots.sweeps import save_png
 from lesscli.plots.render import agg_figure
+from lesscli.plots.sweeps import save_png
 
 PANEL_IN = (5.0, 3.6)
 
@@ -64,7 +64,7 @@ def summary(run: Run) -> dict:
     _, val = run.series("val_loss")
     _, f1 = run.series("val_score")
     _, ratio = run.ratio()
-    best = lambda a, f: float(f(a)) if len(a) else None  # noqa: E731 - one-line reducer
+    best = lambda a, f: float(f(a)) if len(a) else None
     return {"run": run.label, "file": run.path, "epochs": int(run.records[-1]["epoch"]),
             "last_train_loss": float(run.records[-1]["train_loss"]), "best_val_loss": best(val, np.min),
             "best_val_f1": best(f1, np.max), "best_force_ratio": best(ratio, np.min)}
