@@ -129,8 +129,9 @@ def test_samples_count_by_indentation():
     torch.testing.assert_close(weight, torch.full_like(weight, 2.0), atol=1e-4, rtol=0)
 
 
-def test_training_evaluation_and_streaming_steps_agree():
-    enc = _encoder()
+@pytest.mark.parametrize("contrast", ["step", "plane"])
+def test_training_evaluation_and_streaming_steps_agree(contrast):
+    enc = _encoder(map_contrast=contrast)
     gen = torch.Generator().manual_seed(5)
     pose, force = _inputs(gen, n=25)
     pose[:, :2] *= 3
@@ -149,9 +150,10 @@ def test_training_evaluation_and_streaming_steps_agree():
     torch.testing.assert_close(fixed.z[0], h, atol=1e-5, rtol=0)
 
 
-@pytest.mark.parametrize("case", ["zero_contact", "grazing", "no_force", "huge_force", "pad_above"])
-def test_hard_cases_stay_finite(case):
-    enc = _encoder()
+@pytest.mark.parametrize("contrast", ["step", "plane"])
+@pytest.mark.parametrize("case", ["zero_contact", "grazing", "no_force", "huge_force", "pad_above", "one_taxel"])
+def test_hard_cases_stay_finite(case, contrast):
+    enc = _encoder(map_contrast=contrast)
     gen = torch.Generator().manual_seed(2)
     pose, force = _inputs(gen)
     if case == "zero_contact":
@@ -162,6 +164,8 @@ def test_hard_cases_stay_finite(case):
         force.zero_()
     elif case == "huge_force":
         force *= 1e6
+    elif case == "one_taxel":                                           # a plane through one point
+        force[:, 3:] = 0.0
     else:
         pose[:, 2] = 8.0
         force.zero_()
@@ -171,6 +175,59 @@ def test_hard_cases_stay_finite(case):
     assert torch.isfinite(states.z).all() and torch.isfinite(pose.grad).all()
     if case in ("zero_contact", "no_force", "pad_above"):            # nothing pressed: an empty map
         assert float(states.z.detach()[..., enc.gru_dim:].abs().max()) == 0.0
+
+
+def _ramp_and_bump_step(bump: bool):
+    """One 2 mm press whose log stiffness rises linearly across the pad (as towards an insert's centre
+    from its soft edge), plus, with ``bump``, the 4 taxels nearest the pad centre 3x stiffer."""
+    xy = np.asarray(LAYOUT)
+    k = np.exp(0.08 * xy[:, 0] + 0.03 * xy[:, 1])
+    if bump:
+        k[np.argsort(np.hypot(xy[:, 0], xy[:, 1]))[:4]] *= 3.0
+    force = np.zeros((1, 30, 3))
+    force[0, :, 2] = k * 2.5
+    pose = torch.zeros(1, 6)
+    pose[0, 2] = -2.0
+    return pose, torch.tensor(force.reshape(1, 90), dtype=torch.float32), k
+
+
+@pytest.mark.parametrize("bump", [False, True])
+def test_plane_contrast_ignores_a_ramp_and_keeps_a_bump(bump):
+    pose, force, k = _ramp_and_bump_step(bump)
+    taxels = torch.tensor(LAYOUT, dtype=torch.float32)
+    log_k = torch.tensor(np.log(k), dtype=torch.float32)[None]
+    on = torch.ones_like(log_k)
+    plane = _encoder(map_contrast="plane")
+    step = _encoder(map_contrast="step")
+    residual = (log_k - plane._step_trend(on, log_k))[0]
+    centred = (log_k - step._step_trend(on, log_k))[0]
+    near = torch.tensor(np.argsort(np.hypot(*np.asarray(LAYOUT).T))[:4])
+    if bump:
+        assert float(residual[near].min()) > 0.5                        # the bump stands out of the plane
+    else:
+        assert float(residual.abs().max()) < 1e-3                       # a pure ramp leaves no contrast
+    assert float(centred.abs().max()) > 0.5                             # the step mean keeps the ramp
+    with torch.no_grad():                                              # and the map holds the residual
+        states = plane.eval()(_batch(pose, force))
+    assert torch.isfinite(states.z).all() and taxels.shape[0] == 30
+
+
+def test_map_contrast_is_a_less_taxel_setting():
+    from lesscli.errors import LessError
+    from lesscli.train.config import PretrainConfig
+    from lesscli.train.pretrain import encoder_kwargs
+
+    cfg = PretrainConfig()
+    cfg.model.name, cfg.model.map_contrast = "less-taxel", "plane"
+    kwargs = encoder_kwargs(cfg, 90, LAYOUT)
+    assert kwargs["map_contrast"] == "plane"
+    enc = build_encoder({"name": "less-taxel", **_encoder(map_contrast="plane").config()})
+    assert enc.map_contrast == "plane"
+    cfg.model.name = "less"
+    with pytest.raises(LessError, match="less-taxel only"):
+        encoder_kwargs(cfg, 90)
+    with pytest.raises(ValueError, match="map_contrast"):
+        _encoder(map_contrast="edge")
 
 
 def test_registry_round_trip_and_grown_grid_keep_outputs():

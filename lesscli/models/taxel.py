@@ -33,6 +33,12 @@ weighting by indentation adds is in the ablation table of examples/README.md). T
 step is a pure function of the state and the step, so the state stays exactly local and streams like the
 GRU's (:meth:`gru_step`). The map has no parameters; self-supervision trains the GRU part, the image
 decoder reads both.
+
+With ``map_contrast="plane"`` (``--set model.map_contrast=plane``) the contrast is taken to a plane
+``a + b u + c v`` fitted over the step's pressing taxels (pad-frame u, v; weighted least squares with a
+small ridge, so one or two pressing taxels give a finite, flat fit) instead of to their mean: a
+stiffness ramp across the pad, such as the soft free edge of an insert makes, leaves no contrast,
+while a bump smaller than the pad still does. Same state width; ablation in examples/README.md.
 """
 
 from __future__ import annotations
@@ -49,6 +55,9 @@ STIFFNESS_FLOOR = 1e-3        # log k is taken of max(k, this)
 MAP_EPS = 1e-6                # M = S / (W + MAP_EPS): 0 where a cell has no evidence
 SIGMA_PER_PITCH = 0.8         # Gaussian width of a map cell, in cell pitches
 MAP_CHANNELS = 3              # per cell: mean log stiffness, mean contrast within the step, evidence
+PLANE_RIDGE = 1e-3            # ridge of the per-step plane fit (map_contrast="plane")
+PLANE_UNIT_MM = 10.0          # pad coordinates in this unit for the plane fit (conditioning)
+MAP_CONTRASTS = ("step", "plane")
 
 
 def taxel_xy(pose: Tensor, taxel_xy_mm: Tensor) -> Tensor:
@@ -89,6 +98,8 @@ class TaxelParticleEncoder(ParticleEncoder):
         taxel_xy_mm: (T, 2) taxel centres in the pad frame, mm.
         map_cells: cells per side of the stiffness map.
         map_pitch_mm: distance between map cells.
+        map_contrast: contrast of each taxel to its step's mean (``step``) or to a plane fitted over
+            the step (``plane``).
         **kwargs: :class:`ParticleEncoder` arguments (``dim`` is the GRU width).
     """
 
@@ -96,15 +107,18 @@ class TaxelParticleEncoder(ParticleEncoder):
     force_norm = "scale"         # uncentred, flat-fielded forces: stiffness keeps its meaning
 
     def __init__(self, force_dim: int, taxel_xy_mm, map_cells: int = 7, map_pitch_mm: float = 2.5,
-                 **kwargs) -> None:
+                 map_contrast: str = "step", **kwargs) -> None:
         super().__init__(force_dim, **kwargs)
         xy = torch.as_tensor(taxel_xy_mm, dtype=torch.float64).reshape(-1, 2)
         if xy.shape[0] * AXES != self.force_dim:
             raise ValueError(f"less-taxel: {xy.shape[0]} taxels x {AXES} axes != {self.force_dim} force features")
         if map_cells < 1 or not map_pitch_mm > 0:
             raise ValueError(f"less-taxel: map_cells >= 1 and map_pitch_mm > 0 needed, got {map_cells}, {map_pitch_mm}")
+        if map_contrast not in MAP_CONTRASTS:
+            raise ValueError(f"less-taxel: map_contrast must be one of {MAP_CONTRASTS}, got {map_contrast!r}")
         self.settings.update({"taxel_xy_mm": xy.tolist(), "map_cells": int(map_cells),
-                              "map_pitch_mm": float(map_pitch_mm)})
+                              "map_pitch_mm": float(map_pitch_mm), "map_contrast": map_contrast})
+        self.map_contrast = map_contrast
         self.register_buffer("taxel_xy_mm", xy.to(torch.float32), persistent=False)
         self.register_buffer("axis_mm", map_axis(map_cells, map_pitch_mm), persistent=False)
         self.sigma_mm = SIGMA_PER_PITCH * float(map_pitch_mm)
@@ -124,11 +138,24 @@ class TaxelParticleEncoder(ParticleEncoder):
         d = taxel_xy(pose, self.taxel_xy_mm)[..., None, :] - self.axis_mm.to(pose.dtype)[:, None]  # (..., T, n, 2)
         wx, wy = torch.exp(-(d * d) / (2 * self.sigma_mm**2)).unbind(-1)
         pressing = presses.to(pose.dtype)
-        step_mean = (pressing * log_k).sum(-1, keepdim=True) / pressing.sum(-1, keepdim=True).clamp(min=1.0)
+        contrast = log_k - self._step_trend(pressing, log_k)
         on = pressing * depth                                                        # weight: indentation, mm
-        values = torch.stack([on * log_k, on * (log_k - step_mean), on], dim=-2)          # (..., 3, T)
+        values = torch.stack([on * log_k, on * contrast, on], dim=-2)                     # (..., 3, T)
         maps = torch.einsum("...vt,...ty,...tx->...vyx", values, wy, wx).flatten(-3)      # (..., 3 m)
         return torch.cat([self.paper_fle(pose, force), maps], dim=-1)
+
+    def _step_trend(self, pressing: Tensor, log_k: Tensor) -> Tensor:
+        """(..., T) what a taxel's log stiffness is compared with: the mean over the step's pressing
+        taxels, or the plane fitted over them (``map_contrast``)."""
+        if self.map_contrast == "step":
+            return (pressing * log_k).sum(-1, keepdim=True) / pressing.sum(-1, keepdim=True).clamp(min=1.0)
+        uv = self.taxel_xy_mm.to(log_k.dtype) / PLANE_UNIT_MM
+        design = torch.cat([torch.ones_like(uv[:, :1]), uv], dim=-1)                     # (T, 3)
+        gram = torch.einsum("...t,ti,tj->...ij", pressing, design, design) \
+            + PLANE_RIDGE * torch.eye(3, dtype=log_k.dtype, device=log_k.device)
+        rhs = torch.einsum("...t,ti->...i", pressing * log_k, design)
+        coef = torch.linalg.solve(gram, rhs.unsqueeze(-1)).squeeze(-1)                   # (..., 3)
+        return torch.einsum("...i,ti->...t", coef, design)
 
     def gru_step(self, x: Tensor, h: Tensor) -> Tensor:
         """One step: the GRU cell on the first ``gru_dim`` inputs, the exact map update on the rest."""

@@ -31,6 +31,8 @@ class ModelConfig:
     n_freq: int = 16                    # wavelengths per pose coordinate in the positional encoding
     force_norm: str = ""                # force scale: "global" (one pooled std), "feature" (per feature),
                                         # "scale" (no centring); "" = the encoder's own (less: global)
+    map_contrast: str = "step"          # less-taxel: contrast to the step's mean ("step") or to a plane
+                                        # fitted over the step's pressing taxels ("plane")
 
 
 @dataclass
@@ -71,7 +73,8 @@ _RULES = [("model.dim", lambda v: v >= 1, ">= 1"), ("model.spacing_mm", lambda v
           ("train.batch_size", lambda v: v >= 1, ">= 1"), ("train.lr", lambda v: v > 0, "> 0"),
           ("train.min_lr_ratio", lambda v: 0 <= v <= 1, "in [0, 1]"),
           ("train.num_workers", lambda v: v >= 0, ">= 0"), ("ssl.k_input", lambda v: v >= 1, ">= 1"),
-          ("ssl.k_query", lambda v: v >= 1, ">= 1")]
+          ("ssl.k_query", lambda v: v >= 1, ">= 1"),
+          ("model.map_contrast", lambda v: v in ("step", "plane"), "step or plane")]
 
 
 def check_rules(cfg, rules) -> None:

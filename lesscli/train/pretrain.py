@@ -8,12 +8,12 @@ import time
 import torch
 
 from lesscli.data.batching import ScanDataset, collate, compute_norm_stats, force_dim
-from lesscli.errors import DataError
+from lesscli.errors import DataError, LessError
 from lesscli.io.scans import ScanSet
 from lesscli.models.registry import ENCODERS, lookup
 from lesscli.models.ssl_loss import ForcePredictor
 from lesscli.train import distributed
-from lesscli.train.config import PretrainConfig, check_pretrain_config, to_dict
+from lesscli.train.config import ModelConfig, PretrainConfig, check_pretrain_config, to_dict
 from lesscli.train.loop import EVAL_SEED, FitResult, data_identity, fit
 from lesscli.train.watch import Watch
 
@@ -24,10 +24,16 @@ def encoder_kwargs(cfg: PretrainConfig, n_force: int, taxel_xy_mm: list | None =
     kwargs = {"force_dim": n_force, "dim": m.dim, "spacing_mm": m.spacing_mm, "grid_extent_mm": m.grid_extent_mm,
               "receptive_field_mm": m.receptive_field_mm, "n_freq": m.n_freq,
               "max_steps_per_particle": m.max_steps_per_particle or None}
-    if "taxel_xy_mm" in inspect.signature(lookup(ENCODERS, m.name, "encoder")).parameters:
+    params = inspect.signature(lookup(ENCODERS, m.name, "encoder")).parameters
+    if "taxel_xy_mm" in params:
         if taxel_xy_mm is None:
             raise DataError(f"encoder '{m.name}' needs the sensor's taxel layout (meta sensor.taxel_xy_mm)")
         kwargs["taxel_xy_mm"] = taxel_xy_mm
+    if "map_contrast" in params:
+        kwargs["map_contrast"] = m.map_contrast
+    elif m.map_contrast != ModelConfig.map_contrast:
+        raise LessError(f"setting model.map_contrast = {m.map_contrast!r} applies to less-taxel only, "
+                        f"not to encoder '{m.name}'")
     return kwargs
 
 
