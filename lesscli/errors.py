@@ -1,4 +1,9 @@
-"""Exceptions that the CLI turns into one-line errors with exit code 1."""
+"""Exceptions that the CLI turns into one-line errors with exit code 1, and the 'did you mean' hint."""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterable
 
 
 class LessError(Exception):
@@ -23,3 +28,15 @@ class HardwareError(LessError):
 
 class TrainingError(LessError):
     """Training cannot continue (e.g. non-finite loss); the message names the step."""
+
+
+def closest(name: str, choices: Iterable[str]) -> str | None:
+    """The valid name closest to ``name``, for 'did you mean' hints (None if nothing is close)."""
+    found = difflib.get_close_matches(str(name), sorted(choices), n=1, cutoff=0.5)
+    return found[0] if found else None
+
+
+def did_you_mean(name: str, choices: Iterable[str], otherwise: str = "") -> str:
+    """``"; did you mean 'x'?"`` for the closest of ``choices`` to ``name``, else ``otherwise``."""
+    found = closest(name, choices)
+    return f"; did you mean '{found}'?" if found else otherwise

@@ -270,7 +270,7 @@ def test_gradcheck_tiny_model_float64():
 
 def test_registry_lookup_and_rebuild():
     assert lookup(ENCODERS, "less", "encoder") is ParticleEncoder
-    with pytest.raises(LessError, match="Did you mean 'global'"):
+    with pytest.raises(LessError, match="did you mean 'global'"):
         lookup(ENCODERS, "globl", "encoder")
     enc = tiny_encoder()
     again = build_encoder(enc.config())

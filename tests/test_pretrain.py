@@ -46,8 +46,8 @@ def test_config_precedence_file_then_options_then_set(tmp_path):
     assert isinstance(load_config(PretrainConfig, None, ["spacing_mm=5"]).model.spacing_mm, float)
 
 
-@pytest.mark.parametrize("item,match", [("dimm=3", "Did you mean 'dim'"), ("train.lr=fast", "expects float"),
-                                        ("modle.dim=3", "Did you mean 'model'"), ("lr", "key=value")])
+@pytest.mark.parametrize("item,match", [("dimm=3", "did you mean 'dim'"), ("train.lr=fast", "expects float"),
+                                        ("modle.dim=3", "did you mean 'model'"), ("lr", "key=value")])
 def test_config_errors_are_one_clear_line(item, match):
     with pytest.raises(LessError, match=match):
         load_config(PretrainConfig, None, [item])
@@ -231,7 +231,7 @@ def test_cli_pretrain_writes_checkpoint_log_and_summary(run_less, tmp_path):
     assert len((tmp_path / "rep.log.jsonl").read_text().splitlines()) == 2
 
 
-@pytest.mark.parametrize("args,match", [(["--model", "globl"], "Did you mean 'global'"),
+@pytest.mark.parametrize("args,match", [(["--model", "globl"], "did you mean 'global'"),
                                         (["--set", "epochs=0"], "train.epochs"),
                                         (["--val", "missing.npz"], "missing.npz")])
 def test_cli_pretrain_errors_exit_1_without_output(tmp_path, monkeypatch, capsys, args, match):

@@ -10,7 +10,7 @@ import importlib
 
 import click
 
-from lesscli.cli import common
+from lesscli.errors import closest
 
 # name -> (module under lesscli.cli, one-line help)
 BENCHES: dict[str, tuple[str, str]] = {
@@ -32,7 +32,7 @@ class _LazyBenchGroup(click.Group):
 
     def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
         if name not in BENCHES:
-            hint = common.closest(name, BENCHES)
+            hint = closest(name, BENCHES)
             if hint:
                 ctx.fail(f"no benchmark '{name}'. Did you mean '{hint}'?")
             return None

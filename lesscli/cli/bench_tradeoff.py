@@ -59,7 +59,8 @@ def cli(quick, knobs, inserts, n_traj, epochs, image_epochs, values, work_dir, p
     import torch
 
     from lesscli.bench.tradeoff import FULL, KNOBS, QUICK, TradeoffRun, run_tradeoff
-    from lesscli.cli.common import closest, progress
+    from lesscli.cli.common import progress
+    from lesscli.errors import closest
     from lesscli.io.records import emit_records
 
     for knob in knobs:

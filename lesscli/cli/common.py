@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import difflib
 import logging
 import sys
 from collections.abc import Iterable
@@ -43,12 +42,6 @@ def progress(iterable: Iterable | None = None, **kwargs):
 
     disable = STATE.quiet or (not sys.stderr.isatty() and STATE.verbose == 0)
     return tqdm(iterable, file=sys.stderr, disable=disable, dynamic_ncols=True, **kwargs)
-
-
-def closest(name: str, choices: Iterable[str]) -> str | None:
-    """The closest valid name to ``name``, for 'did you mean' hints (None if nothing is close)."""
-    found = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.5)
-    return found[0] if found else None
 
 
 def format_option(func):

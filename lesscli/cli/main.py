@@ -21,7 +21,7 @@ from lesscli import __version__
 from lesscli.cli import common
 from lesscli.cli.pager import hand_over_to_pager, wants_pager
 from lesscli.cli.registry import COMMANDS
-from lesscli.errors import LessError
+from lesscli.errors import LessError, closest
 
 COMPLETE_VAR = "_LESS_COMPLETE"  # shell completion: eval "$(_LESS_COMPLETE=bash_source less)"
 
@@ -52,7 +52,7 @@ class LazyGroup(click.Group):
     def resolve_command(self, ctx, args):
         name = args[0] if args else ""
         if name and name not in COMMANDS and not name.startswith("-"):
-            hint = common.closest(name, COMMANDS)
+            hint = closest(name, COMMANDS)
             ctx.fail(f"no such command '{name}' (and no such file)." +
                      (f" Did you mean '{hint}'?" if hint else " See 'less --help' for the commands."))
         return super().resolve_command(ctx, args)

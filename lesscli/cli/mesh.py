@@ -10,7 +10,7 @@ CLASS_CODES = {"insert": 1, "pillar": 2, "inclusion": 3}
 
 
 def _parse_classes(text: str) -> tuple[int, ...]:
-    from lesscli.cli.common import closest
+    from lesscli.errors import closest
 
     codes = []
     for name in (t.strip() for t in text.split(",") if t.strip()):

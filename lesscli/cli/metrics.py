@@ -6,7 +6,8 @@ import sys
 
 import click
 
-from lesscli.cli.common import LOG, closest, format_option
+from lesscli.cli.common import LOG, format_option
+from lesscli.errors import closest
 
 # Columns shown in tables (JSON formats keep every key).
 SCAN_COLUMNS = ("file", "model", "scan", "insert", "orientation", "f1_3d", "com_error_mm_3d", "arse_3d",

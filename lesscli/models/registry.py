@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import difflib
-
-from lesscli.errors import LessError
+from lesscli.errors import LessError, did_you_mean
 from lesscli.models.encoders import GlobalEncoder, ParticleEncoder
 from lesscli.models.force_decoder import ForceDecoder
 from lesscli.models.taxel import TaxelParticleEncoder
@@ -18,9 +16,7 @@ def lookup(registry: dict[str, type], name: str, what: str = "model") -> type:
     """``registry[name]``, or a LessError naming the choices and the closest one."""
     if name in registry:
         return registry[name]
-    hint = difflib.get_close_matches(name, list(registry), n=1, cutoff=0.5)
-    tip = f" Did you mean '{hint[0]}'?" if hint else ""
-    raise LessError(f"unknown {what} '{name}' (choices: {', '.join(sorted(registry))}).{tip}")
+    raise LessError(f"unknown {what} '{name}'{did_you_mean(name, registry)} (choices: {', '.join(sorted(registry))})")
 
 
 def build_encoder(config: dict):

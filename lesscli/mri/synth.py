@@ -245,10 +245,10 @@ def find_phantom(name_or_path: str) -> Phantom:
     inserts = {p.name.lower(): p for make in CATALOGUES.values() for p in make()}
     if name_or_path.lower() in inserts:
         return inserts[name_or_path.lower()]
-    import difflib
+    from lesscli.errors import closest
 
-    hint = difflib.get_close_matches(name_or_path.lower(), list(inserts), n=1, cutoff=0.5)
-    raise DataError(f"unknown insert '{name_or_path}'" + (f"; did you mean '{inserts[hint[0]].name}'?" if hint
+    hint = closest(name_or_path.lower(), inserts)
+    raise DataError(f"unknown insert '{name_or_path}'" + (f"; did you mean '{inserts[hint].name}'?" if hint
                                                           else " (give a catalogue insert name or a .toml/.json file)"))
 
 

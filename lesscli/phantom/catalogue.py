@@ -139,8 +139,7 @@ def resolve_set(name_or_path: str) -> list[Phantom]:
         return CATALOGUES[name_or_path]()
     if os.path.splitext(name_or_path)[1] in (".toml", ".json"):
         return load_phantom_file(name_or_path)
-    import difflib
+    from lesscli.errors import did_you_mean
 
-    hint = difflib.get_close_matches(name_or_path, list(CATALOGUES), n=1, cutoff=0.5)
-    raise DataError(f"unknown phantom set '{name_or_path}'" + (f"; did you mean '{hint[0]}'?" if hint else
-                    f" (choose {', '.join(CATALOGUES)} or a .toml/.json file)"))
+    raise DataError(f"unknown phantom set '{name_or_path}'"
+                    + did_you_mean(name_or_path, CATALOGUES, f" (choose {', '.join(CATALOGUES)} or a .toml/.json file)"))

@@ -12,7 +12,6 @@ Region priority where parts overlap: inclusion > pillar > skin > filling. Labels
 
 from __future__ import annotations
 
-import difflib
 import hashlib
 import json
 import math
@@ -20,7 +19,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from lesscli.errors import DataError
+from lesscli.errors import DataError, did_you_mean
 from lesscli.io.labels import BACKGROUND, INCLUSION, INSERT, PILLAR, LabelVolume
 
 SCHEMA, VERSION = "less.phantom", 1
@@ -337,9 +336,8 @@ def _check_keys(d: dict, allowed: set[str], where: str) -> None:
         raise DataError(f"{where}: expected a table/object, got {type(d).__name__}")
     for key in d:
         if key not in allowed:
-            hint = difflib.get_close_matches(key, sorted(allowed), n=1, cutoff=0.5)
-            raise DataError(f"{where}: unknown key '{key}'" + (f"; did you mean '{hint[0]}'?" if hint else
-                                                                f" (allowed: {', '.join(sorted(allowed))})"))
+            raise DataError(f"{where}: unknown key '{key}'"
+                            + did_you_mean(key, allowed, f" (allowed: {', '.join(sorted(allowed))})"))
 
 
 def _sphere(d: dict, where: str) -> Sphere:

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import difflib
 import json
 import os
 
 import numpy as np
 
-from lesscli.errors import DataError
+from lesscli.errors import DataError, did_you_mean
 from lesscli.io.atomic import atomic_dir
 from lesscli.io.labels import CLASS_NAMES, LabelVolume, save_nifti
 from lesscli.phantom.catalogue import resolve_set
@@ -33,8 +32,7 @@ def select(phantoms: list[Phantom], names: list[str] | None, limit: int | None, 
         known = {p.name: p for p in phantoms}
         for name in names:
             if name not in known:
-                hint = difflib.get_close_matches(name, list(known), n=1, cutoff=0.5)
-                raise DataError(f"{where}: no insert '{name}'" + (f"; did you mean '{hint[0]}'?" if hint else ""))
+                raise DataError(f"{where}: no insert '{name}'{did_you_mean(name, known)}")
         phantoms = [known[n] for n in names]
     return phantoms[:limit] if limit else phantoms
 

@@ -7,7 +7,6 @@ contact tier is shared by all eight orientations (the octagon is invariant under
 
 from __future__ import annotations
 
-import difflib
 import json
 import math
 from collections import OrderedDict
@@ -15,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from lesscli.errors import DataError, SimulationError
+from lesscli.errors import DataError, SimulationError, did_you_mean
 from lesscli.sim.motion import MOTIONS
 from lesscli.sim.state import SimState, Stage, rotate_pose
 
@@ -44,9 +43,8 @@ def get_model(tier: str, phantom, sensor: dict, params: dict, cache_dir: str | N
         return _MODELS[key]
     tiers = contact_tiers()
     if tier not in tiers:
-        hint = difflib.get_close_matches(tier, list(tiers), n=1, cutoff=0.5)
-        raise DataError(f"unknown contact tier '{tier}'" + (f"; did you mean '{hint[0]}'?" if hint else "")
-                        + f" (available: {', '.join(sorted(tiers))})")
+        raise DataError(f"unknown contact tier '{tier}'{did_you_mean(tier, tiers)}"
+                        f" (available: {', '.join(sorted(tiers))})")
     try:
         model = tiers[tier](phantom, sensor, **params)
     except TypeError as exc:

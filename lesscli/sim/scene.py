@@ -36,12 +36,11 @@ document before validation (values parse as TOML, else as strings).
 
 from __future__ import annotations
 
-import difflib
 import os
 import tomllib
 from dataclasses import dataclass, field
 
-from lesscli.errors import DataError
+from lesscli.errors import DataError, did_you_mean
 from lesscli.io.sensor import xela_uscu
 from lesscli.io.toml_files import read_toml
 from lesscli.phantom.catalogue import CATALOGUES, load_phantom_file
@@ -82,16 +81,15 @@ class Scene:
 
 
 def _fail_key(where: str, key: str, allowed) -> None:
-    hint = difflib.get_close_matches(key.rsplit(".", 1)[-1], sorted(allowed), n=1, cutoff=0.5)
     prefix = key.rsplit(".", 1)[0] + "." if "." in key else ""
-    raise DataError(f"{where}: unknown key '{key}'" + (f"; did you mean '{prefix}{hint[0]}'?" if hint else
-                    f" (valid: {', '.join(sorted(allowed))})"))
+    valid = {prefix + name for name in allowed}
+    raise DataError(f"{where}: unknown key '{key}'"
+                    + did_you_mean(key, valid, f" (valid: {', '.join(sorted(allowed))})"))
 
 
 def _fail_value(where: str, key: str, value, allowed) -> None:
-    hint = difflib.get_close_matches(str(value), sorted(allowed), n=1, cutoff=0.5)
-    raise DataError(f"{where}: {key} = '{value}' is not known" + (f"; did you mean '{hint[0]}'?" if hint else "")
-                    + f" (valid: {', '.join(sorted(allowed))})")
+    raise DataError(f"{where}: {key} = '{value}' is not known{did_you_mean(str(value), allowed)}"
+                    f" (valid: {', '.join(sorted(allowed))})")
 
 
 def check_keys(table: dict, allowed, where: str, prefix: str = "") -> None:
@@ -173,9 +171,8 @@ def _phantoms(table: dict, where: str, base_dir: str, seed: int) -> tuple[list[P
         known = {p.name: p for p in phantoms}
         for name in table["names"]:
             if name not in known:
-                hint = difflib.get_close_matches(name, list(known), n=1, cutoff=0.5)
                 raise DataError(f"{where}: phantoms.names: no insert '{name}' in set '{which}'"
-                                + (f"; did you mean '{hint[0]}'?" if hint else ""))
+                                + did_you_mean(name, known))
         phantoms = [known[n] for n in table["names"]]
     if "limit" in table:
         phantoms = phantoms[: int(table["limit"])]

@@ -8,13 +8,12 @@ TOML files use the same sections: ``[model]``, ``[train]``, ``[ssl]``.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import tomllib
 import types
 import typing
 from dataclasses import dataclass, field
 
-from lesscli.errors import LessError
+from lesscli.errors import LessError, did_you_mean
 from lesscli.io.toml_files import read_toml
 
 
@@ -102,7 +101,7 @@ def from_dict(cls, data: dict, where: str = "config"):
     cfg = cls()
     for section, values in data.items():
         if section not in _sections(cfg):
-            raise LessError(f"{where}: unknown section [{section}]{_hint(section, _sections(cfg))}")
+            raise LessError(f"{where}: unknown section [{section}]{did_you_mean(section, _sections(cfg))}")
         if not isinstance(values, dict):
             raise LessError(f"{where}: [{section}] must be a table of settings")
         for key, value in values.items():
@@ -130,21 +129,16 @@ def _sections(cfg) -> dict:
     return {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)}
 
 
-def _hint(name: str, choices) -> str:
-    found = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.5)
-    return f". Did you mean '{found[0]}'?" if found else ""
-
-
 def _resolve(cfg, key: str, where: str) -> tuple[object, str]:
     sections = _sections(cfg)
     if "." in key:
         section, name = key.split(".", 1)
         if section not in sections:
-            raise LessError(f"{where}: unknown section '{section}' in '{key}'{_hint(section, sections)}")
+            raise LessError(f"{where}: unknown section '{section}' in '{key}'{did_you_mean(section, sections)}")
         target = sections[section]
         names = [f.name for f in dataclasses.fields(target)]
         if name not in names:
-            raise LessError(f"{where}: unknown setting '{key}'{_hint(name, names)}")
+            raise LessError(f"{where}: unknown setting '{key}'{did_you_mean(name, names)}")
         return target, name
     owners = [s for s, sub in sections.items() if key in {f.name for f in dataclasses.fields(sub)}]
     if len(owners) == 1:
@@ -152,7 +146,7 @@ def _resolve(cfg, key: str, where: str) -> tuple[object, str]:
     every = [f"{s}.{f.name}" for s, sub in sections.items() for f in dataclasses.fields(sub)]
     if owners:
         raise LessError(f"{where}: '{key}' is ambiguous; use one of {', '.join(f'{o}.{key}' for o in owners)}")
-    raise LessError(f"{where}: unknown setting '{key}'{_hint(key, [e.split('.', 1)[1] for e in every])}")
+    raise LessError(f"{where}: unknown setting '{key}'{did_you_mean(key, [e.split('.', 1)[1] for e in every])}")
 
 
 def _assign(cfg, key: str, value, where: str) -> None:

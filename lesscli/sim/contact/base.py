@@ -6,13 +6,12 @@ surface pushes the pad back (pressing). Tiers return no shear (that is the shear
 
 from __future__ import annotations
 
-import difflib
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from lesscli.errors import SimulationError
+from lesscli.errors import SimulationError, did_you_mean
 from lesscli.io.sensor import xela_uscu
 from lesscli.sim import kinematics
 
@@ -174,9 +173,8 @@ def check_params(tier: str, params: dict, defaults: dict) -> dict:
     """``defaults`` updated with ``params``; an unknown name raises SimulationError with the closest known one."""
     for key in params:
         if key not in defaults:
-            hint = difflib.get_close_matches(key, sorted(defaults), n=1, cutoff=0.5)
             raise SimulationError(f"contact '{tier}': unknown parameter '{key}'"
-                                  + (f"; did you mean '{hint[0]}'?" if hint else f" (known: {', '.join(sorted(defaults))})"))
+                                  + did_you_mean(key, defaults, f" (known: {', '.join(sorted(defaults))})"))
     return {**defaults, **params}
 
 
