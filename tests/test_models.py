@@ -275,3 +275,18 @@ def test_registry_lookup_and_rebuild():
     enc = tiny_encoder()
     again = build_encoder(enc.config())
     assert again.config() == enc.config() and torch.equal(again.xy_mm, enc.xy_mm)
+
+
+def test_exact_particle_count_per_axis_is_part_of_the_config():
+    """The paper's 18 x 18 grid (an even count, which an extent cannot give) survives a config round
+    trip; growing the grid goes back to the extent rule."""
+    from lesscli.models.encoders import ParticleEncoder
+    from lesscli.models.registry import build_encoder
+
+    enc = ParticleEncoder(90, 8, spacing_mm=3.3, n_freq=2, particles_per_axis=18)
+    xy = enc.xy_mm
+    assert xy.shape == (324, 2) and torch.allclose(xy.mean(0), torch.zeros(2), atol=1e-5)
+    assert float(xy[:, 0].max()) == pytest.approx(8.5 * 3.3)
+    again = build_encoder(enc.config())
+    torch.testing.assert_close(again.xy_mm, xy, atol=0, rtol=0)
+    assert enc.with_grid(30.0).n_particles == 9 * 9                      # 2 floor(30 / 6.6) + 1 per axis

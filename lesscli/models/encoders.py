@@ -112,6 +112,7 @@ class ParticleEncoder(nn.Module):
         max_steps_per_particle: cap on gathered steps per particle (earliest kept); None = no cap.
         n_freq: wavelengths per pose coordinate in the positional encoding.
         grid_center_mm: x, y of the grid centre.
+        particles_per_axis: an exact number of particles per axis (even too) instead of the extent's.
     """
 
     name = "less"
@@ -119,7 +120,7 @@ class ParticleEncoder(nn.Module):
 
     def __init__(self, force_dim: int, dim: int = 128, spacing_mm: float = 6.0, grid_extent_mm: float = 60.0,
                  receptive_field_mm: float = 10.0, max_steps_per_particle: int | None = None, n_freq: int = 16,
-                 grid_center_mm: tuple[float, float] = (0.0, 0.0)) -> None:
+                 grid_center_mm: tuple[float, float] = (0.0, 0.0), particles_per_axis: int | None = None) -> None:
         super().__init__()
         if not receptive_field_mm > 0:
             raise ValueError(f"receptive_field_mm must be > 0, got {receptive_field_mm}")
@@ -127,7 +128,8 @@ class ParticleEncoder(nn.Module):
                          "grid_extent_mm": float(grid_extent_mm), "receptive_field_mm": float(receptive_field_mm),
                          "max_steps_per_particle": None if max_steps_per_particle is None
                          else int(max_steps_per_particle),
-                         "n_freq": int(n_freq), "grid_center_mm": [float(c) for c in grid_center_mm]}
+                         "n_freq": int(n_freq), "grid_center_mm": [float(c) for c in grid_center_mm],
+                         "particles_per_axis": None if particles_per_axis is None else int(particles_per_axis)}
         self.dim = int(dim)
         self.force_dim = int(force_dim)
         self.receptive_field_mm = float(receptive_field_mm)
@@ -138,7 +140,8 @@ class ParticleEncoder(nn.Module):
 
     def _grid(self) -> Tensor:
         s = self.settings
-        return particle_grid(s["grid_extent_mm"], s["spacing_mm"], tuple(s["grid_center_mm"]))
+        return particle_grid(s["grid_extent_mm"], s["spacing_mm"], tuple(s["grid_center_mm"]),
+                             s["particles_per_axis"])
 
     def config(self) -> dict:
         """Constructor arguments plus ``name``: ``ENCODERS[c.pop('name')](**c)`` rebuilds the encoder."""
@@ -147,7 +150,7 @@ class ParticleEncoder(nn.Module):
     def with_grid(self, extent_mm: float, center_xy_mm: tuple[float, float] | None = None) -> ParticleEncoder:
         """A copy over a grid of another extent (and centre), same spacing and weights."""
         kwargs = copy.deepcopy(self.settings)
-        kwargs["grid_extent_mm"] = float(extent_mm)
+        kwargs["grid_extent_mm"], kwargs["particles_per_axis"] = float(extent_mm), None
         if center_xy_mm is not None:
             kwargs["grid_center_mm"] = [float(c) for c in center_xy_mm]
         other = type(self)(**kwargs)

@@ -18,12 +18,13 @@ GRID_EDGE_EPS = 1e-6
 
 
 def particle_grid(extent_mm: float, spacing_mm: float,
-                  center_xy_mm: tuple[float, float] = (0.0, 0.0)) -> Tensor:
+                  center_xy_mm: tuple[float, float] = (0.0, 0.0), per_axis: int | None = None) -> Tensor:
     """Particles on a square uniform grid centred on ``center_xy_mm``.
 
     The grid has an odd number ``n = 2 * floor(extent / (2 * spacing)) + 1`` of particles per axis,
     so it always contains its centre, and a larger extent at the same spacing contains the smaller
-    grid exactly (what growing the grid for a larger phantom needs).
+    grid exactly (what growing the grid for a larger phantom needs). ``per_axis`` sets n instead (any
+    n, even included, as the paper's 18 x 18 grid; ``extent_mm`` is then ignored).
 
     Args:
         extent_mm: side of the square to cover, mm (particles lie within +-extent/2 of the centre).
@@ -35,8 +36,13 @@ def particle_grid(extent_mm: float, spacing_mm: float,
     """
     if not spacing_mm > 0 or not extent_mm >= 0:
         raise ValueError(f"particle grid needs spacing_mm > 0 and extent_mm >= 0, got {spacing_mm}, {extent_mm}")
-    half = math.floor(extent_mm / (2.0 * spacing_mm) + GRID_EDGE_EPS)
-    offsets = torch.arange(-half, half + 1, dtype=torch.float64) * spacing_mm
+    if per_axis is not None:
+        if per_axis < 1:
+            raise ValueError(f"particle grid needs per_axis >= 1, got {per_axis}")
+        offsets = (torch.arange(per_axis, dtype=torch.float64) - (per_axis - 1) / 2) * spacing_mm
+    else:
+        half = math.floor(extent_mm / (2.0 * spacing_mm) + GRID_EDGE_EPS)
+        offsets = torch.arange(-half, half + 1, dtype=torch.float64) * spacing_mm
     gy, gx = torch.meshgrid(offsets + center_xy_mm[1], offsets + center_xy_mm[0], indexing="ij")
     return torch.stack([gx.reshape(-1), gy.reshape(-1)], dim=1).to(torch.float32)
 

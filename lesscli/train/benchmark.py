@@ -45,13 +45,6 @@ def synthetic_batch(batch: int, steps: int, generator: torch.Generator) -> Batch
     return Batch(pose=pose, force=force, valid=valid, scan_index=torch.arange(batch))
 
 
-def square_grid(n: int, spacing_mm: float) -> torch.Tensor:
-    """(n * n, 2) particles centred on x = y = 0 (any n, even included, unlike ``particle_grid``)."""
-    offsets = (torch.arange(n, dtype=torch.float64) - (n - 1) / 2) * spacing_mm
-    gy, gx = torch.meshgrid(offsets, offsets, indexing="ij")
-    return torch.stack([gx.reshape(-1), gy.reshape(-1)], dim=1).to(torch.float32)
-
-
 def build(model: str, size: Size, seed: int = 0) -> ForcePredictor:
     """LESS (with exactly ``particles_per_axis`` squared particles) or GLOBAL at ``size``."""
     with torch.random.fork_rng(devices=[]):
@@ -59,8 +52,8 @@ def build(model: str, size: Size, seed: int = 0) -> ForcePredictor:
         if model == "global":
             encoder = GlobalEncoder(FORCE_DIM, size.dim)
         else:
-            encoder = ParticleEncoder(FORCE_DIM, size.dim, spacing_mm=size.spacing_mm)
-            encoder.xy_mm = square_grid(size.particles_per_axis, size.spacing_mm)
+            encoder = ParticleEncoder(FORCE_DIM, size.dim, spacing_mm=size.spacing_mm,
+                                      particles_per_axis=size.particles_per_axis)
         return ForcePredictor(encoder, ForceDecoder(FORCE_DIM, size.dim))
 
 
