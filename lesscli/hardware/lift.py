@@ -248,29 +248,36 @@ class ScissorLift:
         deadline = self.clock() + travel_s * self.config.timeout_factor + self.config.timeout_margin_s
         self._wait(servo_id, goal, deadline)
 
-    def _wait(self, servo_id: int, goal: int, deadline: float) -> Snapshot:
-        cfg = self.config
+    def _poll(self, servo_id: int, phase: str):
+        """Poll one servo every ``poll_s``: yields (snapshot, now, seconds its position has not moved by
+        more than _STILL_TICKS), after checking its alarms and logging telemetry for ``phase``."""
         last_pos, still_since = None, self.clock()
         while True:
             snap = self.snapshot(servo_id)
             self._check(servo_id, snap)
-            self._telemetry(servo_id, snap, "move")
+            self._telemetry(servo_id, snap, phase)
             now = self.clock()
             if last_pos is None or abs(snap.position - last_pos) > _STILL_TICKS:
                 last_pos, still_since = snap.position, now
+            yield snap, now, now - still_since
+            self.sleep(self.config.poll_s)
+
+    def _wait(self, servo_id: int, goal: int, deadline: float) -> Snapshot:
+        cfg = self.config
+        for snap, now, still_s in self._poll(servo_id, "move"):
             error = snap.position - goal
             if not snap.moving and abs(error) <= cfg.tolerance_ticks:
                 return self._verify(servo_id, goal)
-            if now - still_since > cfg.stall_s and not snap.moving:
+            if still_s > cfg.stall_s and not snap.moving:
                 raise LiftFault(f"{self._where(servo_id)}: position error: stopped at Present_Position "
                                 f"{snap.position}, {error:+d} ticks from Goal_Position {goal}", "position error")
-            if now - still_since > cfg.stall_s:
+            if still_s > cfg.stall_s:
                 raise LiftFault(f"{self._where(servo_id)}: stall: Present_Position stuck at {snap.position} "
                                 f"({error:+d} ticks from Goal_Position {goal}) for {cfg.stall_s:g} s", "stall")
             if now > deadline:
                 raise LiftFault(f"{self._where(servo_id)}: stall: Goal_Position {goal} not reached in time "
                                 f"(Present_Position {snap.position})", "stall")
-            self.sleep(cfg.poll_s)
+        raise AssertionError("unreachable: polling never ends")
 
     def _verify(self, servo_id: int, goal: int) -> Snapshot:
         snap = self.snapshot(servo_id)
@@ -323,17 +330,9 @@ class ScissorLift:
     def _wait_for_stop(self, servo_id: int) -> None:
         cfg = self.config
         deadline = self.clock() + cfg.homing_timeout_s
-        last_pos, still_since = None, self.clock()
-        while True:
-            snap = self.snapshot(servo_id)
-            self._check(servo_id, snap)
-            self._telemetry(servo_id, snap, "homing")
-            now = self.clock()
-            if last_pos is None or abs(snap.position - last_pos) > _STILL_TICKS:
-                last_pos, still_since = snap.position, now
-            elif now - still_since > cfg.stall_s:
+        for _snap, now, still_s in self._poll(servo_id, "homing"):
+            if still_s > cfg.stall_s:
                 return
             if now > deadline:
                 raise LiftFault(f"{self._where(servo_id)}: homing: lower stop not found within "
                                 f"{cfg.homing_timeout_s:g} s", "homing timeout")
-            self.sleep(cfg.poll_s)
