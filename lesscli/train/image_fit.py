@@ -189,14 +189,24 @@ def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: t
     return (*choices[best], table)
 
 
+@dataclass
+class FitInputs:
+    """What the training loop runs on: the model, its data sets and how batches are collated."""
+
+    model: torch.nn.Module
+    train_set: object
+    val_set: object | None
+    collate: Callable
+
+
 def fit_inputs(model: Imager, train_set: ImageDataset, val_set: ImageDataset | None, batch_size: int,
-               device: torch.device, cache: bool) -> tuple:
-    """(model, train set, val set, collate) for the loop: cached encoder states when ``cache``."""
+               device: torch.device, cache: bool) -> FitInputs:
+    """The loop's inputs: cached encoder states (and a model that reads them) when ``cache``."""
     if not cache:
-        return model, train_set, val_set, collate_images
+        return FitInputs(model, train_set, val_set, collate_images)
     cached_val = cache_states(model, val_set, batch_size, device) if val_set is not None else None
-    return (CachedImager(model), cache_states(model, train_set, batch_size, device), cached_val,
-            collate_states)
+    return FitInputs(CachedImager(model), cache_states(model, train_set, batch_size, device), cached_val,
+                     collate_states)
 
 
 def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFitConfig, output: str, *,
@@ -228,8 +238,8 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
     model = Imager(encoder, build_decoder(dec, cfg.train.seed), grid, frozen=not cfg.image.finetune)
     config = {**to_dict(cfg), "encoder": enc_cfg, "decoder": dec, "grid": grid_to_dict(grid),
               "representation": {"path": rep_path, "config": rep.get("config", {})}}
-    model, train_set, val_set, collate = fit_inputs(model, train_set, val_set, cfg.train.batch_size, env.device,
-                                                    cache and not cfg.image.finetune)
+    inputs = fit_inputs(model, train_set, val_set, cfg.train.batch_size, env.device, cache and not cfg.image.finetune)
+    model, train_set, val_set, collate = inputs.model, inputs.train_set, inputs.val_set, inputs.collate
     result: FitResult = fit(model, image_loss_fn(cfg.loss), train_set, val_set, cfg.train,
                             collate_fn=collate, output=output, config=config, norm_stats=stats, env=env,
                             resume=resume, history=[*(h for h in rep.get("history", []) if "epoch" not in h),
