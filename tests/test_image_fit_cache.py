@@ -5,9 +5,10 @@ import pytest
 import torch
 from imaging_factory import learnable_scanset, make_representation
 
+from lesscli.models.registry import build_decoder
 from lesscli.train.checkpoint import load_checkpoint
 from lesscli.train.config import LoopConfig
-from lesscli.train.image_fit import ImageFitConfig, ImageModelConfig, build_decoder, fit_imager
+from lesscli.train.image_fit import ImageFitConfig, ImageModelConfig, fit_imager
 
 ROUND_OFF_ATOL = 1e-5      # float32 encoder outputs from differently padded batches
 

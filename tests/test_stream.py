@@ -13,7 +13,7 @@ from lesscli.infer.stream import StreamingImager
 from lesscli.models.encoders import GlobalEncoder, ParticleEncoder
 from lesscli.models.imager import Imager, grid_to_dict
 from lesscli.models.patch_decoder import ImageGrid
-from lesscli.train.image_fit import build_decoder
+from lesscli.models.registry import build_decoder
 
 FORCE_DIM = 90                      # 30 taxels x 3, the default sensor
 SPACING_MM, EXTENT_MM, RADIUS_MM = 6.0, 36.0, 10.0

@@ -60,8 +60,7 @@ def load_imager(path: str, map_location: str | torch.device = "cpu",
 
     ``ckpt``: the checkpoint already loaded from ``path`` (None: load it).
     """
-    from lesscli.models.registry import build_encoder
-    from lesscli.train.image_fit import build_decoder
+    from lesscli.models.registry import build_decoder, build_encoder
 
     ckpt = load_checkpoint(path, map_location) if ckpt is None else ckpt
     cfg = ckpt.get("config", {})

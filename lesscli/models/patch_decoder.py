@@ -226,6 +226,12 @@ class PatchDecoder(nn.Module):
         stitch: "sum" (the paper) or "mean" of overlapping patch logits.
     """
 
+    @staticmethod
+    def grid_settings(grid: ImageGrid, patch_px: int, stitch: str) -> dict:
+        """Constructor arguments that follow from the training grid (and the image settings)."""
+        return {"patch_px": int(patch_px), "depth_px": int(grid.shape[0]),
+                "patch_spacing_mm": [float(v) for v in grid.spacing_mm], "stitch": stitch}
+
     def __init__(self, d_z: int, n_classes: int = 4, dim: int = 2, patch_px: int = PATCH_PX,
                  depth_px: int = DEPTH_PX, patch_spacing_mm: tuple[float, float, float] = (0.9, 0.4774, 0.4774),
                  width: int = 64, stitch: str = "sum") -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import torch
+
 from lesscli.errors import LessError, did_you_mean
 from lesscli.models.encoders import GlobalEncoder, ParticleEncoder
 from lesscli.models.force_decoder import ForceDecoder
@@ -17,6 +19,22 @@ def lookup(registry: dict[str, type], name: str, what: str = "model") -> type:
     if name in registry:
         return registry[name]
     raise LessError(f"unknown {what} '{name}'{did_you_mean(name, registry)} (choices: {', '.join(sorted(registry))})")
+
+
+def build_decoder(settings: dict, seed: int | None = None) -> torch.nn.Module:
+    """An image decoder from its settings (``decoder_settings`` at fit time, ``config['decoder']`` in a
+    checkpoint), initialised from ``seed`` (the global RNG is restored)."""
+    from lesscli.models.imager import DECODERS
+
+    kwargs = dict(settings)
+    cls = lookup(DECODERS, kwargs.pop("name"), "decoder")
+    for key in ("shape", "patch_spacing_mm"):
+        if key in kwargs:
+            kwargs[key] = tuple(kwargs[key])
+    with torch.random.fork_rng(devices=[]):
+        if seed is not None:
+            torch.manual_seed(seed)
+        return cls(**kwargs)
 
 
 def build_encoder(config: dict):

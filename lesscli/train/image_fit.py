@@ -23,7 +23,7 @@ from lesscli.io.labels import INCLUSION, N_CLASSES
 from lesscli.io.scans import ScanSet
 from lesscli.models.imager import DECODERS, DEFAULT_DECODER, Imager, grid_to_dict
 from lesscli.models.imaging_loss import ALPHA_POWER, GAMMA, LAMBDA, imaging_loss
-from lesscli.models.registry import lookup
+from lesscli.models.registry import build_decoder, lookup
 from lesscli.train import distributed
 from lesscli.train.checkpoint import load_checkpoint, load_representation, save_checkpoint
 from lesscli.train.config import LoopConfig, check_rules, to_dict
@@ -84,23 +84,8 @@ def decoder_settings(cfg: ImageFitConfig, encoder_name: str, d_z: int, grid) -> 
     """Name and constructor arguments of the decoder for this encoder and grid."""
     name = cfg.image.decoder or DEFAULT_DECODER.get(encoder_name, "patch")
     common = {"d_z": int(d_z), "n_classes": N_CLASSES, "dim": cfg.image.dim, "width": cfg.image.width}
-    if name == "global":
-        return {"name": name, **common, "shape": list(grid.shape)}
-    return {"name": name, **common, "patch_px": cfg.image.patch_px, "depth_px": int(grid.shape[0]),
-            "patch_spacing_mm": list(grid.spacing_mm), "stitch": cfg.image.stitch}
-
-
-def build_decoder(settings: dict, seed: int | None = None) -> torch.nn.Module:
-    """Decoder from :func:`decoder_settings` (initialised from ``seed``; the global RNG is restored)."""
-    kwargs = dict(settings)
-    cls = lookup(DECODERS, kwargs.pop("name"), "decoder")
-    for key in ("shape", "patch_spacing_mm"):
-        if key in kwargs:
-            kwargs[key] = tuple(kwargs[key])
-    with torch.random.fork_rng(devices=[]):
-        if seed is not None:
-            torch.manual_seed(seed)
-        return cls(**kwargs)
+    extra = lookup(DECODERS, name, "decoder").grid_settings(grid, cfg.image.patch_px, cfg.image.stitch)
+    return {"name": name, **common, **extra}
 
 
 def _loss(logits: torch.Tensor, target: torch.Tensor, cfg: LossConfig) -> torch.Tensor:
