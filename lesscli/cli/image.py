@@ -59,7 +59,8 @@ def fit_cmd(data, model, rep_path, output, val_path, select, dim, finetune, slic
                 "image.select": select, "image.decoder": decoder}
     cfg = training_config(ImageFitConfig, explicit, train_opts)
     run_training(lambda train, val, **kw: fit_imager(train, val, rep_path, cfg, output, resume=train_opts["resume"], **kw),
-                 "image fit", data, val_path, cfg, output, fmt, train_opts["tensorboard"])
+                 "image fit", data, val_path, cfg, output, fmt, train_opts["tensorboard"],
+                 train_opts["threads"])
 
 
 def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
