@@ -71,10 +71,11 @@ def choose_threads(cores: int, load: float, work: Work = "throughput", size: flo
 
 
 def apply_threads(work: Work = "throughput", size: float = 0, override: int | None = None, jobs: int = 1,
-                  torch_too: bool = True) -> int:
+                  torch_too: bool = True, extra_load: float = 0.0) -> int:
     """Choose threads for each of ``jobs`` processes from the machine's free cores, set them here (before
-    the workers fork), and return the count. ``torch_too=False`` leaves torch unimported (numpy work)."""
-    n = choose_threads(usable_cores(), other_load(), work, size, override, jobs)
+    the workers fork), and return the count. ``torch_too=False`` leaves torch unimported (numpy work);
+    ``extra_load`` counts busy processes started too recently for the 1-minute load to show them."""
+    n = choose_threads(usable_cores(), other_load() + extra_load, work, size, override, jobs)
     set_threads(n, torch_too)
     return n
 

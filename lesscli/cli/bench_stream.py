@@ -8,7 +8,8 @@ sample: the whole model on the whole prefix (encoder over all L + 1 steps and ev
 Wall-clock and process CPU time are both reported: on a shared machine the CPU time is the better
 estimate of what an unloaded machine would show. A further column times deferred decoding: samples only advance GRU states and the image is refreshed
 every ``REFRESH_EVERY`` samples (mean cost per sample, refreshes included). With ``--load`` the
-whole measurement repeats beside N busy processes, one row per load level.
+whole measurement repeats beside N busy processes, one row per load level; the thread count is the one
+the ``stream`` command would choose with them running (unless ``--threads`` fixes it).
 """
 
 from __future__ import annotations
@@ -164,10 +165,11 @@ def cli(quick, steps_text, updates, full_repeats, dim, width_text, model_path, l
         models = [(imager, ckpt["norm_stats"], model_path)]
     else:
         models = [(*default_imager(int(dim), seed, w), "default (random init)") for w in widths]
-    apply_threads("latency", max(update_work(imager) for imager, _, _ in models), threads)
+    work = max(update_work(imager) for imager, _, _ in models)
     rows = []
     for load in loads:
         with busy_processes(load):
+            apply_threads("latency", work, threads, extra_load=load)   # the stream command's choice beside them
             for imager, stats, name in models:
                 rng = np.random.default_rng(seed)
                 for n in steps:
