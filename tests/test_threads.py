@@ -9,11 +9,14 @@ import click
 import pytest
 import torch
 from click.testing import CliRunner
+from factories import random_scanset
 from test_stream import save_tiny_imager
 
 from lesscli.bench.timing import SPIN, busy_processes
 from lesscli.cli.bench_stream import load_levels
 from lesscli.cli.main import cli
+from lesscli.infer.stream import StreamingImager
+from lesscli.io.scans import save_scans
 from lesscli.threads import LARGE_WORK, choose_threads, free_cores
 
 BIG, SMALL = LARGE_WORK, LARGE_WORK - 1
@@ -88,13 +91,16 @@ def keep_threads():
     torch.set_num_threads(before)
 
 
-def test_threads_option_reaches_torch_inside_stream(tmp_path, monkeypatch, keep_threads):
-    from lesscli.infer.stream import StreamingImager
-    from factories import random_scanset
-    from lesscli.io.scans import save_scans
-
+@pytest.fixture
+def tiny_files(tmp_path):
+    """A tiny imaging checkpoint and a one-scan set in tmp_path (im.pt, s.npz)."""
     save_tiny_imager(str(tmp_path / "im.pt"))
     save_scans(str(tmp_path / "s.npz"), random_scanset(n_scans=1, traj_per_scan=2, max_len=4, seed=1))
+    return tmp_path
+
+
+def test_threads_option_reaches_torch_inside_stream(tiny_files, monkeypatch, keep_threads):
+    tmp_path = tiny_files
     seen, push = [], StreamingImager.push
     monkeypatch.setattr(StreamingImager, "push", lambda self, *a: seen.append(torch.get_num_threads()) or push(self, *a))
     for threads in (3, 1):
@@ -114,3 +120,11 @@ def test_bench_stream_load_reports_quiet_and_loaded_rows_and_leaves_no_busy_proc
     assert [(r["load"], r["steps"]) for r in rows] == [(0, 50), (1, 50)]
     assert all(0 < r["incremental_median_ms"] <= r["incremental_p99_ms"] and r["threads"] >= 1 for r in rows)
     assert _spinning_children() == []
+
+
+def test_image_predict_records_the_thread_count(tiny_files, keep_threads):
+    tmp_path = tiny_files
+    result = CliRunner().invoke(cli, ["image", "predict", str(tmp_path / "im.pt"), str(tmp_path / "s.npz"),
+                                      "-o", str(tmp_path / "p.npz"), "--threads", "3", "--format", "jsonl"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout.splitlines()[-1])["threads"] == 3 == torch.get_num_threads()
