@@ -4,7 +4,7 @@ Threads are chosen, not inherited. Threads that wait on each other collapse when
 shared, so the count follows the cores actually free when the command starts: the cores this process
 may run on minus the 1-minute load of everything else, at least one.
 
-- Latency-bound work (a stream update, a guide query, a contact solve) runs on one thread, unless
+- Latency-bound work (a stream update, a guide query) runs on one thread, unless
   the work is large and at least two cores are clearly free.
 - Throughput work (training, benchmarks of it) uses every free core.
 - ``jobs`` worker processes split the free cores between them (at least one each).
