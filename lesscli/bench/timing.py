@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 
 def best_time(fn: Callable[[], object], repeat: int) -> tuple[float, object]:
@@ -14,3 +17,27 @@ def best_time(fn: Callable[[], object], repeat: int) -> tuple[float, object]:
         out = fn()
         best = min(best, time.perf_counter() - start)
     return best, out
+
+
+SPIN = "while True:\n    pass\n"     # a busy process: one core's worth of pure-Python spinning
+
+
+@contextmanager
+def busy_processes(n: int, settle_s: float = 0.2) -> Iterator[list[subprocess.Popen]]:
+    """``n`` spinning Python processes beside the body, killed and reaped on leaving (errors and Ctrl-C too).
+
+    ``settle_s`` lets them start spinning before the body measures anything.
+    """
+    procs: list[subprocess.Popen] = []
+    try:
+        for _ in range(n):
+            procs.append(subprocess.Popen([sys.executable, "-c", SPIN], stdin=subprocess.DEVNULL,
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        if procs:
+            time.sleep(settle_s)
+        yield procs
+    finally:
+        for p in procs:
+            p.kill()
+        for p in procs:
+            p.wait()

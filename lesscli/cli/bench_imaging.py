@@ -10,7 +10,7 @@ from __future__ import annotations
 import click
 
 from lesscli.bench.timing import best_time
-from lesscli.cli.common import format_option, renamed_option, seed_option
+from lesscli.cli.common import format_option, renamed_option, seed_option, threads_option
 
 SPACING_MM = (0.9, 0.4774, 0.4774)
 
@@ -63,7 +63,7 @@ def _case(dim: int, batch: int, repeat: int, gen) -> list[dict]:
                 help="Timing repeats (best of; default 5, quick 2).")
 @renamed_option("--batch", "--batch-size", "batch", type=click.IntRange(1), default=2, show_default=True,
                 help="Scans per timed batch.")
-@click.option("--threads", type=click.IntRange(1), default=None, help="Pin torch's CPU threads.")
+@threads_option()
 @seed_option()
 @format_option
 def cli(quick: bool, repeat: int | None, batch: int, threads: int | None, seed: int, fmt: str | None) -> None:
@@ -72,9 +72,9 @@ def cli(quick: bool, repeat: int | None, batch: int, threads: int | None, seed: 
     import torch
 
     from lesscli.io.records import emit_records
+    from lesscli.threads import apply_threads
 
-    if threads:
-        torch.set_num_threads(threads)
+    apply_threads("throughput", override=threads)
     gen = torch.Generator().manual_seed(seed)
     repeat = repeat or (2 if quick else 5)
     rows = []

@@ -7,7 +7,9 @@ is timed. The baseline, measured in the same run, is what a non-incremental syst
 sample: the whole model on the whole prefix (encoder over all L + 1 steps and every particle's patch).
 Wall-clock and process CPU time are both reported: on a shared machine the CPU time is the better
 estimate of what an unloaded machine would show. A further column times deferred decoding: samples only advance GRU states and the image is refreshed
-every ``REFRESH_EVERY`` samples (mean cost per sample, refreshes included).
+every ``REFRESH_EVERY`` samples (mean cost per sample, refreshes included). With ``--load`` the
+whole measurement repeats beside N busy processes, one row per load level; the thread count is the one
+the ``stream`` command would choose with them running (unless ``--threads`` fixes it).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import time
 
 import click
 
-from lesscli.cli.common import comma_list, format_option, seed_option
+from lesscli.cli.common import comma_list, format_option, seed_option, threads_option
 
 DEFAULT_STEPS = (100, 1000, 5000)
 PHANTOM_HALF_MM = 28.0          # touches fall inside the 60 mm phantom, 2 mm from its edge
@@ -130,18 +132,22 @@ def measure(imager, stats, steps: int, updates: int, full_repeats: int, rng) -> 
               help="Comma-separated decoder widths of the default model to time side by side (default: image fit's).")
 @click.option("--model", "model_path", type=click.Path(), default=None,
               help="Imaging checkpoint to time instead of the default model.")
-@click.option("--threads", type=click.IntRange(1), default=None, help="torch CPU threads (default: torch's choice).")
+@click.option("--load", "load_text", default="0", show_default=True, metavar="N|LIST",
+              help="Busy processes beside the measurement: N (rows for 0 and N) or a list such as 0,1,2.")
+@threads_option(help="CPU threads for torch and BLAS (default: the stream command's choice).")
 @seed_option()
 @format_option
-def cli(quick, steps_text, updates, full_repeats, dim, width_text, model_path, threads, seed, fmt) -> None:
+def cli(quick, steps_text, updates, full_repeats, dim, width_text, model_path, load_text, threads, seed, fmt) -> None:
     """Per-update latency (median, p99) of incremental imaging vs full recomputation, as a table."""
     import numpy as np
     import torch
 
+    from lesscli.bench.timing import busy_processes
+    from lesscli.infer.stream import update_work
     from lesscli.io.records import emit_records
+    from lesscli.threads import apply_threads
 
-    if threads:
-        torch.set_num_threads(threads)
+    loads = load_levels(load_text)
     steps = comma_list(steps_text, int, "--steps") if steps_text else DEFAULT_STEPS[:2] if quick else DEFAULT_STEPS
     if not steps or min(steps) < 1:
         raise click.BadParameter(f"'{steps_text}': need one or more prefix lengths >= 1", param_hint="--steps")
@@ -159,12 +165,27 @@ def cli(quick, steps_text, updates, full_repeats, dim, width_text, model_path, t
         models = [(imager, ckpt["norm_stats"], model_path)]
     else:
         models = [(*default_imager(int(dim), seed, w), "default (random init)") for w in widths]
+    work = max(update_work(imager) for imager, _, _ in models)
     rows = []
-    for imager, stats, name in models:
-        rng = np.random.default_rng(seed)
-        for n in steps:
-            row = measure(imager, stats, n, updates, full_repeats, rng)
-            row.update({"dim": int(imager.grid.shape[0] > 1) + 2, "width": getattr(imager.decoder, "width", None),
-                        "threads": torch.get_num_threads(), "model": name})
-            rows.append(row)
+    for load in loads:
+        with busy_processes(load):
+            apply_threads("latency", work, threads, extra_load=load)   # the stream command's choice beside them
+            for imager, stats, name in models:
+                rng = np.random.default_rng(seed)
+                for n in steps:
+                    row = measure(imager, stats, n, updates, full_repeats, rng)
+                    row.update({"dim": int(imager.grid.shape[0] > 1) + 2,
+                                "width": getattr(imager.decoder, "width", None),
+                                "threads": torch.get_num_threads(), "load": load, "model": name})
+                    rows.append(row)
     emit_records(rows, fmt)
+
+
+def load_levels(text: str) -> list[int]:
+    """``--load``: ``'N'`` -> [0, N] (quiet and loaded), ``'0,1,2'`` -> those levels in order."""
+    levels = list(comma_list(text, int, "--load"))
+    if not levels or min(levels) < 0:
+        raise click.BadParameter(f"'{text}': need busy-process counts >= 0", param_hint="--load")
+    if len(levels) == 1 and levels[0] > 0 and "," not in text:
+        levels = [0, *levels]
+    return levels

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import checked_output, comma_list, device_option, format_option, seed_option
+from lesscli.cli.common import checked_output, comma_list, device_option, format_option, seed_option, threads_option
 
 TABLE_COLUMNS = ["knob", "value", "sim_s", "pretrain_s", "fit_s", "train_s", "train_s_ratio", "latency_ms_per_scan",
                  "f1_single", "f1_multiple", "f1_single_delta", "f1_multiple_delta"]
@@ -40,7 +40,7 @@ def _parse_values(items: tuple[str, ...], knobs: dict, base) -> dict[str, tuple]
 @click.option("--knob-plot", "knob_plot", type=click.Path(), default=None, callback=checked_output(),
               help="PNG: F1 on single and multiple against the value of the (one) chosen knob.")
 @device_option()
-@click.option("--threads", type=click.IntRange(min=1), default=None, help="Torch CPU threads.")
+@threads_option()
 @seed_option()
 @format_option
 def cli(quick, knobs, inserts, n_traj, epochs, image_epochs, values, work_dir, plot_path, knob_plot, device, threads,
@@ -56,12 +56,11 @@ def cli(quick, knobs, inserts, n_traj, epochs, image_epochs, values, work_dir, p
     import dataclasses
     import tempfile
 
-    import torch
-
     from lesscli.bench.tradeoff import FULL, KNOBS, QUICK, TradeoffRun, run_tradeoff
     from lesscli.cli.common import progress
     from lesscli.errors import closest
     from lesscli.io.records import emit_records
+    from lesscli.threads import apply_threads
 
     for knob in knobs:
         if knob not in KNOBS:
@@ -70,8 +69,7 @@ def cli(quick, knobs, inserts, n_traj, epochs, image_epochs, values, work_dir, p
                                      param_hint="--knob")
     if knob_plot and len(set(knobs)) != 1:
         raise click.UsageError("--knob-plot needs exactly one --knob")
-    if threads:
-        torch.set_num_threads(threads)
+    apply_threads("throughput", override=threads)
     plan = QUICK if quick else FULL
     sizes = {"single_inserts": inserts, "n_traj": n_traj, "image_epochs": image_epochs}
     plan = dataclasses.replace(plan, **{k: v for k, v in sizes.items() if v is not None},

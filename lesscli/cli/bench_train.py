@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import device_option, format_option
+from lesscli.cli.common import device_option, format_option, threads_option
 
 
 @click.command("train")
@@ -15,7 +15,7 @@ from lesscli.cli.common import device_option, format_option
 @click.option("--batch-size", type=int, default=2, show_default=True, help="Scans per batch.")
 @click.option("--repeats", type=int, default=None, help="Timed repeats after one warm-up.  [default: 3; quick: 1]")
 @device_option()
-@click.option("--threads", type=int, default=None, help="CPU threads for torch.  [default: torch's choice]")
+@threads_option()
 @format_option
 def cli(quick: bool, sizes: tuple[str, ...], steps: int | None, batch_size: int, repeats: int | None,
         device: str, threads: int | None, fmt: str | None) -> None:
@@ -27,10 +27,9 @@ def cli(quick: bool, sizes: tuple[str, ...], steps: int | None, batch_size: int,
 
     Example: less bench train --quick --format table
     """
-    import torch
-
     from lesscli.errors import LessError
     from lesscli.io.records import emit_records
+    from lesscli.threads import apply_threads
     from lesscli.train.benchmark import run
     from lesscli.train.distributed import resolve_device
 
@@ -39,8 +38,5 @@ def cli(quick: bool, sizes: tuple[str, ...], steps: int | None, batch_size: int,
     repeats = repeats or (1 if quick else 3)
     if steps < 1 or batch_size < 1 or repeats < 1:
         raise LessError("--steps, --batch-size and --repeats must be >= 1")
-    if threads is not None:
-        if threads < 1:
-            raise LessError("--threads must be >= 1")
-        torch.set_num_threads(threads)
+    apply_threads("throughput", override=threads)
     emit_records(run(chosen, steps, batch_size, repeats, resolve_device(device)), fmt)

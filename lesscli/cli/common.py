@@ -121,6 +121,11 @@ def orientations_option(default: str = "0-7", help: str = "Orientations k (x 45 
                         callback=lambda ctx, param, value: orientation_list(value, "--orientations"))
 
 
+def threads_option(help: str = "CPU threads for torch and BLAS (default: chosen from the free cores)."):
+    """``--threads N``: overrides the thread policy (lesscli.threads) on every command that does torch work."""
+    return click.option("--threads", type=click.IntRange(1), default=None, metavar="N", help=help)
+
+
 def device_option(help: str = "auto (CUDA when available, else CPU), cpu, cuda or cuda:N."):
     """``--device``, ``auto`` by default in every command."""
     return click.option("--device", default="auto", show_default=True, help=help)
@@ -148,7 +153,7 @@ def training_options(default_epochs: int, tables: str, set_example: str):
     """The options every training command shares (``--epochs`` ... ``--resume``); None = not given.
 
     The command receives them as keyword arguments ``epochs, batch_size, lr, seed, device,
-    config_path, overrides, resume, tensorboard`` (collect them with ``**train_opts``).
+    config_path, overrides, resume, tensorboard, threads`` (collect them with ``**train_opts``).
     """
     options = [
         click.option("--epochs", type=int, default=None, help=f"Epochs.  [default: {default_epochs}]"),
@@ -161,6 +166,7 @@ def training_options(default_epochs: int, tables: str, set_example: str):
         click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
                      help=f"Override a setting, e.g. {set_example} (repeatable)."),
         click.option("--resume", is_flag=True, help="Continue from <stem>.last.pt with the same settings."),
+        threads_option(),
         click.option("--tensorboard", default=None, type=click.Path(file_okay=False), metavar="DIR",
                      help="Also write each epoch's losses and scores as TensorBoard scalars into DIR "
                           "(needs the tensorboard extra)."),
@@ -182,20 +188,25 @@ def training_config(cls, explicit: dict, train_opts: dict):
 
 
 def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, output: str, fmt: str | None,
-                 tensorboard: str | None = None) -> None:
+                 tensorboard: str | None = None, threads: int | None = None) -> None:
     """Load DATA and --val, train under torchrun/DDP when launched so, and print the summary on rank 0.
 
     ``train_fn(train, val, env=, history=, watch=, names=)`` trains and returns a summary record. Rank
     0 shows the epoch bar (batch bars with -v) and writes the TensorBoard scalars (``tensorboard``);
-    a missing tensorboard package is an error before anything is loaded.
+    a missing tensorboard package is an error before anything is loaded. Each process takes its
+    share of the free cores (``threads`` overrides; lesscli.threads), recorded in the summary.
     """
+    import os
+
     from lesscli.io.records import emit_records
     from lesscli.io.scans import append_history
     from lesscli.train import distributed
+    from lesscli.threads import apply_threads
     from lesscli.train.watch import TensorBoardScalars, Watch, require_tensorboard
 
     if tensorboard:
         require_tensorboard(tensorboard)
+    n_threads = apply_threads("throughput", override=threads, jobs=int(os.environ.get("LOCAL_WORLD_SIZE", 1)))
     train = training_scans(data)
     val = training_scans(val_path) if val_path else None
     env = distributed.setup(cfg.train.device)
@@ -210,6 +221,7 @@ def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, outp
         distributed.teardown(env)
     if not env.is_main:
         return
+    summary["threads"] = n_threads
     if output == "-":
         LOG.warning("%s summary: %s", what, summary)
     else:

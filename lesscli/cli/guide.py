@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import checked_output, device_option, format_option
+from lesscli.cli.common import checked_output, device_option, format_option, threads_option
 
 
 @click.command("guide")
@@ -26,9 +26,10 @@ from lesscli.cli.common import checked_output, device_option, format_option
 @click.option("--score", default="entropy", show_default=True,
               help="Uncertainty to cover: 'entropy' (all classes) or 'inclusion' (inclusion vs the rest).")
 @device_option()
+@threads_option()
 @format_option
 def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margin_mm, width_mm, score, device,
-        fmt) -> None:
+        threads, fmt) -> None:
     """Suggest the next K touches (x, y mm) for each scan of the partial scan set PARTIAL.
 
     The partial scan is imaged with MODEL; touches go where the most entropy lies within a touch's
@@ -37,11 +38,15 @@ def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margi
 
     Example: less guide imager.pt partial.npz --k 5 --plot overlay.png
     """
+    import numpy as np
+
     from lesscli.errors import DataError
     from lesscli.infer.guide import UNCERTAINTY, GuideOptions, guide_scan
     from lesscli.infer.predict import load_imager, scans_for_model
+    from lesscli.infer.stream import update_work
     from lesscli.io.records import emit_records
     from lesscli.models.registry import lookup
+    from lesscli.threads import apply_threads
     from lesscli.train.distributed import resolve_device
 
     lookup(UNCERTAINTY, score, "guide score")
@@ -52,6 +57,8 @@ def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margi
     chosen = [scan_index] if scan_index is not None else list(range(scans.n_scans))
     if plot_path and len(chosen) != 1:
         raise click.UsageError(f"--plot draws one scan; {partial} has {scans.n_scans}: pick one with --scan")
+    longest = max(np.diff(scans.scan_step_offsets())[chosen], default=1)
+    apply_threads("latency", update_work(imager) * longest, threads)   # one full pass over a partial scan
     opts = GuideOptions(k, radius_mm, exclusion_mm, margin_mm, score)
     rows = []
     for s in chosen:

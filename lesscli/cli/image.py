@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import checked_output, device_option, format_option, output_option, training_options
+from lesscli.cli.common import (checked_output, device_option, format_option, output_option, threads_option,
+                                training_options)
 
 
 @click.group("image")
@@ -59,7 +60,8 @@ def fit_cmd(data, model, rep_path, output, val_path, select, dim, finetune, slic
                 "image.select": select, "image.decoder": decoder}
     cfg = training_config(ImageFitConfig, explicit, train_opts)
     run_training(lambda train, val, **kw: fit_imager(train, val, rep_path, cfg, output, resume=train_opts["resume"], **kw),
-                 "image fit", data, val_path, cfg, output, fmt, train_opts["tensorboard"])
+                 "image fit", data, val_path, cfg, output, fmt, train_opts["tensorboard"],
+                 train_opts["threads"])
 
 
 def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
@@ -99,9 +101,10 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
 @click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True,
               help="Scans imaged together (memory against speed).")
 @device_option()
+@threads_option()
 @format_option
 def predict_cmd(model, data, output, threshold, min_volume_mm3, steps, every, grow, slice_index, nifti_dir,
-                batch_size, device, fmt) -> None:
+                batch_size, device, threads, fmt) -> None:
     """Predict label images of every scan in DATA with an imaging checkpoint MODEL.
 
     Per scan: class probabilities, labels, per-pixel Shannon entropy (nats), the truth when DATA
@@ -120,9 +123,11 @@ def predict_cmd(model, data, output, threshold, min_volume_mm3, steps, every, gr
     from lesscli.io.predictions import save_predictions
     from lesscli.io.records import emit_records
     from lesscli.io.scans import append_history
+    from lesscli.threads import apply_threads
     from lesscli.train.distributed import resolve_device
 
     t0 = time.perf_counter()
+    n_threads = apply_threads("throughput", override=threads)     # whole scans in batches
     opts = PredictOptions(threshold, steps, every, grow, batch_size, slice_index, min_volume_mm3)
     preds, ckpt, scans = predict_file(model, data, opts, resolve_device(device), progress=progress)
     preds.meta.update({"imager": model, "set": data,
@@ -133,7 +138,7 @@ def predict_cmd(model, data, output, threshold, min_volume_mm3, steps, every, gr
     summary = {"output": output, "scans": scans.n_scans, "predictions": len(preds.scans),
                "dim": preds.meta["dim"], "particles": preds.meta["particles"],
                "mean_entropy_nats": float(np.mean([p.entropy.mean() for p in preds.scans])) if preds.scans else None,
-               "nifti_files": len(paths), "seconds": round(time.perf_counter() - t0, 2)}
+               "nifti_files": len(paths), "threads": n_threads, "seconds": round(time.perf_counter() - t0, 2)}
     if output == "-":
         LOG.warning("image predict summary: %s", summary)
     else:

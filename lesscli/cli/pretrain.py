@@ -41,4 +41,5 @@ def cli(data: str, output: str, val_path: str | None, model_name, receptive_fiel
                 "model.max_steps_per_particle": max_steps, "model.dim": dim}
     cfg = training_config(PretrainConfig, explicit, train_opts)
     run_training(lambda train, val, **kw: pretrain(train, val, cfg, output, resume=train_opts["resume"], **kw),
-                 "pretrain", data, val_path, cfg, output, fmt, train_opts["tensorboard"])
+                 "pretrain", data, val_path, cfg, output, fmt, train_opts["tensorboard"],
+                 train_opts["threads"])

@@ -34,8 +34,10 @@ def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | No
     from lesscli.io.scans import append_history, save_scans
     from lesscli.sim.scene import load_scene
     from lesscli.sim.simulate import simulate
+    from lesscli.threads import apply_threads
 
     t0 = time.perf_counter()
+    threads = apply_threads("throughput", jobs=jobs, torch_too=False)     # per worker: --jobs splits the cores
     i_n = parse_shard(shard)
     scene = load_scene(scene_path, [*overrides, *([f"seed={seed}"] if seed is not None else [])])
     scans = simulate(scene, jobs=jobs, shard=i_n,
@@ -43,5 +45,5 @@ def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | No
     scans.meta = append_history(scans.meta, seed=scene.seed)
     save_scans(output, scans)
     summary = {"output": output, "scans": scans.n_scans, "trajectories": scans.n_traj, "steps": scans.n_steps,
-               "seed": scene.seed, "shard": f"{i_n[0]}/{i_n[1]}", "seconds": round(time.perf_counter() - t0, 2)}
+               "seed": scene.seed, "shard": f"{i_n[0]}/{i_n[1]}", "threads": threads, "seconds": round(time.perf_counter() - t0, 2)}
     emit_records([summary], fmt, stream=sys.stderr if output == "-" else sys.stdout)

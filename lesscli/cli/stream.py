@@ -7,7 +7,7 @@ import time
 
 import click
 
-from lesscli.cli.common import checked_output, device_option, renamed_option
+from lesscli.cli.common import checked_output, device_option, renamed_option, threads_option
 
 EMIT_DEFAULT = 10
 LATENCY_PERCENTILES = (50, 90, 99)
@@ -28,7 +28,8 @@ LATENCY_PERCENTILES = (50, 90, 99)
               help="Pillar/inclusion only above this probability (hand-held setting: 0.8). Default: argmax.")
 @click.option("--defer", is_flag=True, help="Re-decode patches only when a record is written (same images, faster).")
 @device_option()
-def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer, device) -> None:
+@threads_option()
+def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer, device, threads) -> None:
     """Image SOURCE incrementally with the imaging checkpoint MODEL.
 
     SOURCE is a scan set (each scan replayed from a fresh state, at --rate samples/s or as fast as
@@ -43,10 +44,13 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer
     import os
 
     from lesscli.infer.predict import load_imager
+    from lesscli.infer.stream import update_work
+    from lesscli.threads import apply_threads
     from lesscli.train.distributed import resolve_device
 
     dev = resolve_device(device)
     imager, ckpt = load_imager(model, dev)
+    apply_threads("latency", update_work(imager), threads)
     if monitor_dir:
         os.makedirs(monitor_dir, exist_ok=True)
     emitter = Emitter(emit_every, monitor_dir, threshold)

@@ -143,6 +143,25 @@ class WholeImage:
 CANVASES: dict[type, type] = {PatchDecoder: PatchCanvas, GlobalDecoder: WholeImage}
 
 
+PARTICLES_PER_TOUCH = 10        # particles a touch typically reaches (default model: 9.5 per update)
+
+
+def update_work(imager: torch.nn.Module) -> int:
+    """Floating-point operations of one stream update, roughly: each particle a touch reaches takes a
+    step through the encoder's weights and re-decodes its patch (counted by torch's flop counter)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    decoder = imager.decoder
+    per_patch = 0
+    if hasattr(decoder, "patches"):
+        counter = FlopCounterMode(display=False)
+        with counter, torch.no_grad():
+            decoder.patches(torch.zeros(1, 1, decoder.inp.in_features))
+        per_patch = counter.get_total_flops()
+    encoder = 2 * sum(p.numel() for p in imager.encoder.parameters())
+    return PARTICLES_PER_TOUCH * (encoder + per_patch)
+
+
 class StreamingImager:
     """Incremental imaging with a trained :class:`lesscli.models.imager.Imager`.
 

@@ -1,0 +1,97 @@
+"""The thread policy: how many CPU threads a command's torch (and BLAS) work gets.
+
+Threads are chosen, not inherited. Threads that wait on each other collapse when the cores are
+shared, so the count follows the cores actually free when the command starts: the cores this process
+may run on minus the 1-minute load of everything else, at least one.
+
+- Latency-bound work (a stream update, a guide query) runs on one thread, unless
+  the work is large and at least two cores are clearly free.
+- Throughput work (training, benchmarks of it) uses every free core.
+- ``jobs`` worker processes split the free cores between them (at least one each).
+- ``--threads N`` overrides the choice.
+
+:func:`choose_threads` is the pure rule (table-tested); :func:`apply_threads` reads the machine,
+applies the choice to torch and, where threadpoolctl is installed, to the BLAS/OpenMP pools.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from typing import Literal
+
+Work = Literal["latency", "throughput"]
+
+# Floating-point operations per call above which a latency-bound call gains from a thread pool: a few
+# ms of one core. Below it the cost of waking and joining threads is of the order of the work itself.
+LARGE_WORK = 100_000_000
+CLEARLY_FREE = 2                 # free cores needed before latency-bound work takes more than one
+
+
+def usable_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the platform has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:       # no affinity on this platform
+        return os.cpu_count() or 1
+
+
+def other_load() -> float:
+    """The 1-minute load average (0 where the platform has none); read at start, it is the others' load."""
+    try:
+        return os.getloadavg()[0]
+    except (AttributeError, OSError):
+        return 0.0
+
+
+def free_cores(cores: int, load: float) -> int:
+    """Usable cores minus the (rounded) load of other processes, at least 1."""
+    return max(1, cores - math.floor(load + 0.5))
+
+
+def choose_threads(cores: int, load: float, work: Work = "throughput", size: float = 0,
+                   override: int | None = None, jobs: int = 1) -> int:
+    """Threads for each of ``jobs`` workers doing ``work`` of ``size`` flops per call.
+
+    Args:
+        cores: usable cores (CPU affinity).
+        load: 1-minute load average of the other processes.
+        work: ``latency`` (one small call at a time) or ``throughput`` (training, benchmarks).
+        size: floating-point operations of the dominant call (only latency work looks at it).
+        override: ``--threads``; wins when given.
+        jobs: worker processes sharing the free cores.
+    """
+    if override is not None:
+        return max(1, override)
+    share = max(1, free_cores(cores, load) // max(1, jobs))
+    if work == "latency" and not (share >= CLEARLY_FREE and size >= LARGE_WORK):
+        return 1
+    return share
+
+
+def apply_threads(work: Work = "throughput", size: float = 0, override: int | None = None, jobs: int = 1,
+                  torch_too: bool = True, extra_load: float = 0.0) -> int:
+    """Choose threads for each of ``jobs`` processes from the machine's free cores, set them here (before
+    the workers fork), and return the count. ``torch_too=False`` leaves torch unimported (numpy work);
+    ``extra_load`` counts busy processes started too recently for the 1-minute load to show them."""
+    n = choose_threads(usable_cores(), other_load() + extra_load, work, size, override, jobs)
+    set_threads(n, torch_too)
+    return n
+
+
+def set_threads(n: int, torch_too: bool = True) -> None:
+    """Set torch's intra-op threads (``torch_too``) and, where threadpoolctl is installed, the BLAS/OpenMP
+    pools (forked workers inherit both)."""
+    if torch_too:
+        import torch
+
+        torch.set_num_threads(n)
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:          # optional: torch's own pools are set either way
+        pass
+    else:
+        threadpool_limits(n)
+    logging.getLogger("less").info("threads: %d (cores %d, 1-min load %.2f)", n, usable_cores(), other_load())
+

@@ -1,0 +1,130 @@
+"""The thread policy (a pure rule, table-tested), ``--threads`` reaching torch, and ``bench stream --load``."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import click
+import pytest
+import torch
+from click.testing import CliRunner
+from factories import random_scanset
+from test_stream import save_tiny_imager
+
+from lesscli.bench.timing import SPIN, busy_processes
+from lesscli.cli.bench_stream import load_levels
+from lesscli.cli.main import cli
+from lesscli.infer.stream import StreamingImager
+from lesscli.io.scans import save_scans
+from lesscli.threads import LARGE_WORK, choose_threads, free_cores
+
+BIG, SMALL = LARGE_WORK, LARGE_WORK - 1
+
+
+@pytest.mark.parametrize("cores, load, expected", [
+    (2, 0.0, 2), (2, 0.4, 2), (2, 0.6, 1), (2, 1.0, 1), (2, 5.0, 1), (8, 2.4, 6), (8, 2.5, 5), (1, 0.0, 1),
+])
+def test_free_cores_subtract_the_rounded_load_and_keep_one(cores, load, expected):
+    assert free_cores(cores, load) == expected
+
+
+@pytest.mark.parametrize("cores, load, work, size, override, jobs, expected", [
+    (2, 0.0, "throughput", 0, None, 1, 2),       # training on a quiet machine: every core
+    (8, 3.0, "throughput", 0, None, 1, 5),       # ... on a busy one: the free cores
+    (8, 0.0, "throughput", 0, None, 2, 4),       # two workers split them
+    (8, 0.0, "throughput", 0, None, 3, 2),       # ... rounding down
+    (2, 0.0, "throughput", 0, None, 4, 1),       # more workers than cores: one each
+    (2, 3.0, "throughput", 0, None, 1, 1),       # overloaded: still one
+    (8, 0.0, "latency", SMALL, None, 1, 1),      # small latency-bound work: one thread on an idle machine
+    (8, 0.0, "latency", BIG, None, 1, 8),        # large latency-bound work, cores clearly free
+    (2, 1.0, "latency", BIG, None, 1, 1),        # ... but only one core free
+    (8, 0.0, "latency", BIG, None, 8, 1),        # ... or one core per worker
+    (8, 0.0, "latency", BIG, None, 4, 2),
+    (2, 0.0, "latency", 0, 3, 1, 3),             # --threads wins, even above the cores
+    (2, 5.0, "throughput", 0, 2, 2, 2),
+])
+def test_thread_policy_table(cores, load, work, size, override, jobs, expected):
+    assert choose_threads(cores, load, work, size, override, jobs) == expected
+
+
+@pytest.mark.parametrize("text, levels", [("0", [0]), ("2", [0, 2]), ("0,1,2", [0, 1, 2]), ("1,", [1])])
+def test_load_levels(text, levels):
+    assert load_levels(text) == levels
+
+
+@pytest.mark.parametrize("text", ["-1", "x", ""])
+def test_load_levels_reject_bad_text(text):
+    with pytest.raises(click.BadParameter):
+        load_levels(text)
+
+
+def _spinning_children() -> list[int]:
+    """Pids of this process's children running the busy loop."""
+    found = []
+    for entry in os.listdir("/proc"):
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                cmd = f.read()
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == os.getpid() and SPIN.encode() in cmd:
+            found.append(int(entry))
+    return found
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads /proc")
+@pytest.mark.parametrize("error", [RuntimeError, KeyboardInterrupt])
+def test_busy_processes_spin_and_are_gone_after_an_error(error):
+    with pytest.raises(error), busy_processes(2, settle_s=0.0) as procs:
+        assert sorted(_spinning_children()) == sorted(p.pid for p in procs)
+        raise error
+    assert all(p.returncode is not None for p in procs) and _spinning_children() == []
+
+
+@pytest.fixture
+def keep_threads():
+    before = torch.get_num_threads()
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture
+def tiny_files(tmp_path):
+    """A tiny imaging checkpoint and a one-scan set in tmp_path (im.pt, s.npz)."""
+    save_tiny_imager(str(tmp_path / "im.pt"))
+    save_scans(str(tmp_path / "s.npz"), random_scanset(n_scans=1, traj_per_scan=2, max_len=4, seed=1))
+    return tmp_path
+
+
+def test_threads_option_reaches_torch_inside_stream(tiny_files, monkeypatch, keep_threads):
+    tmp_path = tiny_files
+    seen, push = [], StreamingImager.push
+    monkeypatch.setattr(StreamingImager, "push", lambda self, *a: seen.append(torch.get_num_threads()) or push(self, *a))
+    for threads in (3, 1):
+        seen.clear()
+        result = CliRunner().invoke(cli, ["stream", str(tmp_path / "im.pt"), str(tmp_path / "s.npz"),
+                                          "--threads", str(threads)])
+        assert result.exit_code == 0, result.output
+        assert seen and set(seen) == {threads}
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads /proc")
+def test_bench_stream_load_reports_quiet_and_loaded_rows_and_leaves_no_busy_process(keep_threads):
+    result = CliRunner().invoke(cli, ["bench", "stream", "--load", "1", "--steps", "50", "--updates", "5",
+                                      "--full-repeats", "1", "--dim", "2", "--width", "8", "--format", "jsonl"])
+    assert result.exit_code == 0, result.output
+    rows = [json.loads(line) for line in result.stdout.splitlines() if line.strip()]
+    assert [(r["load"], r["steps"]) for r in rows] == [(0, 50), (1, 50)]
+    assert all(0 < r["incremental_median_ms"] <= r["incremental_p99_ms"] and r["threads"] >= 1 for r in rows)
+    assert _spinning_children() == []
+
+
+def test_image_predict_records_the_thread_count(tiny_files, keep_threads):
+    tmp_path = tiny_files
+    result = CliRunner().invoke(cli, ["image", "predict", str(tmp_path / "im.pt"), str(tmp_path / "s.npz"),
+                                      "-o", str(tmp_path / "p.npz"), "--threads", "3", "--format", "jsonl"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout.splitlines()[-1])["threads"] == 3 == torch.get_num_threads()
