@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import checked_output, comma_list, device_option, format_option, seed_option, threads_option
+from lesscli.cli.common import (
+    checked_output,
+    comma_list,
+    device_option,
+    format_option,
+    seed_option,
+    threads_option,
+)
 
 TABLE_COLUMNS = ["knob", "value", "sim_s", "pretrain_s", "fit_s", "train_s", "train_s_ratio", "latency_ms_per_scan",
                  "f1_single", "f1_multiple", "f1_single_delta", "f1_multiple_delta"]

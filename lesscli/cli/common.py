@@ -200,13 +200,13 @@ def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, outp
 
     from lesscli.io.records import emit_records
     from lesscli.io.scans import append_history
-    from lesscli.train import distributed
     from lesscli.threads import apply_threads
+    from lesscli.train import distributed
     from lesscli.train.watch import TensorBoardScalars, Watch, require_tensorboard
 
     if tensorboard:
         require_tensorboard(tensorboard)
-    n_threads = apply_threads("throughput", override=threads, jobs=int(os.environ.get("LOCAL_WORLD_SIZE", 1)))
+    n_threads = apply_threads("throughput", override=threads, jobs=int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
     train = training_scans(data)
     val = training_scans(val_path) if val_path else None
     env = distributed.setup(cfg.train.device)

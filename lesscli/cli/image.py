@@ -5,8 +5,14 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import (checked_output, device_option, format_option, output_option, threads_option,
-                                training_options)
+from lesscli.cli.common import (
+    checked_output,
+    device_option,
+    format_option,
+    output_option,
+    threads_option,
+    training_options,
+)
 
 
 @click.group("image")
