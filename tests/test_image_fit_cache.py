@@ -68,17 +68,20 @@ def test_best_epoch_is_the_best_validation_f1_or_loss(tmp_path, select):
     assert summary["best_epoch"] == best["epoch"]
 
 
+class _Item:
+    """A validation batch of given logits and target, already on the device."""
+
+    def __init__(self, logits, target):
+        self.inputs, self.target = logits, target
+
+    def to(self, device):
+        return self
+
+
 def test_threshold_is_chosen_on_validation_voxels():
     """Inclusion voxels at p = 0.95, false ones at p = 0.65: any threshold in [0.65, 0.95) scores F1 = 1,
     argmax and 0.5 / 0.6 do not, and ties keep the lowest threshold (0.7)."""
     from lesscli.train.image_fit import choose_labelling
-
-    class Item:
-        def __init__(self, logits, target):
-            self.inputs, self.target = logits, target
-
-        def to(self, device):
-            return self
 
     target = torch.zeros(1, 1, 2, 2, dtype=torch.long)
     target[0, 0, 0, 0] = 3
@@ -87,7 +90,7 @@ def test_threshold_is_chosen_on_validation_voxels():
     probs[0, 3, 0, 0, 0] = 0.95
     probs[0, :3, 0, 0, 0] = 0.05 / 3
     logits = probs.log()
-    threshold, min_volume, scores = choose_labelling(torch.nn.Identity(), [Item(logits, target)], 1,
+    threshold, min_volume, scores = choose_labelling(torch.nn.Identity(), [_Item(logits, target)], 1,
                                                      torch.device("cpu"), (1.0, 1.0, 1.0),
                                                      collate_fn=lambda items: items[0])
     assert threshold == 0.7 and min_volume == 0.0 and scores["0.7"]["0"] == 1.0 and scores["None"]["0"] < 1.0
@@ -98,13 +101,6 @@ def test_minimum_volume_is_chosen_on_validation_regions():
     separates them, a 50 mm^3 minimum drops the true one too, 0 < min <= 27 keeps only the true one."""
     from lesscli.train.image_fit import choose_labelling
 
-    class Item:
-        def __init__(self, logits, target):
-            self.inputs, self.target = logits, target
-
-        def to(self, device):
-            return self
-
     target = torch.ones(1, 8, 8, 8, dtype=torch.long)
     target[0, 1:4, 1:4, 1:4] = 3
     probs = torch.full((1, 4, 8, 8, 8), 0.0)
@@ -114,7 +110,7 @@ def test_minimum_volume_is_chosen_on_validation_regions():
     probs[0, :, stiff] = torch.tensor([0.0, 0.1, 0.0, 0.9])[:, None]
     logits = (probs + 1e-6).log()
     threshold, min_volume, scores = choose_labelling(
-        torch.nn.Identity(), [Item(logits, target)], 1, torch.device("cpu"), (1.0, 1.0, 1.0),
+        torch.nn.Identity(), [_Item(logits, target)], 1, torch.device("cpu"), (1.0, 1.0, 1.0),
         collate_fn=lambda items: items[0], volumes=(0.0, 10.0, 50.0))
     assert (threshold, min_volume) == (None, 10.0) and scores["None"]["10"] == 1.0
     assert scores["None"]["0"] < 1.0 and scores["None"]["50"] == 0.0

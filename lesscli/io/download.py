@@ -83,8 +83,31 @@ def file_md5(path: str) -> str:
     return digest.hexdigest()
 
 
-def _transfer(remote: RemoteFile, part: str, bar, timeout_s: float) -> int | None:
-    """One GET from the end of ``part``: append what arrives. Returns the total size when the server tells it.
+class _RunningMd5:
+    """MD5 of a growing ``.part`` file, fed as bytes arrive, so a finished download is not read again;
+    bytes already on disk (a ``.part`` left by an earlier run) are read once to catch up."""
+
+    def __init__(self) -> None:
+        self.digest, self.bytes = hashlib.md5(usedforsecurity=False), 0
+
+    def through(self, part: str, offset: int) -> None:
+        """Make the digest cover exactly the first ``offset`` bytes of ``part``."""
+        if offset < self.bytes:                      # the file was cut back (a restart): start over
+            self.__init__()
+        if offset > self.bytes:
+            with open(part, "rb") as fh:
+                fh.seek(self.bytes)
+                while self.bytes < offset and (chunk := fh.read(min(CHUNK_BYTES, offset - self.bytes))):
+                    self.update(chunk)
+
+    def update(self, chunk: bytes) -> None:
+        self.digest.update(chunk)
+        self.bytes += len(chunk)
+
+
+def _transfer(remote: RemoteFile, part: str, bar, timeout_s: float, md5: _RunningMd5) -> int | None:
+    """One GET from the end of ``part``: append what arrives (and hash it into ``md5``). Returns the total
+    size when the server tells it.
 
     Raises:
         urllib.error.HTTPError: the server answered an error status (416 included).
@@ -104,21 +127,24 @@ def _transfer(remote: RemoteFile, part: str, bar, timeout_s: float) -> int | Non
             total = int(length) if length and length.isdigit() else None
         bar.reset(total=total or remote.size)
         bar.update(offset)
+        md5.through(part, offset)
         with open(part, "r+b" if offset else "wb") as fh:
             fh.seek(offset)
             fh.truncate()
             while chunk := resp.read(CHUNK_BYTES):
                 fh.write(chunk)
+                md5.update(chunk)
                 bar.update(len(chunk))
     return total
 
 
-def _verify(remote: RemoteFile, part: str) -> str:
+def _verify(remote: RemoteFile, part: str, md5: _RunningMd5) -> str:
     """Size and MD5 of the finished ``part`` against the published ones; the hex digest."""
     size = os.path.getsize(part)
     if remote.size is not None and size != remote.size:
         raise DownloadError(f"{remote.url}: got {size} bytes, the record says {remote.size}")
-    digest = file_md5(part)
+    md5.through(part, size)
+    digest = md5.digest.hexdigest()
     if remote.md5 and digest != remote.md5.lower():
         with contextlib.suppress(FileNotFoundError):
             os.remove(part)
@@ -154,6 +180,7 @@ def download(remote: RemoteFile, dest: str, progress: Callable, retries: int = R
             return {**record, "bytes": os.path.getsize(dest), "md5": digest, "status": "present"}
     part = dest + ".part"
     resumed = os.path.exists(part) and os.path.getsize(part) > 0
+    md5 = _RunningMd5()
     with progress(total=remote.size, unit="B", unit_scale=True, unit_divisor=1024, desc=remote.name) as bar:
         for attempt in range(retries + 1):
             have = os.path.getsize(part) if os.path.exists(part) else 0
@@ -163,7 +190,7 @@ def download(remote: RemoteFile, dest: str, progress: Callable, retries: int = R
                 resumed = resumed or have > 0
                 time.sleep(backoff_s * attempt)
             try:
-                total = _transfer(remote, part, bar, timeout_s)
+                total = _transfer(remote, part, bar, timeout_s, md5)
             except urllib.error.HTTPError as exc:
                 if exc.code == 416 and have:         # the range starts past the end: start over
                     os.remove(part)
@@ -180,7 +207,7 @@ def download(remote: RemoteFile, dest: str, progress: Callable, retries: int = R
         else:
             raise DownloadError(f"{remote.url}: transfer incomplete after {retries + 1} tries "
                                 f"({os.path.getsize(part)} bytes); run again to resume")
-    digest = _verify(remote, part)
+    digest = _verify(remote, part, md5)
     os.replace(part, dest)
     return {**record, "bytes": os.path.getsize(dest), "md5": digest, "status": "resumed" if resumed else "downloaded",
             "seconds": round(time.perf_counter() - t0, 3)}
