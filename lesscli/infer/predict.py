@@ -86,7 +86,8 @@ def load_imager(path: str, map_location: str | torch.device = "cpu",
 
 
 def check_image_config(image, path: str) -> None:
-    """An imaging checkpoint's ``config['image']``: dim 2 or 3, slice a whole number, threshold None or 0..1."""
+    """An imaging checkpoint's ``config['image']``: dim 2 or 3, slice a whole number, threshold None or 0..1,
+    minimum inclusion volume None or >= 0 mm^3."""
     if not isinstance(image, dict):
         raise DataError(f"{path}: config 'image' must be a table, got {type(image).__name__}")
     if image.get("dim") not in (2, 3):
@@ -97,6 +98,10 @@ def check_image_config(image, path: str) -> None:
     if threshold is not None and (isinstance(threshold, bool) or not isinstance(threshold, (int, float))
                                   or not 0 <= threshold <= 1):
         raise DataError(f"{path}: config image.threshold must be a probability 0..1, got {threshold!r}")
+    min_volume = image.get("min_volume_mm3")
+    if min_volume is not None and (isinstance(min_volume, bool) or not isinstance(min_volume, (int, float))
+                                   or not 0 <= min_volume < float("inf")):
+        raise DataError(f"{path}: config image.min_volume_mm3 must be a volume >= 0 mm^3, got {min_volume!r}")
 
 
 def scans_for_model(path: str, ckpt: dict) -> ScanSet:
