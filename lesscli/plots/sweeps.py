@@ -15,9 +15,10 @@ from lesscli.plots.render import agg_figure
 FIGSIZE_IN = (6.4, 4.4)
 
 
-def save_png(fig, path: str) -> None:
+def save_png(fig, path: str, dpi: float | None = None) -> None:
+    """Write ``fig`` to ``path`` as a PNG atomically (at the figure's own dpi unless ``dpi`` is given)."""
     with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, format="png")
+        fig.savefig(tmp, format="png", dpi=dpi)
 
 
 def _num(value) -> float:
