@@ -46,7 +46,7 @@ def cli(quick, model_path, work, budget, n_start, seeds, eval_every, batch, plot
                        eval_every=eval_every, batch=batch, seed=seed)
     rows, means = run_guide(model_path or train_model(work, quick, seed), bench)
     if plot_path:
-        from lesscli.plots.bench import touches_figure
+        from lesscli.plots.sweeps import touches_figure
 
         touches_figure(plot_path, means, f"{len(TEST_INSERTS)} phantoms x {bench.seeds} seeds")
     emit_records(rows, fmt)

@@ -44,6 +44,6 @@ def cli(quick: bool, plot_path: str | None, checks: tuple[str, ...], scene_path:
 
     emit_records(collect(), fmt)
     if plot_path:
-        from lesscli.plots.bench import ladder_figure
+        from lesscli.plots.sweeps import ladder_figure
 
         ladder_figure(rows, plot_path)
