@@ -30,7 +30,7 @@ def cli(quick: bool, sizes: tuple[str, ...], steps: int | None, batch_size: int,
     from lesscli.errors import LessError
     from lesscli.io.records import emit_records
     from lesscli.threads import apply_threads
-    from lesscli.train.benchmark import run
+    from lesscli.bench.train import run
     from lesscli.train.distributed import resolve_device
 
     chosen = list(sizes) or (["default"] if quick else ["default", "paper"])

@@ -1,4 +1,5 @@
-"""Time one training step and one inference forward of LESS and GLOBAL on synthetic scans.
+"""``less bench train``: one training step and one inference forward of LESS and GLOBAL, timed on
+synthetic scans.
 
 Sizes: ``default`` (this toolkit's defaults: d_z 128, 11 x 11 particles at 6 mm) and ``paper``
 (d_z 1024, 18 x 18 particles, as in the paper), both on scans of ``steps`` pad poses spread over

@@ -1,4 +1,4 @@
-"""The accuracy-vs-time ladder of the contact tiers (``less bench sim``).
+"""``less bench sim``: the accuracy-vs-time ladder of the contact tiers.
 
 Checks, each a list of records (error vs reference, time per step, precompute time):
 
@@ -23,9 +23,9 @@ import numpy as np
 
 from lesscli.io.sensor import grid_layout, xela_uscu
 from lesscli.phantom import Phantom, Sphere
-from lesscli.sim.contact import CONTACT_TIERS
-from lesscli.sim.contact import validation as val
 from lesscli.sim.kinematics import taxel_centres_mm
+
+CHECKS = ("sphere", "indentation", "inclusion", "scan", "pipeline")      # all checks, in the default order
 
 SPHERE = {"e_kpa": 15.0, "nu": 0.45, "radius_mm": 10.0, "height_mm": 20.0, "half_mm": 20.0}
 SPHERE_DEPTHS_MM = np.array([0.5, 0.75, 1.0])
@@ -46,6 +46,8 @@ def _setups(quick: bool) -> dict:
 
 
 def _model(tier: str, phantom, sensor, cache_dir: str, mesh_mm: float | None = None):
+    from lesscli.sim.contact import CONTACT_TIERS
+
     params = {} if tier == "winkler" else {"mesh_mm": mesh_mm}
     model = CONTACT_TIERS[tier](phantom, sensor, **params)
     t0 = time.perf_counter()
@@ -61,6 +63,8 @@ def _timed_solve(model, pose: np.ndarray):
 
 def sphere_rows(quick: bool) -> list[dict]:
     """V1: FEM sphere vs Hertz x Dimitriadis on refining meshes."""
+    from lesscli.sim.contact import validation as val
+
     s = SPHERE
     ref = val.dimitriadis_force_n(s["e_kpa"], s["nu"], s["radius_mm"], SPHERE_DEPTHS_MM, s["height_mm"])
     hertz = val.hertz_force_n(s["e_kpa"], s["nu"], s["radius_mm"], SPHERE_DEPTHS_MM)
@@ -211,7 +215,7 @@ def pipeline_rows(scene_path: str | None, quick: bool) -> list[dict]:
 
 
 def run(quick: bool = False, cache_dir: str | None = None, scene_path: str | None = None,
-        checks: tuple[str, ...] = ("sphere", "indentation", "inclusion", "scan", "pipeline")) -> Iterator[dict]:
+        checks: tuple[str, ...] = CHECKS) -> Iterator[dict]:
     """Yield the ladder records check by check (a fresh temporary cache unless ``cache_dir`` is
     given, so the precompute is timed)."""
     with tempfile.TemporaryDirectory(prefix="less-bench-sim-") as tmp:
@@ -223,29 +227,3 @@ def run(quick: bool = False, cache_dir: str | None = None, scene_path: str | Non
             for row in table[name]():
                 yield {"bench": "sim", **row}
 
-
-def plot(rows: list[dict], path: str) -> None:
-    """Error vs time per step (log-log), one marker per tier, labelled by check and mesh."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 5))
-    style = {"winkler": ("o", "tab:orange"), "green": ("s", "tab:blue"), "fem": ("^", "tab:green")}
-    for row in rows:
-        if not row.get("error") or not row.get("ms_per_step"):     # the reference itself has error 0
-            continue
-        err = float(row["error"])
-        marker, colour = style.get(row["tier"], ("x", "k"))
-        ax.scatter(row["ms_per_step"], err, marker=marker, color=colour, label=row["tier"])
-        mesh = f" {row['mesh_mm']:g}mm" if row.get("mesh_mm") else ""
-        ax.annotate(f"{row['check']}{mesh}", (row["ms_per_step"], err), fontsize=7)
-    handles, labels = ax.get_legend_handles_labels()
-    uniq = dict(zip(labels, handles))
-    ax.legend(uniq.values(), uniq.keys())
-    ax.set(xscale="log", yscale="log", xlabel="time per step (ms)", ylabel="relative error",
-           title="contact tiers: accuracy vs time")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
