@@ -95,7 +95,7 @@ def test_guide_cli_lines_and_overlay(tmp_path, run_less):
 
 
 def test_closed_loop_helpers():
-    from lesscli.cli.bench_guide import first_reach, mean_curves, raster_points, touches_to_reach
+    from lesscli.bench.guide import first_reach, mean_curves, raster_points, touches_to_reach
 
     pts = raster_points(60)
     assert abs(len(pts) - 60) <= 8

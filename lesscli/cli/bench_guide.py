@@ -7,19 +7,8 @@ from __future__ import annotations
 
 import click
 
-from lesscli.bench.guide import (  # the closed-loop helpers, importable from the command as before
-    TEST_INSERTS,
-    GuideBench,
-    first_reach,
-    mean_curves,
-    raster_points,
-    run_guide,
-    touches_to_reach,
-    train_model,
-)
+from lesscli.bench.guide import TEST_INSERTS, GuideBench, run_guide, train_model
 from lesscli.cli.common import checked_output, format_option, renamed_option, seed_option
-
-__all__ = ["cli", "first_reach", "mean_curves", "raster_points", "touches_to_reach"]
 
 
 @click.command("guide")
