@@ -51,12 +51,14 @@ class Trace:
         area_mm2: (n,) excess silicone cross-section per slab.
         centroid_mm: (n, 2) lateral position of the excess per slab.
         end_mm: the base surface (where the ring turns silicone or leaves the insert).
+        ring: (n,) the ring's (hydrogel) level per slab.
     """
 
     t_mm: np.ndarray
     area_mm2: np.ndarray
     centroid_mm: np.ndarray
     end_mm: float
+    ring: np.ndarray
 
     def median_area(self) -> float:
         return float(np.median(self.area_mm2)) if len(self.area_mm2) else 0.0
@@ -148,7 +150,8 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
             break
         sel = here & core & col.free
         excess = col.value[sel] - level
-        areas.append(float(excess.sum()) * voxel_mm3 / step_mm / contrast[1])
+        scale = max(contrast[0] + contrast[1] - level, SCALE_EPS)     # silicone over this slab's hydrogel
+        areas.append(float(excess.sum()) * voxel_mm3 / step_mm / scale)
         w = np.clip(excess, 0.0, None)
         cents.append((w @ col.uv[sel]) / w.sum() if w.sum() > 0 else np.full(2, np.nan))
     t_arr = np.asarray(ts)
@@ -161,7 +164,7 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
     else:
         end = float(t_arr[-1]) + 0.5 * step_mm
     n = len(areas)
-    return Trace(t_arr[:n], np.asarray(areas), np.asarray(cents).reshape(n, 2), end)
+    return Trace(t_arr[:n], np.asarray(areas), np.asarray(cents).reshape(n, 2), end, np.asarray(levels[:n]))
 
 
 def _fit_line(trace: Trace, fallback: np.ndarray) -> np.ndarray:
@@ -184,7 +187,7 @@ def _inner(trace: Trace) -> Trace:
     if n < 2:
         return trace
     keep = slice(1, n - 1 if n >= 3 else n)
-    return Trace(trace.t_mm[keep], trace.area_mm2[keep], trace.centroid_mm[keep], trace.end_mm)
+    return Trace(trace.t_mm[keep], trace.area_mm2[keep], trace.centroid_mm[keep], trace.end_mm, trace.ring[keep])
 
 
 def _short_gap(trace: Trace, col: _Column, sign: int, step_mm: float) -> bool:
@@ -230,6 +233,19 @@ def _contrast(fraction: np.ndarray, inc_ids: np.ndarray, label: int, col: _Colum
     return hydrogel, max(silicone - hydrogel, SCALE_EPS)
 
 
+def _walked_contrast(both: list[Trace], contrast: tuple[float, float]) -> tuple[float, float]:
+    """``contrast`` with the hydrogel level re-read as the median ring level of the slabs walked.
+
+    The column's ring also passes through the skin and the base, which pulls its median towards
+    silicone as noise widens both levels; the slabs walked stop short of them.
+    """
+    rings = np.concatenate([t.ring for t in both])
+    if not len(rings):
+        return contrast
+    hydrogel = float(np.median(rings))
+    return hydrogel, max(contrast[0] + contrast[1] - hydrogel, SCALE_EPS)
+
+
 def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, n_inclusions: int,
                  spacing_mm, axis: np.ndarray, max_diameter_mm: float) -> tuple[np.ndarray, list[int], int]:
     """The pillar under each inclusion, traced towards the base.
@@ -264,10 +280,13 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
     columns, contrasts, traces = {}, {}, {}
     for label, centre in zip(labels, centres):
         col = _column(fraction, insert, inc_ids, label, centre, axis, spacing, rings(core0)[1])
-        columns[label], contrasts[label] = col, _contrast(fraction, inc_ids, label, col, rings(core0), spacing)
-        for sign in (1, -1):
-            traces[label, sign] = _trace(col, sign, np.zeros((2, 2)), core0, rings(core0), step, voxel_mm3,
-                                         contrasts[label])
+        contrast = _contrast(fraction, inc_ids, label, col, rings(core0), spacing)
+        for _ in range(2):          # the hydrogel level again, from the slabs walked on either side
+            both = [_trace(col, sign, np.zeros((2, 2)), core0, rings(core0), step, voxel_mm3, contrast)
+                    for sign in (1, -1)]
+            contrast = _walked_contrast(both, contrast)
+        columns[label], contrasts[label] = col, contrast
+        traces[label, 1], traces[label, -1] = both
     side = 1 if sum(_inner(traces[k, 1]).median_area() - _inner(traces[k, -1]).median_area()
                     for k in labels) >= 0 else -1
     found, short, missing = {}, [], []
