@@ -22,7 +22,7 @@ import numpy as np
 from lesscli.mri.pillar import find_pillars
 
 SHELL_VOXELS = 1.5              # shell thickness along the insert surface, in (largest) voxels
-RIM_VOXELS = 1.0                # an inclusion's surface moves at most this far from the opening, in voxels
+RIM_VOXELS = 1.0                # an inclusion's surface moves at most this far from the opening, in (largest) voxels
 JUNCTION_STEPS = 4
 LEVEL_VOXELS = (2.0, 4.0)       # the filling's level is measured this far outside an inclusion, in voxels
 AXIS_SAMPLES = 200_000
@@ -189,7 +189,7 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     warnings = [] if n_inclusions else ["no inclusion found"]
     pillar, missing, _side = find_pillars(frac, ins, inc_ids, n_inclusions, spacing, insert_axis(ins, spacing),
                                           pillar_max_diameter_mm)
-    inclusion = _local_surface(bodies, frac, ins & (depth > shell_mm) & ~pillar, spacing, RIM_VOXELS * fine_mm)
+    inclusion = _local_surface(bodies, frac, ins & (depth > shell_mm) & ~pillar, spacing, RIM_VOXELS * voxel_mm)
     inclusion |= _junctions(inclusion, pillar, spacing)
     pillar &= ~inclusion
     for i in missing:
