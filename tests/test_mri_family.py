@@ -85,6 +85,18 @@ def test_contrast_found_and_no_warnings(results, name):
     assert seg.warnings == []
 
 
+def test_inclusion_thinner_than_the_ball_voxel_for_voxel_is_found():
+    """A 6 mm inclusion at 1 mm voxels: the ball that removes a 4.5 mm pillar does not fit its voxels."""
+    from scipy import ndimage
+
+    vol = generate(Case(seed=604, spacing_mm=(0.8, 1.01, 1.01), inclusion_mm=(6.0, 12.0), pillar_mm=2.5,
+                        pillar_height_mm=(12.6, 6.0), base_up=True, noise=0.06, bias=0.4))
+    seg = segment(vol.image, vol.spacing_mm, where="small")
+    assert ndimage.label(seg.labels == 3)[1] == 2
+    assert seg.warnings == []
+    assert all(row["dice_inclusion"] >= 0.9 for row in inclusion_scores(seg.labels, vol))
+
+
 def test_inclusion_without_pillar_is_labelled_with_one_warning():
     vol = generate(Case(seed=506, spacing_mm=(0.9, 0.8, 0.8), inclusion_mm=(9.0, 12.0), pillar_mm=0.0,
                         pillar_height_mm=(4.0, 8.0), noise=0.05, bias=0.2))

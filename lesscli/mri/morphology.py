@@ -26,6 +26,8 @@ RIM_VOXELS = 1.0                # an inclusion's surface moves at most this far 
 JUNCTION_STEPS = 4
 LEVEL_VOXELS = (2.0, 4.0)       # the filling's level is measured this far outside an inclusion, in voxels
 AXIS_SAMPLES = 200_000
+SMALL_BALL = 0.8                # a second, smaller ball for small inclusions (of the main ball's radius)
+MAX_ELONGATION = 1.5            # ... kept where round: largest over smallest principal spread
 BALL_MARGIN_VOXELS = 0.25       # the opening ball's radius exceeds the thickest pillar's by this
 BOUNDARY_VOXELS = (1.0, 2.5)    # the layer around a body in which its surroundings are measured
 MAX_BOUNDARY_SILICONE = 0.3     # an inclusion lies in the filling; more silicone around: a pillar's foot, a corner
@@ -66,6 +68,42 @@ def insert_axis(insert: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     if len(idx) > AXIS_SAMPLES:
         idx = idx[np.random.default_rng(0).choice(len(idx), AXIS_SAMPLES, replace=False)]
     return _principal(idx * spacing)[1][:, 2]
+
+
+def _opened(core: np.ndarray, radius_mm: float, spacing: np.ndarray) -> np.ndarray:
+    """The components of ``core`` opened by a ball of ``radius_mm`` holding at least half that ball."""
+    from skimage.measure import label
+
+    comps = label(open_ball(core, radius_mm, spacing), connectivity=1)
+    sizes = np.bincount(comps.ravel())
+    min_voxels = 0.5 * (4 / 3) * math.pi * radius_mm ** 3 / float(np.prod(spacing))
+    keep = np.flatnonzero(sizes >= min_voxels)
+    return np.isin(comps, keep[keep > 0])
+
+
+def _compact(candidates: np.ndarray, bodies: np.ndarray, radius_mm: float, spacing: np.ndarray) -> np.ndarray:
+    """The components of ``candidates`` apart from ``bodies`` that are round and hold a ball of ``radius_mm``.
+
+    A small inclusion at coarse voxels can be too thin, voxel for voxel, for the ball that removes the
+    thickest pillar, though it holds that ball's volume; a smaller ball keeps it, and with it any pillar
+    thicker than that ball, joined to its inclusion into an elongated body, or short pieces of such a
+    pillar (less than the ball's volume). Round components (principal spreads within MAX_ELONGATION) at
+    least as big as the ball are inclusions.
+    """
+    from scipy import ndimage
+
+    comps, _n = ndimage.label(candidates)
+    known = np.unique(comps[bodies])
+    min_voxels = (4 / 3) * math.pi * radius_mm ** 3 / float(np.prod(spacing))
+    out = np.zeros(candidates.shape, dtype=bool)
+    for i, sl in enumerate(ndimage.find_objects(comps), start=1):
+        own = comps[sl] == i
+        if i in known or own.sum() < min_voxels:
+            continue
+        spread = _principal((np.argwhere(own) + [s.start for s in sl]) * spacing)[0]
+        if spread[0] <= MAX_ELONGATION * max(spread[2], 1e-6):
+            out[sl] |= own
+    return out
 
 
 def _in_filling(bodies: np.ndarray, silicone: np.ndarray, insert: np.ndarray, spacing: np.ndarray) -> np.ndarray:
@@ -161,7 +199,6 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
         (pillar mask, inclusion mask, warnings), masks of the input's shape.
     """
     from scipy import ndimage
-    from skimage.measure import label
 
     spacing = np.asarray(spacing_mm, dtype=np.float64)
     pillar_full = np.zeros(insert.shape, dtype=bool)
@@ -177,13 +214,10 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     core = sil & (depth > shell_mm)
     fine_mm = float(np.prod(spacing)) ** (1.0 / 3.0)        # mean voxel size (anisotropic grids)
     radius_mm = 0.5 * max(pillar_max_diameter_mm, skin_max_thickness_mm) + BALL_MARGIN_VOXELS * fine_mm
-    opened = open_ball(core, radius_mm, spacing)
-    min_voxels = 0.5 * (4 / 3) * math.pi * radius_mm ** 3 / float(np.prod(spacing))
-    comps = label(opened, connectivity=1)
-    sizes = np.bincount(comps.ravel())
-    keep = np.flatnonzero(sizes >= min_voxels)
+    bodies = _opened(core, radius_mm, spacing)
+    bodies |= _compact(_opened(core, SMALL_BALL * radius_mm, spacing), bodies, radius_mm, spacing)
     frac = np.pad(fraction[box], 1) if fraction is not None else sil.astype(np.float32)
-    bodies = _in_filling(np.isin(comps, keep[keep > 0]), sil, ins, spacing)
+    bodies = _in_filling(bodies, sil, ins, spacing)
     offset = np.array([b.start for b in box]) - 1              # padded crop -> input voxel index
     inc_ids, n_inclusions = ndimage.label(bodies)
     warnings = [] if n_inclusions else ["no inclusion found"]
