@@ -4,7 +4,9 @@
   between the filling and the air can mimic the darker tissue.
 - Inclusions: the opening of the remaining silicone by a ball thicker than the thickest pillar and
   skin (radius ``max(pillar, skin) / 2`` plus a quarter voxel): compact bodies survive, thin ones
-  vanish; the rim (one voxel) that the opening shaves off a noisy sphere is given back.
+  vanish; the rim (one largest voxel) that the opening shaves off a noisy sphere is given back. A
+  second, smaller ball finds inclusions too thin, voxel for voxel, for the first one; of what it
+  keeps apart from those, only round bodies holding the first ball's volume are inclusions.
 - Pillars: traced from each inclusion towards the base along the insert axis
   (:mod:`lesscli.mri.pillar`); an inclusion without one gets a warning.
 - Everything else (the skin, partial-volume speckle) stays insert.

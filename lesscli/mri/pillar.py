@@ -9,10 +9,14 @@ silicone):
   and the base, silicone once the ring enters the base or the skin. The trace ends there, or where
   the ring leaves the insert (a pillar standing on the insert's outer surface): that is the base
   surface, placed where the ring crosses half-way;
-- the core's silicone in excess of the ring level, summed over the slab, is the pillar's cross-section
-  (mm^2). A sum is unchanged by partial volume and blur, so a pillar 1-2 voxels wide is measured as
-  well as a wide one, and no intensity threshold is involved;
+- the core's silicone in excess of the ring level, summed over the slab and divided by the contrast
+  of the inclusion's interior over that ring level, is the pillar's cross-section (mm^2). A sum is
+  unchanged by partial volume and blur, so a pillar 1-2 voxels wide is measured as well as a wide one,
+  and no intensity threshold is involved;
 - the weighted centroid of the excess locates the pillar in the slab.
+
+The hydrogel level that places the half-way crossing is the median ring level of the slabs walked on
+either side (a ring over the whole column would also take in the skin and the base).
 
 The base is on the side where the inclusions together show more excess silicone (on the skin side
 there is none). On that side an inclusion has a pillar when the median cross-section exceeds a disc of
