@@ -70,3 +70,24 @@ def test_simulate_overrides_and_errors(run_less, tmp_path):
     assert run_less("simulate", "tiny.toml", "-o", "x.npz", "--shard", "2/2").returncode == 2
     missing = run_less("simulate", "nope.toml", "-o", "x.npz")
     assert missing.returncode == 1 and b"nope.toml: no such scene file" in missing.stderr
+
+
+def test_jobs_default_to_the_free_cores_at_most_one_a_scan(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from lesscli import threads
+    from lesscli.cli.main import cli
+
+    (tmp_path / "tiny.toml").write_text(SCENE)
+    monkeypatch.setattr(threads, "usable_cores", lambda: 3)
+    runs = {}
+    for load, orientations in ((0.0, "[0]"), (0.0, "[0, 4]"), (2.2, "[0]")):
+        monkeypatch.setattr(threads, "other_load", lambda load=load: load)
+        res = CliRunner().invoke(cli, ["simulate", str(tmp_path / "tiny.toml"), "-o", str(tmp_path / "x.npz"),
+                                       "--set", f"phantoms.orientations={orientations}", "--set", "motion.n_traj=1",
+                                       "--format", "jsonl"])
+        assert res.exit_code == 0, res.output
+        record = json.loads(res.output.strip().splitlines()[-1])
+        runs[load, orientations] = (record["scans"], record["jobs"], record["threads"])
+    # three free cores: a worker each, but never more workers than scans; one free core (load 2.2): one worker
+    assert runs == {(0.0, "[0]"): (2, 2, 1), (0.0, "[0, 4]"): (4, 3, 1), (2.2, "[0]"): (2, 1, 1)}
