@@ -91,3 +91,19 @@ def test_jobs_default_to_the_free_cores_at_most_one_a_scan(tmp_path, monkeypatch
         runs[load, orientations] = (record["scans"], record["jobs"], record["threads"])
     # three free cores: a worker each, but never more workers than scans; one free core (load 2.2): one worker
     assert runs == {(0.0, "[0]"): (2, 2, 1), (0.0, "[0, 4]"): (4, 3, 1), (2.2, "[0]"): (2, 1, 1)}
+
+
+def test_thread_limit_reaches_the_blas_that_scipy_loads_later():
+    """The simulator's linear algebra runs on scipy's own BLAS, loaded after the command set its threads."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom lesscli.threads import set_threads\nset_threads(1, torch_too=False)\n"
+            "assert 'scipy.linalg' not in sys.modules\nimport scipy.linalg\n"
+            "from threadpoolctl import threadpool_info\n"
+            "print(json.dumps({i['filepath']: i['num_threads'] for i in threadpool_info()}))")
+    env = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", "import json\n" + code], env=env, capture_output=True, check=True)
+    pools = json.loads(out.stdout)
+    assert any("scipy" in path for path in pools) and set(pools.values()) == {1}, pools
