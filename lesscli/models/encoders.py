@@ -22,10 +22,10 @@ from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor, nn
-from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
 
 from lesscli.models.encoding import POSE_DIM, PoseEncoding
 from lesscli.models.particles import gather_receptive_field, particle_grid
+from lesscli.models.recurrence import ragged_gru
 
 if TYPE_CHECKING:
     from lesscli.data.batching import Batch
@@ -180,21 +180,21 @@ class ParticleEncoder(nn.Module):
         pose = pose - shift
         force = batch.force[bi[:, None], index]                      # (N, C, F)
         count = g.count[bi, pi]
-        z = self._run_gru(self.fle(pose, force), count)
+        mask = g.mask[bi, pi]
+        real = self.fle(pose[mask], force[mask])                     # inputs of real steps only
+        x = real.new_zeros(*mask.shape, real.shape[-1]).index_put((mask,), real)
+        z = self._run_gru(x, count)
         return ParticleSequence(batch_index=bi, particle_index=pi, z=z, pose=pose, force=force,
-                                mask=g.mask[bi, pi], count=count,
+                                mask=mask, count=count,
                                 shape=(int(g.count.shape[0]), int(g.count.shape[1])), xy_mm=xy)
 
     def _run_gru(self, x: Tensor, count: Tensor) -> Tensor:
-        """GRU over (N, C, dim) inputs, each row only up to its ``count`` real steps (packed).
+        """GRU over (N, C, dim) inputs, each row only up to its ``count`` real steps (inputs past it are
+        zeros and never read; see :func:`~lesscli.models.recurrence.ragged_gru`).
 
         Returns (N, C, dim) states; slots past a row's count are zeros.
         """
-        if x.shape[0] == 0:
-            return self.gru(x)[0]
-        packed = pack_padded_sequence(x, count.cpu(), batch_first=True, enforce_sorted=False)
-        out, _ = self.gru(packed)
-        return pad_packed_sequence(out, batch_first=True, total_length=x.shape[1])[0]
+        return ragged_gru(x, count, self.gru)
 
     def final_states_fixed_shape(self, batch: Batch) -> ParticleStates:
         """Final states by a masked update of every particle on fixed-shape tensors (exactly local).
