@@ -25,7 +25,7 @@ from torch import Tensor, nn
 
 from lesscli.models.encoding import POSE_DIM, PoseEncoding
 from lesscli.models.particles import gather_receptive_field, particle_grid
-from lesscli.models.recurrence import ragged_gru
+from lesscli.models.recurrence import ragged_gru, ragged_gru_from_gates
 
 if TYPE_CHECKING:
     from lesscli.data.batching import Batch
@@ -181,12 +181,41 @@ class ParticleEncoder(nn.Module):
         force = batch.force[bi[:, None], index]                      # (N, C, F)
         count = g.count[bi, pi]
         mask = g.mask[bi, pi]
-        real = self.fle(pose[mask], force[mask])                     # inputs of real steps only
-        x = real.new_zeros(*mask.shape, real.shape[-1]).index_put((mask,), real)
-        z = self._run_gru(x, count)
+        if self._folds_inputs():
+            scan = bi[:, None].expand_as(index)[mask]
+            z = ragged_gru_from_gates(self._input_gates(batch, pose[mask], scan, index[mask]), count, self.gru,
+                                      int(mask.shape[1]))
+        else:
+            real = self.fle(pose[mask], force[mask])                 # inputs of real steps only
+            z = self._run_gru(real.new_zeros(*mask.shape, real.shape[-1]).index_put((mask,), real), count)
         return ParticleSequence(batch_index=bi, particle_index=pi, z=z, pose=pose, force=force,
                                 mask=mask, count=count,
                                 shape=(int(g.count.shape[0]), int(g.count.shape[1])), xy_mm=xy)
+
+    def _folds_inputs(self) -> bool:
+        """The paper's FLE feeds the GRU directly (no subclass changes the inputs or the recurrence)."""
+        return isinstance(self._modules.get("fle"), ForceLocationEncoder) \
+            and type(self)._run_gru is ParticleEncoder._run_gru
+
+    def _input_gates(self, batch: Batch, pose: Tensor, scan: Tensor, step: Tensor) -> Tensor:
+        """The GRU's input gates ``W_ih FLE(pose, force) + b_ih`` of S real steps, with the linear maps folded.
+
+        ``W_ih (P phi(pose) + p + MLP(force))``: the pose part goes through the product ``W_ih P`` (3H x
+        6 * 2 n_freq, much narrower than d_z), the force part is computed once per scan step and gathered
+        (a step lies in the fields of several particles).
+
+        Args:
+            batch: the batch (its forces).
+            pose: (S, 6) centred poses of the real steps.
+            scan, step: (S,) long, the batch row and time step of each.
+
+        Returns:
+            (S, 3H).
+        """
+        w, proj = self.gru.weight_ih_l0, self.fle.pose_encoding.proj
+        per_step = self.fle.force_mlp(batch.force) @ w.t()                   # (B, L, 3H)
+        bias = torch.addmv(self.gru.bias_ih_l0, w, proj.bias)
+        return torch.addmm(bias, self.fle.pose_encoding.features(pose), (w @ proj.weight).t()) + per_step[scan, step]
 
     def _run_gru(self, x: Tensor, count: Tensor) -> Tensor:
         """GRU over (N, C, dim) inputs, each row only up to its ``count`` real steps (inputs past it are

@@ -47,23 +47,37 @@ def ragged_gru(x: Tensor, count: Tensor, gru: nn.GRU) -> Tensor:
     Returns:
         (N, C, H) the state after each real step; zeros past each row's count.
     """
-    n, c, _ = x.shape
-    hidden = gru.hidden_size
-    out = x.new_zeros(n * c, hidden)
-    count = count.to(x.device)
-    if n == 0 or c == 0 or not bool((count > 0).any()):       # still a function of the weights (zero gradients)
-        return out.view(n, c, hidden) + (x.sum() + sum(w.sum() for w in gru.parameters())) * 0.0
+    real = torch.arange(x.shape[1], device=x.device) < count.to(x.device)[:, None]
+    gates = torch.addmm(gru.bias_ih_l0, x[real], gru.weight_ih_l0.t())
+    return ragged_gru_from_gates(gates, count, gru, x.shape[1]) + x.sum() * 0.0   # x always in the graph
+
+
+def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int) -> Tensor:
+    """:func:`ragged_gru` from the input gates of the real steps.
+
+    Args:
+        gates: (S, 3H) ``W_ih x + b_ih`` of every real step, row by row in time order (S = count.sum()).
+        count: (N,) long, real steps per row.
+        gru: the GRU whose recurrent weights are used.
+        length: C, slots per row in the output (>= count.max()).
+
+    Returns:
+        (N, C, H) the state after each real step; zeros past each row's count.
+    """
+    n, hidden = count.shape[0], gru.hidden_size
+    out = gates.new_zeros(n * length, hidden)
+    if gates.shape[0] == 0:                 # no real step: still a function of the weights (zero gradients)
+        return out.view(n, length, hidden) + (gates.sum() + sum(w.sum() for w in gru.parameters())) * 0.0
+    count = count.to(gates.device)
     order = torch.argsort(count, descending=True, stable=True)
-    active = torch.bincount(count.clamp(max=c), minlength=c + 1).flip(0).cumsum(0).flip(0)[1:]   # rows alive at t
-    sizes = active.tolist()
-    sizes = sizes[:sum(1 for s in sizes if s > 0)]
-    steps = torch.repeat_interleave(torch.arange(len(sizes), device=x.device), active[:len(sizes)])
-    rows = torch.cat([order[:s] for s in sizes])
-    flat = rows * c + steps                                          # time-major packed positions
-    gi = torch.addmm(gru.bias_ih_l0, x.reshape(n * c, -1)[flat], gru.weight_ih_l0.t())
-    h = x.new_zeros(sizes[0], hidden)
+    alive = torch.bincount(count, minlength=length + 1).flip(0).cumsum(0).flip(0)[1:]   # rows with a step t
+    sizes = [s for s in alive.tolist() if s > 0]
+    steps = torch.repeat_interleave(torch.arange(len(sizes), device=gates.device), alive[:len(sizes)])
+    rows = torch.cat([order[:s] for s in sizes])                      # time-major, longest rows first
+    start = torch.cumsum(count, 0) - count
+    h = gates.new_zeros(sizes[0], hidden)
     states = []
-    for t, g in enumerate(gi.split(sizes)):
+    for t, g in enumerate(gates[start[rows] + steps].split(sizes)):
         h = gru_gates(g, h[:sizes[t]], gru.weight_hh_l0, gru.bias_hh_l0)
         states.append(h)
-    return out.index_put((flat,), torch.cat(states)).view(n, c, hidden)
+    return out.index_put((rows * length + steps,), torch.cat(states)).view(n, length, hidden)
