@@ -3,14 +3,13 @@
 For every particle: gather its in-field steps in time order, centre their x-y on the particle,
 encode each (pose, force) pair with the force-location encoder (sinusoidal pose encoding + MLP of
 the force, summed), and run one GRU whose weights all particles share. Only particles that saw at
-least one step are run, each only over its own real steps (packed sequences): the state read at
-the last real step equals a masked update, and no compute is spent on padding.
+least one step are run, each only over its own real steps (:mod:`lesscli.models.recurrence`): the
+state read at the last real step equals a masked update, and no compute is spent on padding or on
+particles that saw nothing. Training and evaluation take the same path.
 
-In evaluation mode (``model.eval()``) the final states come from a fixed-shape masked update instead:
-all B x P particles advance together, one slot at a time, on (B * P, .) tensors whose shapes depend only
-on the batch size and the grid. A particle's state is then a bitwise function of its own gathered steps:
-touches added or moved outside its receptive field leave it exactly unchanged (with packed sequences the
-matrix sizes follow the other particles' step counts, and BLAS rounds differently, ~1e-7).
+A particle's state is a function of its own gathered steps only: touches added or moved outside its
+receptive field leave it unchanged to float rounding (~1e-7: the matrix sizes follow the other
+particles' step counts, and BLAS may round a row differently in a product of another size).
 """
 
 from __future__ import annotations
@@ -225,35 +224,13 @@ class ParticleEncoder(nn.Module):
         """
         return ragged_gru(x, count, self.gru)
 
-    def final_states_fixed_shape(self, batch: Batch) -> ParticleStates:
-        """Final states by a masked update of every particle on fixed-shape tensors (exactly local).
-
-        Slot by slot, every (batch, particle) row is encoded and stepped by the GRU cell; a row keeps
-        its state where the slot is not a real step. The shapes are (B * P, .) at every slot, so the
-        same kernels see the same row positions whatever the other particles saw.
-        """
-        xy = self.xy_mm.to(batch.pose.dtype)
-        g = gather_receptive_field(batch.pose[..., :2], batch.valid, xy, self.receptive_field_mm, self.max_steps)
-        b, p, c = g.index.shape
-        shift = torch.zeros(p, POSE_DIM, dtype=batch.pose.dtype, device=batch.pose.device)
-        shift[:, :2] = xy
-        scan = torch.arange(b, device=batch.pose.device)[:, None]
-        h = batch.pose.new_zeros(b * p, self.dim)
-        for slot in range(c):
-            step = g.index[:, :, slot]                                           # (B, P)
-            x = self.fle(batch.pose[scan, step] - shift, batch.force[scan, step]).reshape(b * p, -1)
-            h = torch.where(g.mask[:, :, slot].reshape(-1, 1), self.gru_step(x, h), h)
-        return ParticleStates(z=h.view(b, p, self.dim), xy_mm=xy, seen=g.seen)
-
     def gru_step(self, x: Tensor, h: Tensor) -> Tensor:
         """One step of the shared GRU as a cell: inputs x and states h, (N, d_z) each -> new states."""
         gru = self.gru
         return torch.gru_cell(x, h, gru.weight_ih_l0, gru.weight_hh_l0, gru.bias_ih_l0, gru.bias_hh_l0)
 
     def forward(self, batch: Batch) -> ParticleStates:
-        """Batch -> ParticleStates with z (B, P, d_z) (packed in training, fixed-shape in evaluation)."""
-        if not self.training:
-            return self.final_states_fixed_shape(batch)
+        """Batch -> ParticleStates with z (B, P, d_z)."""
         return self.encode_sequence(batch).final_states()
 
 

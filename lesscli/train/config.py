@@ -85,6 +85,12 @@ def check_rules(cfg, rules) -> None:
             raise LessError(f"setting {key} = {value!r} is invalid: must be {need}")
 
 
+def check_sections(cfg, sections: tuple[str, ...]):
+    """Pretraining's rules for the settings of ``sections`` only (a config with just those sections)."""
+    check_rules(cfg, [rule for rule in _RULES if rule[0].split(".")[0] in sections])
+    return cfg
+
+
 def check_pretrain_config(cfg: PretrainConfig) -> PretrainConfig:
     """Raise LessError naming the first out-of-range setting."""
     check_rules(cfg, _RULES)
