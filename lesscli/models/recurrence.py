@@ -28,12 +28,10 @@ def gru_gates(gi: Tensor, h: Tensor, weight_hh: Tensor, bias_hh: Tensor) -> Tens
         (n, H) states after the step.
     """
     gh = torch.addmm(bias_hh, h, weight_hh.t())
-    i_r, i_z, i_n = gi.chunk(3, 1)
-    h_r, h_z, h_n = gh.chunk(3, 1)
-    reset = torch.sigmoid(i_r + h_r)
-    update = torch.sigmoid(i_z + h_z)
-    new = torch.tanh(i_n + reset * h_n)
-    return (h - new) * update + new
+    two = 2 * h.shape[1]
+    reset, update = torch.sigmoid(gi[:, :two] + gh[:, :two]).chunk(2, 1)
+    new = torch.tanh(torch.addcmul(gi[:, two:], reset, gh[:, two:]))
+    return torch.addcmul(new, h - new, update)
 
 
 def ragged_gru(x: Tensor, count: Tensor, gru: nn.GRU) -> Tensor:
