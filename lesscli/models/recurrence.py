@@ -16,7 +16,7 @@ import torch
 from torch import Tensor, nn
 
 
-def gru_gates(gi: Tensor, h: Tensor, weight_hh: Tensor, bias_hh: Tensor) -> Tensor:
+def gru_gates(gi: Tensor, h: Tensor, weight_hh: Tensor, bias_hh: Tensor) -> tuple[Tensor, ...]:
     """One GRU step from precomputed input gates.
 
     Args:
@@ -25,13 +25,64 @@ def gru_gates(gi: Tensor, h: Tensor, weight_hh: Tensor, bias_hh: Tensor) -> Tens
         weight_hh, bias_hh: (3H, H) and (3H,).
 
     Returns:
-        (n, H) states after the step.
+        (n, H) states after the step, and what the backward pass needs: the reset and update gates
+        (n, 2H), the candidate ``new`` (n, H) and ``W_hn h + b_hn`` (n, H).
     """
     gh = torch.addmm(bias_hh, h, weight_hh.t())
     two = 2 * h.shape[1]
-    reset, update = torch.sigmoid(gi[:, :two] + gh[:, :two]).chunk(2, 1)
+    rz = torch.sigmoid(gi[:, :two] + gh[:, :two])
+    reset, update = rz.chunk(2, 1)
     new = torch.tanh(torch.addcmul(gi[:, two:], reset, gh[:, two:]))
-    return torch.addcmul(new, h - new, update)
+    return torch.addcmul(new, h - new, update), rz, new, gh[:, two:]
+
+
+class _Recurrence(torch.autograd.Function):
+    """States of a GRU over time-major packed input gates: step t holds the first ``sizes[t]`` rows.
+
+    The backward pass runs the recurrence in reverse for the state gradients and then forms the
+    gradient of the recurrent weights as one matrix product over all steps (not one per step).
+    """
+
+    @staticmethod
+    def forward(ctx, gates: Tensor, weight_hh: Tensor, bias_hh: Tensor, sizes: list[int]) -> Tensor:
+        hidden = weight_hh.shape[1]
+        states = gates.new_empty(gates.shape[0], hidden)
+        rz, new, ghn = gates.new_empty(gates.shape[0], 2 * hidden), torch.empty_like(states), torch.empty_like(states)
+        h, at = gates.new_zeros(sizes[0], hidden), 0
+        for size in sizes:
+            span = slice(at, at + size)
+            h, rz[span], new[span], ghn[span] = gru_gates(gates[span], h[:size], weight_hh, bias_hh)
+            states[span] = h
+            at += size
+        ctx.sizes = sizes
+        ctx.save_for_backward(weight_hh, states, rz, new, ghn)
+        return states
+
+    @staticmethod
+    def backward(ctx, grad_states: Tensor):
+        weight_hh, states, rz, new, ghn = ctx.saved_tensors
+        sizes, hidden = ctx.sizes, weight_hh.shape[1]
+        starts = [0]
+        for size in sizes[:-1]:
+            starts.append(starts[-1] + size)
+        prev = torch.zeros_like(states)                                  # state before each step
+        d_gh = grad_states.new_empty(states.shape[0], 3 * hidden)
+        d_gi = torch.empty_like(d_gh)
+        carry = None
+        for t in range(len(sizes) - 1, -1, -1):
+            span = slice(starts[t], starts[t] + sizes[t])
+            g = grad_states[span].clone()
+            if carry is not None:
+                g[:carry.shape[0]] += carry
+            h = states[starts[t - 1]:starts[t - 1] + sizes[t]] if t else prev[span]
+            prev[span] = h
+            reset, update = rz[span].chunk(2, 1)
+            d_new = g * (1 - update) * (1 - new[span] ** 2)
+            d_rz = torch.cat([d_new * ghn[span], g * (h - new[span])], 1) * rz[span] * (1 - rz[span])
+            d_gi[span] = torch.cat([d_rz, d_new], 1)
+            d_gh[span] = torch.cat([d_rz, d_new * reset], 1)
+            carry = torch.addmm(g * update, d_gh[span], weight_hh)
+        return d_gi, d_gh.t() @ prev, d_gh.sum(0), None
 
 
 def ragged_gru(x: Tensor, count: Tensor, gru: nn.GRU) -> Tensor:
@@ -73,9 +124,5 @@ def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int
     steps = torch.repeat_interleave(torch.arange(len(sizes), device=gates.device), alive[:len(sizes)])
     rows = torch.cat([order[:s] for s in sizes])                      # time-major, longest rows first
     start = torch.cumsum(count, 0) - count
-    h = gates.new_zeros(sizes[0], hidden)
-    states = []
-    for t, g in enumerate(gates[start[rows] + steps].split(sizes)):
-        h = gru_gates(g, h[:sizes[t]], gru.weight_hh_l0, gru.bias_hh_l0)
-        states.append(h)
-    return out.index_put((rows * length + steps,), torch.cat(states)).view(n, length, hidden)
+    states = _Recurrence.apply(gates[start[rows] + steps], gru.weight_hh_l0, gru.bias_hh_l0, sizes)
+    return out.index_put((rows * length + steps,), states).view(n, length, hidden)
