@@ -23,7 +23,7 @@ import torch
 from torch import Tensor, nn
 
 from lesscli.models.encoding import POSE_DIM, PoseEncoding
-from lesscli.models.particles import gather_receptive_field, particle_grid
+from lesscli.models.particles import Gathered, gather_receptive_field, particle_grid
 from lesscli.models.recurrence import ragged_gru, ragged_gru_from_gates
 
 if TYPE_CHECKING:
@@ -167,23 +167,33 @@ class ParticleEncoder(nn.Module):
     def n_particles(self) -> int:
         return int(self.xy_mm.shape[0])
 
-    def encode_sequence(self, batch: Batch) -> ParticleSequence:
-        """Run the GRU over every seen particle's gathered steps (see :class:`ParticleSequence`)."""
+    def _gather(self, batch: Batch) -> tuple[Gathered, Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """The receptive-field gather and, for the N seen (batch, particle) rows: batch index, particle
+        index, step indices (N, C), centred poses (N, C, 6) and real-step mask (N, C)."""
         xy = self.xy_mm.to(batch.pose.dtype)
         g = gather_receptive_field(batch.pose[..., :2], batch.valid, xy, self.receptive_field_mm, self.max_steps)
         bi, pi = g.seen.nonzero(as_tuple=True)
         index = g.index[bi, pi]                                      # (N, C)
-        pose = batch.pose[bi[:, None], index]                        # (N, C, 6)
-        shift = torch.zeros(pi.shape[0], 1, POSE_DIM, dtype=pose.dtype, device=pose.device)
+        shift = torch.zeros(pi.shape[0], 1, POSE_DIM, dtype=batch.pose.dtype, device=batch.pose.device)
         shift[:, 0, :2] = xy[pi]
-        pose = pose - shift
+        return g, bi, pi, index, batch.pose[bi[:, None], index] - shift, g.mask[bi, pi]
+
+    def _folded_states(self, batch: Batch, gathered: tuple, last_only: bool) -> Tensor:
+        """The ragged GRU over the folded input gates of ``gathered`` (:meth:`_gather`): (N, C, d_z) states,
+        or (N, d_z) with ``last_only``."""
+        g, bi, pi, index, pose, mask = gathered
+        gates = self._input_gates(batch, pose[mask], bi[:, None].expand_as(index)[mask], index[mask])
+        return ragged_gru_from_gates(gates, g.count[bi, pi], self.gru, int(mask.shape[1]), last_only)
+
+    def encode_sequence(self, batch: Batch) -> ParticleSequence:
+        """Run the GRU over every seen particle's gathered steps (see :class:`ParticleSequence`)."""
+        xy = self.xy_mm.to(batch.pose.dtype)
+        gathered = self._gather(batch)
+        g, bi, pi, index, pose, mask = gathered
         force = batch.force[bi[:, None], index]                      # (N, C, F)
         count = g.count[bi, pi]
-        mask = g.mask[bi, pi]
         if self._folds_inputs():
-            scan = bi[:, None].expand_as(index)[mask]
-            z = ragged_gru_from_gates(self._input_gates(batch, pose[mask], scan, index[mask]), count, self.gru,
-                                      int(mask.shape[1]))
+            z = self._folded_states(batch, gathered, last_only=False)
         else:
             real = self.fle(pose[mask], force[mask])                 # inputs of real steps only
             z = self._run_gru(real.new_zeros(*mask.shape, real.shape[-1]).index_put((mask,), real), count)
@@ -231,7 +241,13 @@ class ParticleEncoder(nn.Module):
 
     def forward(self, batch: Batch) -> ParticleStates:
         """Batch -> ParticleStates with z (B, P, d_z)."""
-        return self.encode_sequence(batch).final_states()
+        if not self._folds_inputs():
+            return self.encode_sequence(batch).final_states()
+        gathered = self._gather(batch)
+        g, bi, pi = gathered[:3]
+        last = self._folded_states(batch, gathered, last_only=True)
+        z = last.new_zeros(*g.count.shape, self.dim).index_put((bi, pi), last)
+        return ParticleStates(z=z, xy_mm=self.xy_mm.to(batch.pose.dtype), seen=g.seen)
 
 
 class GlobalEncoder(ParticleEncoder):

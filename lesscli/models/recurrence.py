@@ -36,6 +36,25 @@ def gru_gates(gi: Tensor, h: Tensor, weight_hh: Tensor, bias_hh: Tensor) -> tupl
     return torch.addcmul(new, h - new, update), rz, new, gh[:, two:]
 
 
+def _advance(gates: Tensor, weight_hh: Tensor, bias_hh: Tensor, sizes: list[int], keep: bool) -> tuple:
+    """(S, H) states over time-major packed gates (step t: the first ``sizes[t]`` rows), and with ``keep``
+    the gates, candidates and ``W_hn h + b_hn`` of every step for the backward pass (else None)."""
+    hidden = weight_hh.shape[1]
+    states = gates.new_empty(gates.shape[0], hidden)
+    saved = (gates.new_empty(gates.shape[0], 2 * hidden), torch.empty_like(states), torch.empty_like(states)) \
+        if keep else None
+    h, at = gates.new_zeros(sizes[0], hidden), 0
+    for size in sizes:
+        span = slice(at, at + size)
+        h, *parts = gru_gates(gates[span], h[:size], weight_hh, bias_hh)
+        states[span] = h
+        if keep:
+            for buffer, part in zip(saved, parts):
+                buffer[span] = part
+        at += size
+    return (states, *(saved or (None, None, None)))
+
+
 class _Recurrence(torch.autograd.Function):
     """States of a GRU over time-major packed input gates: step t holds the first ``sizes[t]`` rows.
 
@@ -45,15 +64,7 @@ class _Recurrence(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, gates: Tensor, weight_hh: Tensor, bias_hh: Tensor, sizes: list[int]) -> Tensor:
-        hidden = weight_hh.shape[1]
-        states = gates.new_empty(gates.shape[0], hidden)
-        rz, new, ghn = gates.new_empty(gates.shape[0], 2 * hidden), torch.empty_like(states), torch.empty_like(states)
-        h, at = gates.new_zeros(sizes[0], hidden), 0
-        for size in sizes:
-            span = slice(at, at + size)
-            h, rz[span], new[span], ghn[span] = gru_gates(gates[span], h[:size], weight_hh, bias_hh)
-            states[span] = h
-            at += size
+        states, rz, new, ghn = _advance(gates, weight_hh, bias_hh, sizes, keep=True)
         ctx.sizes = sizes
         ctx.save_for_backward(weight_hh, states, rz, new, ghn)
         return states
@@ -101,7 +112,7 @@ def ragged_gru(x: Tensor, count: Tensor, gru: nn.GRU) -> Tensor:
     return ragged_gru_from_gates(gates, count, gru, x.shape[1]) + x.sum() * 0.0   # x always in the graph
 
 
-def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int) -> Tensor:
+def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int, last_only: bool = False) -> Tensor:
     """:func:`ragged_gru` from the input gates of the real steps.
 
     Args:
@@ -109,14 +120,16 @@ def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int
         count: (N,) long, real steps per row.
         gru: the GRU whose recurrent weights are used.
         length: C, slots per row in the output (>= count.max()).
+        last_only: return only each row's state after its last real step, (N, H) (zeros where count is 0).
 
     Returns:
         (N, C, H) the state after each real step; zeros past each row's count.
     """
     n, hidden = count.shape[0], gru.hidden_size
-    out = gates.new_zeros(n * length, hidden)
+    out = gates.new_zeros(n if last_only else n * length, hidden)
+    shape = (n, hidden) if last_only else (n, length, hidden)
     if gates.shape[0] == 0:                 # no real step: still a function of the weights (zero gradients)
-        return out.view(n, length, hidden) + (gates.sum() + sum(w.sum() for w in gru.parameters())) * 0.0
+        return out.view(shape) + (gates.sum() + sum(w.sum() for w in gru.parameters())) * 0.0
     count = count.to(gates.device)
     order = torch.argsort(count, descending=True, stable=True)
     alive = torch.bincount(count, minlength=length + 1).flip(0).cumsum(0).flip(0)[1:]   # rows with a step t
@@ -124,5 +137,13 @@ def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int
     steps = torch.repeat_interleave(torch.arange(len(sizes), device=gates.device), alive[:len(sizes)])
     rows = torch.cat([order[:s] for s in sizes])                      # time-major, longest rows first
     start = torch.cumsum(count, 0) - count
-    states = _Recurrence.apply(gates[start[rows] + steps], gru.weight_hh_l0, gru.bias_hh_l0, sizes)
-    return out.index_put((rows * length + steps,), states).view(n, length, hidden)
+    packed = gates[start[rows] + steps]
+    weights = (packed, gru.weight_hh_l0, gru.bias_hh_l0, sizes)
+    if torch.is_grad_enabled() and any(w.requires_grad for w in weights[:3]):
+        states = _Recurrence.apply(*weights)
+    else:
+        states = _advance(*weights, keep=False)[0]
+    if last_only:
+        last = steps == count[rows] - 1
+        return out.index_put((rows[last],), states[last])
+    return out.index_put((rows * length + steps,), states).view(shape)
