@@ -3,8 +3,9 @@
 Rows (particles) of very different lengths share one GRU. The input projection of every real step is
 one matrix product; the recurrence then advances, at time t, only the rows that still have a step t:
 rows are sorted by length (longest first), so they are a prefix of the sorted rows and each step is a
-plain slice. Autograd then keeps per-step tensors of the active rows only (the library's packed GRU
-on CPU allocates a zero gradient of the whole packed input at every time step, quadratic in length).
+plain slice. The backward pass is written out (:class:`_Recurrence`): it touches the active rows of each
+step only and forms the recurrent weights' gradient as one product over all steps (the library's packed
+GRU on CPU allocates a zero gradient of the whole packed input at every time step, quadratic in length).
 
 Same maths as ``torch.nn.GRU`` (gate order r, z, n; ``n = tanh(W_in x + b_in + r * (W_hn h + b_hn))``,
 ``h' = (h - n) * z + n``), to float rounding.
@@ -85,8 +86,9 @@ class _Recurrence(torch.autograd.Function):
             g = grad_states[span].clone()
             if carry is not None:
                 g[:carry.shape[0]] += carry
-            h = states[starts[t - 1]:starts[t - 1] + sizes[t]] if t else prev[span]
-            prev[span] = h
+            h = states[starts[t - 1]:starts[t - 1] + sizes[t]] if t else prev[span]       # zeros at t = 0
+            if t:
+                prev[span] = h
             reset, update = rz[span].chunk(2, 1)
             d_new = g * (1 - update) * (1 - new[span] ** 2)
             d_rz = torch.cat([d_new * ghn[span], g * (h - new[span])], 1) * rz[span] * (1 - rz[span])
@@ -109,7 +111,7 @@ def ragged_gru(x: Tensor, count: Tensor, gru: nn.GRU) -> Tensor:
     """
     real = torch.arange(x.shape[1], device=x.device) < count.to(x.device)[:, None]
     gates = torch.addmm(gru.bias_ih_l0, x[real], gru.weight_ih_l0.t())
-    return ragged_gru_from_gates(gates, count, gru, x.shape[1]) + x.sum() * 0.0   # x always in the graph
+    return ragged_gru_from_gates(gates, count, gru, x.shape[1])
 
 
 def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int, last_only: bool = False) -> Tensor:
@@ -137,12 +139,11 @@ def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int
     steps = torch.repeat_interleave(torch.arange(len(sizes), device=gates.device), alive[:len(sizes)])
     rows = torch.cat([order[:s] for s in sizes])                      # time-major, longest rows first
     start = torch.cumsum(count, 0) - count
-    packed = gates[start[rows] + steps]
-    weights = (packed, gru.weight_hh_l0, gru.bias_hh_l0, sizes)
-    if torch.is_grad_enabled() and any(w.requires_grad for w in weights[:3]):
-        states = _Recurrence.apply(*weights)
+    args = (gates[start[rows] + steps], gru.weight_hh_l0, gru.bias_hh_l0, sizes)
+    if torch.is_grad_enabled() and any(a.requires_grad for a in args[:3]):
+        states = _Recurrence.apply(*args)
     else:
-        states = _advance(*weights, keep=False)[0]
+        states = _advance(*args, keep=False)[0]
     if last_only:
         last = steps == count[rows] - 1
         return out.index_put((rows[last],), states[last])
