@@ -39,7 +39,7 @@ def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | No
     t0 = time.perf_counter()
     threads = apply_threads("throughput", jobs=jobs, torch_too=False)     # per worker: --jobs splits the cores
     i_n = parse_shard(shard)
-    scene = load_scene(scene_path, [*overrides, *([f"seed={seed}"] if seed is not None else [])])
+    scene = load_scene(scene_path, overrides, options={"seed": seed})
     scans = simulate(scene, jobs=jobs, shard=i_n,
                      progress=lambda it, total: progress(it, total=total, desc="scans", unit="scan"))
     scans.meta = append_history(scans.meta, seed=scene.seed)

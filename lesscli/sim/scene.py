@@ -30,17 +30,18 @@ base), ``filling_kpa`` ([10, 40]), ``inclusion_kpa`` ([150, 600]), ``skin_kpa`` 
 another scene seed) gives another. ``names``, ``limit`` and ``orientations`` apply as for the catalogues;
 ``[phantoms.random]`` is ignored for other sets (so ``--set phantoms.set=single`` works on a random scene).
 
-Unknown keys are errors that name the closest valid key. ``--set a.b=value`` overrides apply to the
-document before validation (values parse as TOML, else as strings).
+Unknown keys are errors that name the closest valid key. Options (``--seed``), then ``--set a.b=value``
+overrides, apply to the document before validation (lesscli.io.overrides: values parse as TOML, bare
+words as strings).
 """
 
 from __future__ import annotations
 
 import os
-import tomllib
 from dataclasses import dataclass, field
 
 from lesscli.errors import DataError, did_you_mean
+from lesscli.io.overrides import apply_overrides, parse_value  # noqa: F401 - parse_value re-exported
 from lesscli.io.sensor import xela_uscu
 from lesscli.io.toml_files import read_toml
 from lesscli.phantom.catalogue import CATALOGUES, load_phantom_file
@@ -119,33 +120,6 @@ def _check_types(values: dict, defaults: dict, where: str, prefix: str) -> dict:
                  (isinstance(value, bool) or not isinstance(value, (int, float, list)))):
             raise DataError(f"{where}: '{prefix}{key}' = {value!r} has the wrong type "
                             f"(default is {ref!r})")
-    return out
-
-
-def parse_value(text: str):
-    """A ``--set`` value: TOML syntax (numbers, booleans, arrays, quoted strings), else a plain string."""
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
-def apply_overrides(doc: dict, overrides: list[str], where: str) -> dict:
-    """A copy of ``doc`` with ``key.path=value`` assignments applied."""
-    import copy
-
-    out = copy.deepcopy(doc)
-    for item in overrides:
-        if "=" not in item:
-            raise DataError(f"{where}: --set '{item}' is not of the form key.path=value")
-        path, value = item.split("=", 1)
-        keys = path.strip().split(".")
-        node = out
-        for key in keys[:-1]:
-            node = node.setdefault(key, {})
-            if not isinstance(node, dict):
-                raise DataError(f"{where}: --set '{item}': '{key}' is not a table")
-        node[keys[-1]] = parse_value(value.strip())
     return out
 
 
@@ -279,7 +253,8 @@ def parse_scene(doc: dict, where: str = "<scene>", base_dir: str = ".") -> Scene
                  source=where, doc=doc)
 
 
-def load_scene(path: str, overrides: list[str] | tuple[str, ...] = ()) -> Scene:
-    """Read, override and validate a scene file; errors name the file."""
-    doc = read_toml(path, "scene file")
-    return parse_scene(apply_overrides(doc, list(overrides), path), path, os.path.dirname(os.path.abspath(path)))
+def load_scene(path: str, overrides: list[str] | tuple[str, ...] = (), options: dict | None = None) -> Scene:
+    """Read a scene file, apply ``options`` (dotted key -> value, None = not given) and the ``--set``
+    ``overrides`` over it, and validate; errors name the file."""
+    doc = apply_overrides(read_toml(path, "scene file"), overrides, path, options)
+    return parse_scene(doc, path, os.path.dirname(os.path.abspath(path)))
