@@ -47,7 +47,7 @@ def parse_value(text: str, where: str = "--set") -> object:
     except tomllib.TOMLDecodeError as exc:
         if text.startswith(_OPENERS):
             reason = str(exc).split(" (at ")[0]
-            raise DataError(f"{where}: malformed value {text} ({reason})") from None
+            raise DataError(f"{where}: malformed value '{text}' ({reason})") from None
         return text
     return text if isinstance(value, _DATES) else value
 

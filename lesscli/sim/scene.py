@@ -123,10 +123,10 @@ def _check_types(values: dict, defaults: dict, where: str, prefix: str) -> dict:
     return out
 
 
-def _random_phantoms(table, where: str, seed: int) -> list[Phantom]:
-    """The random family of ``[phantoms.random]``; its seed defaults to the scene's."""
+def _random_ranges(table, where: str, seed: int) -> RandomRanges:
+    """The ranges of ``[phantoms.random]``; the family's seed defaults to the scene's."""
     check_keys(table, RANDOM_KEYS, where, "phantoms.random.")
-    return random_set(RandomRanges.from_dict({"seed": seed, **table}, f"{where}: phantoms.random"))
+    return RandomRanges.from_dict({"seed": seed, **table}, f"{where}: phantoms.random")
 
 
 def _phantoms(table: dict, where: str, base_dir: str, seed: int) -> tuple[list[Phantom], tuple[int, ...]]:
@@ -135,7 +135,7 @@ def _phantoms(table: dict, where: str, base_dir: str, seed: int) -> tuple[list[P
     if which in CATALOGUES:
         phantoms = CATALOGUES[which]()
     elif which == RANDOM_SET:
-        phantoms = _random_phantoms(table.get("random", {}), where, seed)
+        phantoms = random_set(_random_ranges(table.get("random", {}), where, seed))
     elif which.endswith((".toml", ".json")):
         path = which if os.path.isabs(which) or os.path.exists(which) else os.path.join(base_dir, which)
         phantoms = load_phantom_file(path)
@@ -258,3 +258,20 @@ def load_scene(path: str, overrides: list[str] | tuple[str, ...] = (), options: 
     ``overrides`` over it, and validate; errors name the file."""
     doc = apply_overrides(read_toml(path, "scene file"), overrides, path, options)
     return parse_scene(doc, path, os.path.dirname(os.path.abspath(path)))
+
+
+def scene_document(scene: Scene) -> dict:
+    """``scene`` as a TOML-ready document with every default filled in (``less simulate --print-config``);
+    read back as a scene file it gives the same scene. A selection of inserts (``names``, ``limit``) is
+    written as the names it selects."""
+    table = scene.doc.get("phantoms", {})
+    phantoms = {"set": str(table.get("set", "single")), "orientations": list(scene.orientations)}
+    if "names" in table or "limit" in table:
+        phantoms["names"] = [p.name for p in scene.phantoms]
+    if phantoms["set"] == RANDOM_SET:
+        phantoms["random"] = _random_ranges(table.get("random", {}), scene.source, scene.seed).to_dict()
+    labels = {"shape": list(scene.labels["shape"]), "spacing_mm": scene.labels["spacing_mm"]}
+    return {"name": scene.name, "seed": scene.seed, "description": scene.doc.get("description"),
+            "phantoms": phantoms, "sensor": {k: scene.sensor[k] for k in SECTION_KEYS["sensor"] if k in scene.sensor},
+            "contact": dict(scene.contact), "motion": {"kind": scene.motion["kind"], **scene.motion["params"]},
+            "labels": labels, "effects": dict(scene.effects)}
