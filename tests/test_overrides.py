@@ -246,3 +246,24 @@ def test_print_config_reports_a_bad_set_like_the_command(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     result = CliRunner().invoke(cli, ["pretrain", "x.npz", "-o", "rep.pt", "--set", "model.dimm=3", "--print-config"])
     assert result.exit_code == 1 and "did you mean 'dim'" in str(result.exception) and not result.stdout
+
+
+def _commands(group, ctx, path=()):
+    import click
+
+    for name in group.list_commands(ctx):
+        command = group.get_command(ctx, name)
+        if isinstance(command, click.Group):
+            yield from _commands(command, ctx, (*path, name))
+        else:
+            yield " ".join((*path, name)), command
+
+
+def test_every_command_taking_set_overrides_prints_its_config():
+    import click
+
+    ctx = click.Context(cli)
+    takes_set = {name for name, command in _commands(cli, ctx)
+                 if any("--set" in p.opts and p.metavar == "KEY=VALUE" for p in command.params)}
+    printing = {name for name, command in _commands(cli, ctx) if any("--print-config" in p.opts for p in command.params)}
+    assert takes_set == printing and {"simulate", "pretrain", "image fit"} <= takes_set

@@ -152,16 +152,19 @@ def output_option(required: bool = True, help: str = "Output file ('-' for stdou
 _PRINT_CONFIG = "less.print_config"
 
 
-def print_config_option(func):
-    """``--print-config`` for a command that takes ``--set``: the command hands its resolved configuration to
-    :func:`config_resolved`, which then prints it as TOML on stdout and exits 0 before any work is done."""
+def set_options(help: str):
+    """``--set KEY=VALUE`` (repeatable, keyword ``overrides``; syntax in lesscli.io.overrides) and with it
+    ``--print-config``: the command hands its resolved configuration to :func:`config_resolved`, which
+    then prints it as TOML on stdout and exits 0 before any work is done."""
     def remember(ctx: click.Context, param: click.Parameter, value: bool) -> bool:
         ctx.meta[_PRINT_CONFIG] = value
         return value
 
-    return click.option("--print-config", is_flag=True, expose_value=False, callback=remember,
-                        help="Print the resolved configuration (defaults < file < options < --set) as TOML "
-                             "and exit without doing the work.")(func)
+    set_option = click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=help)
+    print_option = click.option("--print-config", is_flag=True, expose_value=False, callback=remember,
+                                help="Print the resolved settings (defaults < file < options < --set) as TOML "
+                                     "and exit without doing the work.")
+    return lambda func: set_option(print_option(func))
 
 
 def print_config_requested() -> bool:
@@ -193,9 +196,7 @@ def training_options(default_epochs: int, tables: str, set_example: str):
         click.option("--device", default=None, help="auto, cpu, cuda or cuda:N.  [default: auto]"),
         click.option("--config", "config_path", type=click.Path(), default=None,
                      help=f"TOML file with {tables} tables."),
-        click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
-                     help=f"Override a setting, e.g. {set_example} (repeatable)."),
-        print_config_option,
+        set_options(f"Override a setting, e.g. {set_example} (repeatable)."),
         click.option("--resume", is_flag=True, help="Continue from <stem>.last.pt with the same settings."),
         threads_option(),
         click.option("--tensorboard", default=None, type=click.Path(file_okay=False), metavar="DIR",

@@ -4,18 +4,16 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option, output_option, parse_shard, print_config_option
+from lesscli.cli.common import format_option, output_option, parse_shard, set_options
 
 
 @click.command("simulate")
 @click.argument("scene_path", type=click.Path(), metavar="SCENE.toml")
 @output_option(help="Output scan set (.npz, '-' for stdout).")
-@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
-              help="Override a scene value, e.g. --set motion.n_traj=10 --set contact.tier=winkler.")
+@set_options("Override a scene value, e.g. --set motion.n_traj=10 --set contact.tier=winkler.")
 @click.option("--seed", type=int, default=None, help="Override the scene's seed.")
 @click.option("--jobs", type=click.IntRange(1), default=1, show_default=True, help="Worker processes (over scans).")
 @click.option("--shard", default=None, metavar="I/N", help="Simulate only shard I of N (0-based, contiguous).")
-@print_config_option
 @format_option
 def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | None, jobs: int,
         shard: str | None, fmt: str | None) -> None:
