@@ -43,7 +43,8 @@ def test_malformed_values_are_one_line_errors(text, match):
 
 
 @pytest.mark.parametrize("item,keys,value", [("a=1", ("a",), 1), ("train.lr = 3e-4", ("train", "lr"), 3e-4),
-                                             ("effects.noise.white_n=0.5", ("effects", "noise", "white_n"), 0.5),
+                                             ("effects.noise.white_n=0.5", ("effects", "noise", "white_n"),
+                                              0.5),
                                              ("names=[\"a=b\"]", ("names",), ["a=b"])])
 def test_assignments_split_at_the_first_equals_and_the_dots(item, keys, value):
     assert parse_assignment(item) == (keys, value)
@@ -98,7 +99,7 @@ class _Config:
     (None, None, [], {"n": 1, "x": 0.5, "k": 3}),                                       # defaults
     ({"inner": {"n": 5, "x": 1}}, None, [], {"n": 5, "x": 1.0, "k": 3}),                # file (int -> float)
     ({"inner": {"n": 5}}, {"inner.n": 6, "inner.x": None}, [], {"n": 6, "x": 0.5, "k": 3}),  # options > file
-    ({"inner": {"n": 5}}, {"inner.n": 6}, ["inner.n=7", "k=9"], {"n": 7, "x": 0.5, "k": 9}),  # --set > options
+    ({"inner": {"n": 5}}, {"inner.n": 6}, ["inner.n=7", "k=9"], {"n": 7, "x": 0.5, "k": 9}),  # --set wins
     (None, None, ["inner.n=7", "inner.n=8"], {"n": 8, "x": 0.5, "k": 3}),                # last --set wins
 ])
 def test_layers_apply_in_order(doc, options, sets, expected):
@@ -110,7 +111,8 @@ def test_layers_apply_in_order(doc, options, sets, expected):
 def test_typed_values_from_set():
     cfg = resolve_dataclass(_Config, overrides=["inner.name=b c", "inner.flag=true", "inner.maybe=0.8",
                                                 "other.sizes=[3, 4, 5]", 'inner.name="quoted"'])
-    assert (cfg.inner.name, cfg.inner.flag, cfg.inner.maybe, cfg.other.sizes) == ("quoted", True, 0.8, [3, 4, 5])
+    got = (cfg.inner.name, cfg.inner.flag, cfg.inner.maybe, cfg.other.sizes)
+    assert got == ("quoted", True, 0.8, [3, 4, 5])
 
 
 @pytest.mark.parametrize("sets,match", [
@@ -171,11 +173,13 @@ def test_scene_document_reads_back_as_the_same_scene():
     doc = {"name": "t", "seed": 4, "phantoms": {"set": "single", "limit": 2, "orientations": [0, 3]},
            "contact": {"tier": "winkler", "cache_dir": "/tmp/c"},
            "motion": {"kind": "primitive", "n_traj": 3, "slide_mm": [2.0, 4.0]},
-           "labels": {"shape": [8, 16, 16]}, "effects": {"noise": {"white_n": 0.02}, "tilt": {"enabled": False}}}
+           "labels": {"shape": [8, 16, 16]},
+           "effects": {"noise": {"white_n": 0.02}, "tilt": {"enabled": False}}}
     scene = parse_scene(doc, "t.toml")
     resolved = tomllib.loads(dump_toml(scene_document(scene)))
     again = parse_scene(resolved, "t.toml")
-    for name in ("name", "seed", "phantoms", "orientations", "sensor", "contact", "motion", "labels", "effects"):
+    for name in ("name", "seed", "phantoms", "orientations", "sensor", "contact", "motion", "labels",
+                 "effects"):
         assert getattr(again, name) == getattr(scene, name), name
     assert resolved["motion"]["slide_mm"] == [2.0, 4.0] and resolved["motion"]["kind"] == "primitive"
     assert set(resolved["effects"]) == {"noise"} and len(resolved["phantoms"]["names"]) == 2
@@ -205,8 +209,8 @@ def test_simulate_print_config(tmp_path, monkeypatch):
     (tmp_path / "s.toml").write_text('seed = 1\n[phantoms]\nset = "single"\nlimit = 1\n[motion]\nn_traj = 2\n'
                                      '[effects.noise]\n')
     printed = _invoke(tmp_path, monkeypatch, ["simulate", "s.toml", "-o", "out.npz", "--seed", "5",
-                                              "--set", "motion.n_traj=7", "--set", "effects.noise.white_n=0.5",
-                                              "--print-config"])
+                                              "--set", "motion.n_traj=7",
+                                              "--set", "effects.noise.white_n=0.5", "--print-config"])
     assert printed["motion"]["n_traj"] == 7 and printed["motion"]["kind"] == "poke"
     assert printed["seed"] == 5 and printed["effects"]["noise"]["white_n"] == 0.5
     assert printed["contact"]["tier"] == "green"                       # a default, filled in
@@ -224,27 +228,30 @@ def test_pretrain_print_config_layers_file_options_and_set(tmp_path, monkeypatch
     printed = _invoke(tmp_path, monkeypatch, ["pretrain", "missing.npz", "-o", "rep.pt", "--config", "c.toml",
                                               "--epochs", "3", "--dim", "8", "--set", "dim=12",
                                               "--set", "train.lr=3e-4", "--print-config"])
-    assert (printed["train"]["epochs"], printed["train"]["batch_size"], printed["train"]["lr"]) == (3, 4, 3e-4)
+    train = printed["train"]
+    assert (train["epochs"], train["batch_size"], train["lr"]) == (3, 4, 3e-4)
     assert printed["model"]["dim"] == 12 and printed["ssl"]["k_query"] == 16
 
 
 def test_image_fit_print_config(tmp_path, monkeypatch):
     printed = _invoke(tmp_path, monkeypatch, ["image", "fit", "missing.npz", "--rep", "rep.pt", "-o", "im.pt",
-                                              "--dim", "2", "--set", "loss.gamma=1", "--set", "image.width=64",
-                                              "--print-config"])
-    assert printed["loss"]["gamma"] == 1.0 and printed["image"]["width"] == 64 and printed["image"]["dim"] == 2
+                                              "--dim", "2", "--set", "loss.gamma=1",
+                                              "--set", "image.width=64", "--print-config"])
+    assert printed["loss"]["gamma"] == 1.0 and (printed["image"]["width"], printed["image"]["dim"]) == (64, 2)
     assert printed["train"]["epochs"] == 300 and "threshold" not in printed["image"]   # None: left out
 
 
 def test_print_config_does_not_apply_to_the_force_map(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    result = CliRunner().invoke(cli, ["image", "fit", "x.npz", "--model", "forcemap", "-o", "f.pt", "--print-config"])
+    result = CliRunner().invoke(cli, ["image", "fit", "x.npz", "--model", "forcemap", "-o", "f.pt",
+                                      "--print-config"])
     assert result.exit_code == 2 and "--print-config" in result.output
 
 
 def test_print_config_reports_a_bad_set_like_the_command(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    result = CliRunner().invoke(cli, ["pretrain", "x.npz", "-o", "rep.pt", "--set", "model.dimm=3", "--print-config"])
+    result = CliRunner().invoke(cli, ["pretrain", "x.npz", "-o", "rep.pt", "--set", "model.dimm=3",
+                                      "--print-config"])
     assert result.exit_code == 1 and "did you mean 'dim'" in str(result.exception) and not result.stdout
 
 
@@ -265,5 +272,6 @@ def test_every_command_taking_set_overrides_prints_its_config():
     ctx = click.Context(cli)
     takes_set = {name for name, command in _commands(cli, ctx)
                  if any("--set" in p.opts and p.metavar == "KEY=VALUE" for p in command.params)}
-    printing = {name for name, command in _commands(cli, ctx) if any("--print-config" in p.opts for p in command.params)}
+    printing = {name for name, command in _commands(cli, ctx)
+                if any("--print-config" in p.opts for p in command.params)}
     assert takes_set == printing and {"simulate", "pretrain", "image fit"} <= takes_set

@@ -162,8 +162,8 @@ def set_options(help: str):
 
     set_option = click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=help)
     print_option = click.option("--print-config", is_flag=True, expose_value=False, callback=remember,
-                                help="Print the resolved settings (defaults < file < options < --set) as TOML "
-                                     "and exit without doing the work.")
+                                help="Print the resolved settings (defaults < file < options < --set) "
+                                     "as TOML and exit without doing the work.")
     return lambda func: set_option(print_option(func))
 
 

@@ -137,7 +137,8 @@ def coerce(value, kind, what: str):
     number = isinstance(value, (int, float)) and not isinstance(value, bool)
     for option in options:
         if (option is type(None) and value is None) or (option is bool and isinstance(value, bool)) or \
-                (option is str and isinstance(value, str)) or (option is int and number and isinstance(value, int)):
+                (option is str and isinstance(value, str)) or \
+                (option is int and number and isinstance(value, int)):
             return value
         if option is float and number:
             return float(value)

@@ -271,7 +271,8 @@ def scene_document(scene: Scene) -> dict:
     if phantoms["set"] == RANDOM_SET:
         phantoms["random"] = _random_ranges(table.get("random", {}), scene.source, scene.seed).to_dict()
     labels = {"shape": list(scene.labels["shape"]), "spacing_mm": scene.labels["spacing_mm"]}
+    sensor = {k: scene.sensor[k] for k in SECTION_KEYS["sensor"] if k in scene.sensor}
+    motion = {"kind": scene.motion["kind"], **scene.motion["params"]}
     return {"name": scene.name, "seed": scene.seed, "description": scene.doc.get("description"),
-            "phantoms": phantoms, "sensor": {k: scene.sensor[k] for k in SECTION_KEYS["sensor"] if k in scene.sensor},
-            "contact": dict(scene.contact), "motion": {"kind": scene.motion["kind"], **scene.motion["params"]},
+            "phantoms": phantoms, "sensor": sensor, "contact": dict(scene.contact), "motion": motion,
             "labels": labels, "effects": dict(scene.effects)}

@@ -97,6 +97,6 @@ def to_dict(cfg) -> dict:
 
 def load_config(cls, path: str | None = None, overrides: typing.Iterable[str] = (), explicit: dict | None = None):
     """Defaults, then a TOML file, then ``explicit`` (``{"section.field": value}``, None = not given), then
-    ``--set`` pairs (lesscli.io.overrides: a key is ``section.field`` or a field name only one section has)."""
+    ``--set`` pairs (lesscli.io.overrides: a key is ``section.field`` or a field that one section has)."""
     doc = read_toml(path, "config file") if path else None
     return resolve_dataclass(cls, doc, path or "config", explicit, overrides, short_keys=True)
