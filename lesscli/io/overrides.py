@@ -54,7 +54,7 @@ def parse_value(text: str, where: str = "--set") -> object:
 
 def parse_assignment(item: str, where: str = "") -> tuple[Path, object]:
     """``'a.b=value'`` -> (``('a', 'b')``, parsed value); DataError when it is not ``key=value``."""
-    source = f"{where}: --set '{item}'" if where else f"--set '{item}'"
+    source = _source(item, where)
     key, eq, text = item.partition("=")
     keys = tuple(part.strip() for part in key.split("."))
     if not eq or not all(keys):
@@ -82,7 +82,7 @@ def apply_overrides(doc: dict, overrides: Iterable[str], where: str = "",
             set_path(out, tuple(key.split(".")), value, where or "option")
     for item in overrides:
         keys, value = parse_assignment(item, where)
-        set_path(out, keys, value, f"{where}: --set '{item}'" if where else f"--set '{item}'")
+        set_path(out, keys, value, _source(item, where))
     return out
 
 
@@ -125,8 +125,7 @@ def resolve_dataclass(cls, doc: dict | None = None, where: str = "config",
             _assign(tree, kinds, _locate(kinds, tuple(key.split(".")), "option", False), value, "option")
     for item in overrides:
         keys, value = parse_assignment(item)
-        source = f"--set '{item}'"
-        _assign(tree, kinds, _locate(kinds, keys, source, short_keys), value, source)
+        _assign(tree, kinds, _locate(kinds, keys, _source(item), short_keys), value, _source(item))
     return _build(cls, tree)
 
 
@@ -149,6 +148,11 @@ def coerce(value, kind, what: str):
     if not number and any(o in (int, float) for o in options) and not isinstance(value, bool):
         raise DataError(f"{what} must be a number (expects {need}), got {value!r}")
     raise DataError(f"{what} expects {need}, got {value!r}")
+
+
+def _source(item: str, where: str = "") -> str:
+    """How an error names a ``--set`` pair (after the file it applies to, if any)."""
+    return f"{where}: --set '{item}'" if where else f"--set '{item}'"
 
 
 def _kinds(cls) -> dict:
