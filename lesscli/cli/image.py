@@ -71,7 +71,9 @@ def fit_cmd(data, model, rep_path, output, val_path, select, dim, finetune, slic
 
 
 def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
-    given = [f"--{k}" for k, v in learned_only.items() if v]
+    from lesscli.cli.common import print_config_requested
+
+    given = [f"--{k}" for k, v in learned_only.items() if v] + ["--print-config"] * print_config_requested()
     if given:
         raise click.UsageError(f"{', '.join(given)} only apply to learned models, not --model forcemap")
     from lesscli.cli.common import LOG, training_scans
