@@ -7,13 +7,13 @@ import math
 import pytest
 import torch
 
-from lesscli.data.batching import Batch
 from lesscli.errors import LessError
 from lesscli.models.encoders import GlobalEncoder, ParticleEncoder
 from lesscli.models.force_decoder import ForceDecoder
 from lesscli.models.particles import gather_receptive_field, particle_grid
 from lesscli.models.registry import ENCODERS, build_encoder, lookup
 from lesscli.models.ssl_loss import ForcePredictor, sample_slots
+from lesscli.types import Batch
 
 torch.set_num_threads(1)
 QUANTUM_MM = 0.25          # positions on this lattice keep float32 sums and squares exact

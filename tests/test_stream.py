@@ -12,8 +12,8 @@ from lesscli.data.batching import ScanDataset, collate
 from lesscli.infer.stream import StreamingImager
 from lesscli.models.encoders import GlobalEncoder, ParticleEncoder
 from lesscli.models.imager import Imager, grid_to_dict
-from lesscli.models.patch_decoder import ImageGrid
 from lesscli.models.registry import build_decoder
+from lesscli.types import ImageGrid
 
 FORCE_DIM = 90                      # 30 taxels x 3, the default sensor
 SPACING_MM, EXTENT_MM, RADIUS_MM = 6.0, 36.0, 10.0

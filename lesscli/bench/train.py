@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import torch
 
-from lesscli.data.batching import Batch
 from lesscli.models.encoders import GlobalEncoder, ParticleEncoder
 from lesscli.models.force_decoder import ForceDecoder
 from lesscli.models.ssl_loss import ForcePredictor
+from lesscli.types import Batch
 
 FORCE_DIM = 90
 PHANTOM_HALF_WIDTH_MM = 30.0

@@ -19,7 +19,7 @@ import numpy as np
 
 from lesscli.errors import DataError
 from lesscli.io.labels import INCLUSION
-from lesscli.models.patch_decoder import ImageGrid
+from lesscli.types import ImageGrid
 
 DEFAULT_MARGIN_MM = 3.0       # suggestions keep the pad centre this far inside the outline
 DEFAULT_WIDTH_MM = 60.0       # octagon across flats when no label volume gives the footprint

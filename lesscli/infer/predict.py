@@ -25,8 +25,8 @@ from lesscli.infer import forcemap
 from lesscli.io.predictions import PredictionSet, ScanPrediction, labels_from_probs, nothing_known
 from lesscli.io.scans import ScanSet, load_scans
 from lesscli.models.imager import Imager, grid_from_dict
-from lesscli.models.patch_decoder import ImageGrid
 from lesscli.train.checkpoint import load_checkpoint
+from lesscli.types import ImageGrid
 
 
 @dataclass

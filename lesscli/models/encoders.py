@@ -18,7 +18,6 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor, nn
@@ -26,9 +25,7 @@ from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
 
 from lesscli.models.encoding import POSE_DIM, PoseEncoding
 from lesscli.models.particles import gather_receptive_field, particle_grid
-
-if TYPE_CHECKING:
-    from lesscli.data.batching import Batch
+from lesscli.types import Batch
 
 
 def mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:
