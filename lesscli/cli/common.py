@@ -126,6 +126,17 @@ def threads_option(help: str = "CPU threads for torch and BLAS (default: chosen 
     return click.option("--threads", type=click.IntRange(1), default=None, metavar="N", help=help)
 
 
+def labelling_options(func):
+    """``--threshold`` and ``--min-volume-mm3``: the labelling rule of every command that labels images
+    (``image predict``, ``stream``, ``guide``); both default to the model's (see infer.predict.labelling_rule)."""
+    func = click.option("--min-volume-mm3", "min_volume_mm3", type=click.FloatRange(min=0), default=None,
+                        help="Drop inclusion regions smaller than this volume (mm^3; 0: keep all). Default: the "
+                             "model's, chosen on --val by image fit; else 0.")(func)
+    return click.option("--threshold", type=click.FloatRange(0, 1), default=None,
+                        help="Pillar/inclusion only above this probability (hand-held setting: 0.8). Default: the "
+                             "model's, chosen on --val by image fit; else argmax.")(func)
+
+
 def device_option(help: str = "auto (CUDA when available, else CPU), cpu, cuda or cuda:N."):
     """``--device``, ``auto`` by default in every command."""
     return click.option("--device", default="auto", show_default=True, help=help)
