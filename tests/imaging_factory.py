@@ -48,8 +48,8 @@ def make_representation(path: str, scans: ScanSet, name: str = "less", dim: int 
     import torch
 
     from lesscli.data.batching import compute_norm_stats
+    from lesscli.io.checkpoint import save_checkpoint
     from lesscli.models.registry import ENCODERS
-    from lesscli.train.checkpoint import save_checkpoint
 
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)

@@ -24,9 +24,9 @@ from imaging_factory import learnable_scanset, make_representation
 from lesscli.cli.main import main
 from lesscli.errors import DataError
 from lesscli.infer.stream import parse_live_line
+from lesscli.io.checkpoint import FORMAT
 from lesscli.io.predictions import PredictionSet, ScanPrediction, save_predictions
 from lesscli.io.scans import save_scans, to_arrays
-from lesscli.train.checkpoint import FORMAT
 
 # ---------------------------------------------------------------------------------------------- harness
 

@@ -13,10 +13,11 @@ from factories import poke_scanset, random_scanset
 
 from lesscli.data.batching import ScanDataset, batches, collate, compute_norm_stats
 from lesscli.errors import LessError, TrainingError
+from lesscli.io.checkpoint import load_checkpoint, save_checkpoint
 from lesscli.io.scans import save_scans
+from lesscli.models.registry import load_representation
 from lesscli.train import loop as loop_mod
 from lesscli.train import pretrain as pretrain_mod
-from lesscli.train.checkpoint import load_checkpoint, load_representation, save_checkpoint
 from lesscli.train.config import LoopConfig, PretrainConfig, load_config
 from lesscli.train.pretrain import build_model, pretrain
 

@@ -55,7 +55,7 @@ def tiny_imager(dim: int = 2, cap: int | None = None, encoder: str = "less", see
 
 def save_tiny_imager(path: str, **kwargs) -> None:
     """Write a tiny imaging checkpoint (see :func:`tiny_imager`)."""
-    from lesscli.train.checkpoint import save_checkpoint
+    from lesscli.io.checkpoint import save_checkpoint
 
     imager, stats, config = tiny_imager(**kwargs)
     save_checkpoint(path, imager.state_dict(), config, stats, [])

@@ -111,7 +111,7 @@ def test_stream_and_guide_label_with_the_models_rule(files, run_less, tmp_path):
     ``stream`` and ``guide`` use, as ``image predict`` does; ``--threshold``/``--min-volume-mm3`` override it."""
     from test_stream import tiny_imager
 
-    from lesscli.train.checkpoint import save_checkpoint
+    from lesscli.io.checkpoint import save_checkpoint
 
     folder, scans = files
     imager, stats, config = tiny_imager(gain=4.0)

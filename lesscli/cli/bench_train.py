@@ -27,10 +27,10 @@ def cli(quick: bool, sizes: tuple[str, ...], steps: int | None, batch_size: int,
 
     Example: less bench train --quick --format table
     """
+    from lesscli.bench.train import run
     from lesscli.errors import LessError
     from lesscli.io.records import emit_records
     from lesscli.threads import apply_threads
-    from lesscli.bench.train import run
     from lesscli.train.distributed import resolve_device
 
     chosen = list(sizes) or (["default"] if quick else ["default", "paper"])

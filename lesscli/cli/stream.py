@@ -7,7 +7,13 @@ import time
 
 import click
 
-from lesscli.cli.common import checked_output, device_option, labelling_options, renamed_option, threads_option
+from lesscli.cli.common import (
+    checked_output,
+    device_option,
+    labelling_options,
+    renamed_option,
+    threads_option,
+)
 
 EMIT_DEFAULT = 10
 LATENCY_PERCENTILES = (50, 90, 99)

@@ -22,10 +22,10 @@ from lesscli.data.batching import ScanDataset, check_force_features, collate
 from lesscli.data.image_labels import AUTO_SLICE, grid_of, target_volume
 from lesscli.errors import DataError, LessError
 from lesscli.infer import forcemap
+from lesscli.io.checkpoint import load_checkpoint
 from lesscli.io.predictions import PredictionSet, ScanPrediction, labels_from_probs, nothing_known
 from lesscli.io.scans import ScanSet, load_scans
 from lesscli.models.imager import Imager, grid_from_dict
-from lesscli.train.checkpoint import load_checkpoint
 from lesscli.types import ImageGrid
 
 

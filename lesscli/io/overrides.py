@@ -141,9 +141,8 @@ def coerce(value, kind, what: str):
             return value
         if option is float and number:
             return float(value)
-        if typing.get_origin(option) is list or option is list:
-            if isinstance(value, list):
-                return value
+        if (typing.get_origin(option) is list or option is list) and isinstance(value, list):
+            return value
     need = "/".join(getattr(o, "__name__", str(o)) for o in options)
     if not number and any(o in (int, float) for o in options) and not isinstance(value, bool):
         raise DataError(f"{what} must be a number (expects {need}), got {value!r}")
