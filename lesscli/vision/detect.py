@@ -22,7 +22,7 @@ from lesscli.vision.edges import refine_corners
 
 # Added to the corners from CORNER_REFINE_APRILTAG (px, both axes): they come out about half a pixel too far
 # right and down against the pixel-centre convention (measured on renders with exactly known corners, see
-# tests/test_vision_detect.py; the other refinements show no such offset).
+# tests/vision/test_vision_detect.py; the other refinements show no such offset).
 APRILTAG_CORNER_OFFSET_PX = -0.5
 AMBIGUITY_RATIO = 2.0       # second IPPE solution within this factor of the best reprojection error: ambiguous
 REFINE_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)

@@ -8,8 +8,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from factories import random_scanset
-from test_pretrain import tiny_cfg
+from factories import random_scanset, tiny_cfg
 
 from lesscli.data.batching import compute_norm_stats
 from lesscli.errors import DataError

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 from factories import random_scanset
-from test_stream import save_tiny_imager, tiny_imager
+from imaging_factory import save_tiny_imager, tiny_imager
 
 from lesscli.infer.guide import (
     GuideOptions,

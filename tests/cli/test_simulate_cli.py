@@ -3,36 +3,13 @@
 import json
 
 import numpy as np
+from factories import TINY_SCENE
 
 from lesscli.io.scans import load_scans
 
-SCENE = """
-name = "tiny"
-seed = 3
-[phantoms]
-set = "single"
-names = ["St16C9", "St12D13"]
-orientations = [0, 4]
-[contact]
-tier = "winkler"
-[motion]
-kind = "poke"
-n_traj = 3
-approach_mm = [1.0, 1.0]
-press_s = [0.2, 0.3]
-hold_s = [0.1, 0.1]
-[labels]
-shape = [6, 16, 16]
-spacing_mm = [3.0, 4.0, 4.0]
-[effects.tilt]
-[effects.sensor]
-[effects.noise]
-[effects.pose]
-"""
-
 
 def test_simulate_then_info_subsample_concat_split(run_less, tmp_path):
-    (tmp_path / "tiny.toml").write_text(SCENE)
+    (tmp_path / "tiny.toml").write_text(TINY_SCENE)
     sim = run_less("simulate", "tiny.toml", "-o", "raw.npz", "--jobs", "2", check=True)
     raw = load_scans(str(tmp_path / "raw.npz"))
     assert raw.n_scans == 4 and raw.n_traj == 12 and len(raw.labels) == 4
@@ -57,7 +34,7 @@ def test_simulate_then_info_subsample_concat_split(run_less, tmp_path):
 
 
 def test_simulate_overrides_and_errors(run_less, tmp_path):
-    (tmp_path / "tiny.toml").write_text(SCENE)
+    (tmp_path / "tiny.toml").write_text(TINY_SCENE)
     run_less("simulate", "tiny.toml", "-o", "one.npz", "--set", "phantoms.names=[\"St12D13\"]",
              "--set", "phantoms.orientations=[1]", "--seed", "9", check=True)
     one = load_scans(str(tmp_path / "one.npz"))

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 from factories import random_scanset
-from test_stream import save_tiny_imager
+from imaging_factory import save_tiny_imager
 
 from lesscli.io.scans import save_scans
 
@@ -109,7 +109,7 @@ def test_bench_stream_tiny_run_and_bad_input(run_less):
 def test_stream_and_guide_label_with_the_models_rule(files, run_less, tmp_path):
     """The labelling rule stored in the checkpoint (threshold, smallest kept inclusion region) is the one
     ``stream`` and ``guide`` use, as ``image predict`` does; ``--threshold``/``--min-volume-mm3`` override it."""
-    from test_stream import tiny_imager
+    from imaging_factory import tiny_imager
 
     from lesscli.io.checkpoint import save_checkpoint
 
