@@ -29,10 +29,10 @@ def cli(quick: bool, sizes: tuple[str, ...], steps: int | None, batch_size: int,
 
     Example: less bench train --size paper --set ssl.k_input=8 --set ssl.k_query=8 --threads 1
     """
+    from lesscli.bench.train import bench_config, run
     from lesscli.errors import LessError
     from lesscli.io.records import emit_records
     from lesscli.threads import apply_threads
-    from lesscli.train.benchmark import bench_config, run
     from lesscli.train.distributed import resolve_device
 
     chosen = list(sizes) or (["default"] if quick else ["default", "paper"])

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option, output_option, parse_shard
+from lesscli.cli.common import format_option, output_option, parse_shard, set_options
 
 
 @click.command("simulate")
 @click.argument("scene_path", type=click.Path(), metavar="SCENE.toml")
 @output_option(help="Output scan set (.npz, '-' for stdout).")
-@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
-              help="Override a scene value, e.g. --set motion.n_traj=10 --set contact.tier=winkler.")
+@set_options("Override a scene value, e.g. --set motion.n_traj=10 --set contact.tier=winkler.")
 @click.option("--seed", type=int, default=None, help="Override the scene's seed.")
 @click.option("--jobs", type=click.IntRange(1), default=1, show_default=True, help="Worker processes (over scans).")
 @click.option("--shard", default=None, metavar="I/N", help="Simulate only shard I of N (0-based, contiguous).")
@@ -29,17 +28,18 @@ def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | No
     import sys
     import time
 
-    from lesscli.cli.common import progress
+    from lesscli.cli.common import config_resolved, progress
     from lesscli.io.records import emit_records
     from lesscli.io.scans import append_history, save_scans
-    from lesscli.sim.scene import load_scene
+    from lesscli.sim.scene import load_scene, scene_document
     from lesscli.sim.simulate import simulate
     from lesscli.threads import apply_threads
 
     t0 = time.perf_counter()
-    threads = apply_threads("throughput", jobs=jobs, torch_too=False)     # per worker: --jobs splits the cores
     i_n = parse_shard(shard)
-    scene = load_scene(scene_path, [*overrides, *([f"seed={seed}"] if seed is not None else [])])
+    scene = load_scene(scene_path, overrides, options={"seed": seed})
+    config_resolved(scene_document(scene))
+    threads = apply_threads("throughput", jobs=jobs, torch_too=False)     # per worker: --jobs splits the cores
     scans = simulate(scene, jobs=jobs, shard=i_n,
                      progress=lambda it, total: progress(it, total=total, desc="scans", unit="scan"))
     scans.meta = append_history(scans.meta, seed=scene.seed)

@@ -17,7 +17,6 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor, nn
@@ -25,9 +24,7 @@ from torch import Tensor, nn
 from lesscli.models.encoding import POSE_DIM, PoseEncoding
 from lesscli.models.particles import Gathered, gather_receptive_field, particle_grid
 from lesscli.models.recurrence import ragged_gru, ragged_gru_from_gates
-
-if TYPE_CHECKING:
-    from lesscli.data.batching import Batch
+from lesscli.types import Batch
 
 
 def mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:
