@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import device_option, format_option, threads_option
+from lesscli.cli.common import config_resolved, device_option, format_option, set_options, threads_option
 
 
 @click.command("train")
@@ -14,8 +14,7 @@ from lesscli.cli.common import device_option, format_option, threads_option
 @click.option("--steps", type=int, default=None, help="Steps per scan.  [default: 1000; quick: 200]")
 @click.option("--batch-size", type=int, default=2, show_default=True, help="Scans per batch.")
 @click.option("--repeats", type=int, default=None, help="Timed repeats after one warm-up.  [default: 3; quick: 1]")
-@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
-              help="SSL sampling, e.g. ssl.k_input=8 ssl.k_query=8 (the paper's sweeps; repeatable).  [default: 16, 16]")
+@set_options("SSL sampling, e.g. ssl.k_input=8 ssl.k_query=8 (the paper's sweeps; repeatable).  [default: 16, 16]")
 @device_option()
 @threads_option()
 @format_option
@@ -33,6 +32,7 @@ def cli(quick: bool, sizes: tuple[str, ...], steps: int | None, batch_size: int,
     from lesscli.errors import LessError
     from lesscli.io.records import emit_records
     from lesscli.threads import apply_threads
+    from lesscli.train.config import to_dict
     from lesscli.train.distributed import resolve_device
 
     chosen = list(sizes) or (["default"] if quick else ["default", "paper"])
@@ -41,5 +41,6 @@ def cli(quick: bool, sizes: tuple[str, ...], steps: int | None, batch_size: int,
     if steps < 1 or batch_size < 1 or repeats < 1:
         raise LessError("--steps, --batch-size and --repeats must be >= 1")
     cfg = bench_config(overrides)
+    config_resolved(to_dict(cfg))
     apply_threads("throughput", override=threads)
     emit_records(run(chosen, steps, batch_size, repeats, resolve_device(device), cfg), fmt)

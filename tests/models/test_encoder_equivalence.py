@@ -4,6 +4,8 @@ GRU-cell update of every particle slot by slot, and the decoder's MLP over the b
 
 from __future__ import annotations
 
+import tomllib
+
 import pytest
 import torch
 from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
@@ -138,4 +140,6 @@ def test_bench_runs_the_published_sampling_and_refuses_bad_settings():
     with pytest.raises(LessError, match="k_input = 0 is invalid"):
         bench_config(("ssl.k_input=0",))
     result = CliRunner().invoke(cli, ["--quick", "--set", "model.dim=8"])
-    assert result.exit_code == 1 and "unknown section 'model'" in str(result.exception or result.output)
+    assert result.exit_code == 1 and "unknown table 'model'" in str(result.exception or result.output)
+    printed = CliRunner().invoke(cli, ["--quick", "--set", "ssl.k_input=8", "--print-config"])
+    assert printed.exit_code == 0 and tomllib.loads(printed.output)["ssl"]["k_input"] == 8
