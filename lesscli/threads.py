@@ -2,7 +2,9 @@
 
 Threads are chosen, not inherited. Threads that wait on each other collapse when the cores are
 shared, so the count follows the cores actually free when the command starts: the cores this process
-may run on minus the 1-minute load of everything else, at least one.
+may run on minus the load of everything else, at least one. That load is the smaller of the 1-minute
+load average and the processes runnable right now (a short sample): the average alone still counts a
+job that ended a minute ago, the sample alone misses a bursty one between its bursts.
 
 - Latency-bound work (a stream update, a guide query) runs on one thread, unless
   the work is large and at least two cores are clearly free.
@@ -19,6 +21,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import time
 from typing import Literal
 
 Work = Literal["latency", "throughput"]
@@ -37,12 +40,45 @@ def usable_cores() -> int:
         return os.cpu_count() or 1
 
 
-def other_load() -> float:
-    """The 1-minute load average (0 where the platform has none); read at start, it is the others' load."""
+LOAD_SAMPLES = 8                 # instantaneous runnable counts averaged by ``runnable_now``
+SAMPLE_GAP_S = 0.004             # between samples (the sample costs ~30 ms once per command)
+
+
+def load_average() -> float:
+    """The 1-minute load average (0 where the platform has none)."""
     try:
         return os.getloadavg()[0]
     except (AttributeError, OSError):
         return 0.0
+
+
+def runnable_now(path: str = "/proc/loadavg") -> float | None:
+    """Other processes runnable right now: the mean over a short sample of the kernel's runnable count
+    (4th field of ``/proc/loadavg``, ``running/total``) less this process; None where there is no such
+    file."""
+    counts = []
+    for i in range(LOAD_SAMPLES):
+        try:
+            with open(path) as f:
+                counts.append(int(f.read().split()[3].split("/")[0]))
+        except (OSError, IndexError, ValueError):
+            return None
+        if i + 1 < LOAD_SAMPLES:
+            time.sleep(SAMPLE_GAP_S)
+    return max(0.0, sum(counts) / len(counts) - 1)
+
+
+def combined_load(average: float, now: float | None, starting: float = 0.0) -> float:
+    """The others' load: the smaller of the 1-minute average (plus ``starting`` busy processes too new
+    for it to show) and the runnable sample, which sees those already; the average alone without one."""
+    if now is None:
+        return average + starting
+    return min(average + starting, now)
+
+
+def other_load(starting: float = 0.0) -> float:
+    """The load of the other processes on this machine, read now (see :func:`combined_load`)."""
+    return combined_load(load_average(), runnable_now(), starting)
 
 
 def free_cores(cores: int, load: float) -> int:
@@ -56,7 +92,7 @@ def choose_threads(cores: int, load: float, work: Work = "throughput", size: flo
 
     Args:
         cores: usable cores (CPU affinity).
-        load: 1-minute load average of the other processes.
+        load: load of the other processes (:func:`other_load`).
         work: ``latency`` (one small call at a time) or ``throughput`` (training, benchmarks).
         size: floating-point operations of the dominant call (only latency work looks at it).
         override: ``--threads``; wins when given.
@@ -75,8 +111,10 @@ def apply_threads(work: Work = "throughput", size: float = 0, override: int | No
     """Choose threads for each of ``jobs`` processes from the machine's free cores, set them here (before
     the workers fork), and return the count. ``torch_too=False`` leaves torch unimported (numpy work);
     ``extra_load`` counts busy processes started too recently for the 1-minute load to show them."""
-    n = choose_threads(usable_cores(), other_load() + extra_load, work, size, override, jobs)
+    load = other_load(extra_load)
+    n = choose_threads(usable_cores(), load, work, size, override, jobs)
     set_threads(n, torch_too)
+    logging.getLogger("less").info("threads: %d (cores %d, others' load %.2f)", n, usable_cores(), load)
     return n
 
 
@@ -100,5 +138,4 @@ def set_threads(n: int, torch_too: bool = True) -> None:
         pass
     else:
         threadpool_limits(n)
-    logging.getLogger("less").info("threads: %d (cores %d, 1-min load %.2f)", n, usable_cores(), other_load())
 

@@ -10,14 +10,14 @@ import pytest
 import torch
 from click.testing import CliRunner
 from factories import random_scanset
-from test_stream import save_tiny_imager
+from imaging_factory import save_tiny_imager
 
 from lesscli.bench.timing import SPIN, busy_processes
 from lesscli.cli.bench_stream import load_levels
 from lesscli.cli.main import cli
 from lesscli.infer.stream import StreamingImager
 from lesscli.io.scans import save_scans
-from lesscli.threads import LARGE_WORK, choose_threads, free_cores
+from lesscli.threads import LARGE_WORK, choose_threads, combined_load, free_cores, other_load, runnable_now
 
 BIG, SMALL = LARGE_WORK, LARGE_WORK - 1
 
@@ -27,6 +27,29 @@ BIG, SMALL = LARGE_WORK, LARGE_WORK - 1
 ])
 def test_free_cores_subtract_the_rounded_load_and_keep_one(cores, load, expected):
     assert free_cores(cores, load) == expected
+
+
+@pytest.mark.parametrize("average, now, starting, expected", [
+    (1.9, 0.0, 0, 0.0),          # a job that ended a minute ago: the average still shows it, the sample not
+    (1.0, 1.0, 0, 1.0),          # a steady job beside us: both see it
+    (0.2, 2.0, 2, 2.0),          # two busy processes just started: counted once, not twice
+    (0.2, 0.0, 2, 0.0),          # ... already gone again
+    (0.3, 2.5, 0, 0.3),          # a burst right at the sample: the average is the steadier figure
+    (1.5, None, 0, 1.5),         # no runnable count on this platform: the average alone
+    (0.5, None, 2, 2.5),
+])
+def test_others_load_is_the_smaller_of_average_and_sample(average, now, starting, expected):
+    assert combined_load(average, now, starting) == pytest.approx(expected)
+
+
+def test_runnable_now_reads_the_kernel_count_less_this_process(tmp_path):
+    fake = tmp_path / "loadavg"
+    fake.write_text("1.90 0.80 0.40 3/412 98765\n")
+    assert runnable_now(str(fake)) == 2.0
+    fake.write_text("garbage\n")
+    assert runnable_now(str(fake)) is None
+    assert runnable_now(str(tmp_path / "missing")) is None
+    assert other_load() >= 0.0          # the real machine's figure: finite and never negative
 
 
 @pytest.mark.parametrize("cores, load, work, size, override, jobs, expected", [

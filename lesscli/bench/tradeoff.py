@@ -79,6 +79,18 @@ FULL = TradeoffPlan(
     label_spacing_mm=(0.9, 0.4774, 0.4774), image_epochs=100, lr=1e-4, image_lr=1e-4, patch_px=32)
 
 
+
+def make_plan(quick: bool, values: dict[str, tuple], epochs: int | None = None,
+              **sizes: int | None) -> TradeoffPlan:
+    """``QUICK`` or ``FULL`` with ``values`` replacing those knobs' values, ``epochs`` the base SSL epochs
+    and ``sizes`` (``TradeoffPlan`` fields) replacing the plan's; None keeps the plan's own."""
+    plan = QUICK if quick else FULL
+    plan = replace(plan, **{k: v for k, v in sizes.items() if v is not None}, values={**plan.values, **values})
+    if epochs:
+        plan = replace(plan, base=replace(plan.base, epochs=epochs))
+    return plan
+
+
 @dataclass
 class BenchData:
     """Raw (100 Hz) simulated scans of one tier, split by insert, and how long simulating took."""

@@ -1,7 +1,8 @@
 """``less bench NAME``: benchmarks that print ratios against a baseline measured in the same run.
 
-Each benchmark is a module ``lesscli.cli.bench_<module>`` exposing ``cli`` and is imported only
-when run, like the top-level subcommands.
+Each benchmark's command is a module ``lesscli.cli.bench_<module>`` exposing ``cli`` and is imported
+only when run, like the top-level subcommands; it parses options, calls ``lesscli.bench.<module>``
+(where the measurement lives) and emits the records and figures.
 """
 
 from __future__ import annotations

@@ -6,9 +6,9 @@ import os
 
 import click
 
+from lesscli.bench.sim import CHECKS, run
 from lesscli.cli.common import checked_output, format_option
 
-CHECKS = ("sphere", "indentation", "inclusion", "scan", "pipeline")
 DEFAULT_SCENE = os.path.join("examples", "scenes", "poke.toml")
 
 
@@ -32,17 +32,18 @@ def cli(quick: bool, plot_path: str | None, checks: tuple[str, ...], scene_path:
     check the seconds per 100-trajectory scan and the speed-up of tier 0 over tier 2.
     """
     from lesscli.io.records import emit_records
-    from lesscli.sim.contact import ladder
 
     if scene_path is None and os.path.exists(DEFAULT_SCENE):
         scene_path = DEFAULT_SCENE
     rows = []
 
     def collect():
-        for row in ladder.run(quick=quick, cache_dir=cache_dir, scene_path=scene_path, checks=checks or CHECKS):
+        for row in run(quick=quick, cache_dir=cache_dir, scene_path=scene_path, checks=checks or CHECKS):
             rows.append(row)
             yield row
 
     emit_records(collect(), fmt)
     if plot_path:
-        ladder.plot(rows, plot_path)
+        from lesscli.plots.sweeps import ladder_figure
+
+        ladder_figure(rows, plot_path)

@@ -60,10 +60,9 @@ def cli(quick, knobs, inserts, n_traj, epochs, image_epochs, values, work_dir, p
 
     Example: less bench tradeoff --quick --plot tradeoff.png --format table
     """
-    import dataclasses
     import tempfile
 
-    from lesscli.bench.tradeoff import FULL, KNOBS, QUICK, TradeoffRun, run_tradeoff
+    from lesscli.bench.tradeoff import FULL, KNOBS, QUICK, TradeoffRun, make_plan, run_tradeoff
     from lesscli.cli.common import progress
     from lesscli.errors import closest
     from lesscli.io.records import emit_records
@@ -77,12 +76,8 @@ def cli(quick, knobs, inserts, n_traj, epochs, image_epochs, values, work_dir, p
     if knob_plot and len(set(knobs)) != 1:
         raise click.UsageError("--knob-plot needs exactly one --knob")
     apply_threads("throughput", override=threads)
-    plan = QUICK if quick else FULL
-    sizes = {"single_inserts": inserts, "n_traj": n_traj, "image_epochs": image_epochs}
-    plan = dataclasses.replace(plan, **{k: v for k, v in sizes.items() if v is not None},
-                               values={**plan.values, **_parse_values(values, KNOBS, plan.base)})
-    if epochs:
-        plan = dataclasses.replace(plan, base=dataclasses.replace(plan.base, epochs=epochs))
+    plan = make_plan(quick, _parse_values(values, KNOBS, (QUICK if quick else FULL).base), epochs,
+                     single_inserts=inserts, n_traj=n_traj, image_epochs=image_epochs)
     with tempfile.TemporaryDirectory(prefix="less-tradeoff-") as tmp:
         run = TradeoffRun(workdir=work_dir or tmp, device=device, seed=seed, progress=progress)
         rows = run_tradeoff(plan, list(knobs) or list(KNOBS), run)

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option, output_option, parse_shard
+from lesscli.cli.common import format_option, output_option, parse_shard, set_options
 
 
 @click.command("simulate")
 @click.argument("scene_path", type=click.Path(), metavar="SCENE.toml")
 @output_option(help="Output scan set (.npz, '-' for stdout).")
-@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
-              help="Override a scene value, e.g. --set motion.n_traj=10 --set contact.tier=winkler.")
+@set_options("Override a scene value, e.g. --set motion.n_traj=10 --set contact.tier=winkler.")
 @click.option("--seed", type=int, default=None, help="Override the scene's seed.")
 @click.option("--jobs", type=click.IntRange(1), default=None,
               help="Worker processes (over scans); default: the free cores (usable cores minus the load).")
@@ -31,16 +30,17 @@ def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | No
     import sys
     import time
 
-    from lesscli.cli.common import progress
+    from lesscli.cli.common import config_resolved, progress
     from lesscli.io.records import emit_records
     from lesscli.io.scans import append_history, save_scans
-    from lesscli.sim.scene import load_scene
+    from lesscli.sim.scene import load_scene, scene_document
     from lesscli.sim.simulate import scan_jobs, simulate
     from lesscli.threads import apply_threads, free_cores, other_load, usable_cores
 
     t0 = time.perf_counter()
     i_n = parse_shard(shard)
-    scene = load_scene(scene_path, [*overrides, *([f"seed={seed}"] if seed is not None else [])])
+    scene = load_scene(scene_path, overrides, options={"seed": seed})
+    config_resolved(scene_document(scene))
     jobs = min(jobs or free_cores(usable_cores(), other_load()), max(1, len(scan_jobs(scene, i_n))))
     threads = apply_threads("throughput", jobs=jobs, torch_too=False)     # per worker: --jobs splits the cores
     scans = simulate(scene, jobs=jobs, shard=i_n,

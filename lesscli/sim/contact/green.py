@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from lesscli.errors import SimulationError
+from lesscli.geometry.rotations import euler_to_matrix
 from lesscli.sim import fem, kinematics
 from lesscli.sim.contact import cache
 from lesscli.sim.contact.base import ContactModel, check_params
@@ -151,7 +152,7 @@ class GreenContact(ContactModel):
         if not steps:
             return np.zeros((n, t))
         step, xy, p = np.concatenate(steps), np.concatenate(local), np.concatenate(force)
-        rot = kinematics.rotation_matrices(pose[:, 3:])
+        rot = euler_to_matrix(pose[:, 3:])
         cells, weights = self.pad.share(xy, float(self.params["mesh_mm"]))
         flat = (step[:, None] * t + cells).ravel()
         normal = np.bincount(flat, weights=(weights * p[:, None]).ravel(), minlength=n * t).reshape(n, t)

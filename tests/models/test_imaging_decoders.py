@@ -1,0 +1,178 @@
+"""Patch stitching and decoders: placement in millimetres, uncovered pixels, shapes, gradients."""
+
+import math
+from types import SimpleNamespace
+
+import pytest
+import torch
+
+from lesscli.models.global_decoder import GlobalDecoder
+from lesscli.models.patch_decoder import PatchDecoder, place_patches
+from lesscli.types import ImageGrid
+
+SPACING = (0.9, 0.4774, 0.4774)
+
+
+def _grid(shape=(1, 64, 64), spacing=SPACING):
+    d, h, w = shape
+    return ImageGrid(shape, (-(d - 1) * spacing[0], -(h - 1) / 2 * spacing[1], -(w - 1) / 2 * spacing[2]), spacing)
+
+
+def _pixel_xy_mm(grid):
+    ys = grid.origin_mm[1] + grid.spacing_mm[1] * torch.arange(grid.shape[1], dtype=torch.float64)
+    xs = grid.origin_mm[2] + grid.spacing_mm[2] * torch.arange(grid.shape[2], dtype=torch.float64)
+    return torch.meshgrid(ys, xs, indexing="ij")
+
+
+def _states(z, xy_mm, seen=None):
+    seen = torch.ones(z.shape[:2], dtype=torch.bool) if seen is None else seen
+    return SimpleNamespace(z=z, xy_mm=xy_mm, seen=seen)
+
+
+@pytest.mark.parametrize("xy", [(0.0, 0.0), (3.3, -4.1), (-7.77, 5.05), (12.2, 0.24)])
+def test_symmetric_patch_centred_on_particle(xy):
+    grid = _grid()
+    k = torch.arange(32, dtype=torch.float64) - 15.5
+    bump = torch.exp(-(k[:, None] ** 2 + k[None, :] ** 2) / 20.0)
+    patches = torch.zeros(1, 1, 2, 1, 32, 32, dtype=torch.float64)
+    patches[0, 0, 1, 0] = bump
+    out = place_patches(patches, torch.tensor([xy]), grid, SPACING)[0, 1, 0]
+    yy, xx = _pixel_xy_mm(grid)
+    cx, cy = (out * xx).sum() / out.sum(), (out * yy).sum() / out.sum()
+    assert abs(cx - xy[0]) <= SPACING[2] / 2 + 1e-9
+    assert abs(cy - xy[1]) <= SPACING[1] / 2 + 1e-9
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_one_hot_state_lands_centred_and_rest_is_max_entropy(dim):
+    torch.manual_seed(0)
+    shape = (1, 80, 80) if dim == 2 else (6, 80, 80)
+    dec = PatchDecoder(d_z=8, n_classes=4, dim=dim, depth_px=shape[0], width=16)
+    xy = torch.tensor([[-6.0, -6.0], [5.3, 2.9], [6.0, -6.0]])
+    z = torch.zeros(1, 3, 8)
+    z[0, 1, 3] = 1.0                                     # one-hot state for particle 1
+    seen = torch.tensor([[False, True, False]])          # the others saw nothing
+    grid = _grid(shape)
+    logits = dec(_states(z, xy, seen), grid)
+    assert logits.shape == (1, 4, *shape)
+    covered = (logits != 0).any(dim=1).any(dim=0)[0] if dim == 2 else (logits != 0).any(dim=1)[0].any(dim=0)
+    rows = torch.nonzero(covered.any(dim=1)).flatten()
+    cols = torch.nonzero(covered.any(dim=0)).flatten()
+    assert len(rows) == 32 and len(cols) == 32
+    yy, xx = _pixel_xy_mm(grid)
+    centre_x = (xx[0, cols[0]] + xx[0, cols[-1]]) / 2
+    centre_y = (yy[rows[0], 0] + yy[rows[-1], 0]) / 2
+    assert abs(centre_x - 5.3) <= SPACING[2] / 2 and abs(centre_y - 2.9) <= SPACING[1] / 2
+    probs = torch.softmax(logits, dim=1)
+    ent = -(probs * torch.log(probs)).sum(dim=1)[0]
+    assert torch.allclose(ent[:, ~covered], torch.tensor(math.log(4.0)))
+    assert ent[:, covered].max() < math.log(4.0)
+
+
+def test_overlapping_patches_sum():
+    grid = _grid((1, 40, 40))
+    patches = torch.ones(1, 2, 1, 1, 8, 8)
+    out = place_patches(patches, torch.tensor([[0.0, 0.0], [1.0, 0.0]]), grid, SPACING)
+    assert out.max() == 2 and out.sum() == 128
+
+
+def test_mean_stitch_averages_over_covering_patches():
+    grid = _grid((1, 40, 40))
+    patches = torch.ones(1, 2, 1, 1, 8, 8)
+    patches[0, 1] = 3.0
+    out = place_patches(patches, torch.tensor([[0.0, 0.0], [1.0, 0.0]]), grid, SPACING, stitch="mean")
+    assert set(out.unique().tolist()) == {0.0, 1.0, 2.0, 3.0}
+    seen = torch.tensor([[True, False]])
+    out = place_patches(patches, torch.tensor([[0.0, 0.0], [1.0, 0.0]]), grid, SPACING, seen, stitch="mean")
+    assert set(out.unique().tolist()) == {0.0, 1.0} and out.sum() == 64
+
+
+def test_patches_outside_the_grid_are_dropped():
+    grid = _grid((1, 16, 16))
+    patches = torch.ones(1, 2, 1, 1, 8, 8)
+    out = place_patches(patches, torch.tensor([[100.0, 0.0], [0.0, 3.5]]), grid, SPACING)
+    # particle 0 is far outside; particle 1 straddles the top edge: 8 columns x (rows inside)
+    assert out.sum() > 0 and out.sum() < 64
+    assert out.shape == (1, 1, 1, 16, 16)
+
+
+def test_coarser_grid_keeps_physical_patch_size():
+    coarse = (0.9, 2 * SPACING[1], 2 * SPACING[2])
+    grid = _grid((1, 40, 40), coarse)
+    patches = torch.ones(1, 1, 1, 1, 32, 32)
+    out = place_patches(patches, torch.tensor([[0.0, 0.0]]), grid, SPACING)
+    covered = out[0, 0, 0] > 0
+    assert covered.any(dim=0).sum() == 16 and covered.any(dim=1).sum() == 16
+
+
+def test_gradients_reach_every_seen_patch():
+    dec = PatchDecoder(d_z=4, n_classes=3, dim=2, width=8)
+    z = torch.randn(2, 3, 4, requires_grad=True)
+    seen = torch.tensor([[True, True, False], [True, False, True]])
+    logits = dec(_states(z, torch.tensor([[0.0, 0.0], [8.0, 0.0], [-8.0, 0.0]]), seen), _grid())
+    logits.square().sum().backward()
+    assert torch.equal(z.grad.abs().sum(-1) > 0, seen)
+
+
+@pytest.mark.parametrize("dim,shape", [(2, (1, 128, 128)), (3, (26, 128, 128))])
+def test_global_decoder_shapes(dim, shape):
+    dec = GlobalDecoder(d_z=8, n_classes=4, dim=dim, shape=shape, width=16)
+    z = torch.randn(2, 1, 8)
+    states = _states(z, torch.zeros(1, 2))
+    assert dec(states, _grid(shape)).shape == (2, 4, *shape)
+    assert dec(states, _grid((shape[0], 64, 64))).shape == (2, 4, shape[0], 64, 64)
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+@pytest.mark.parametrize("keep", [None, 1, 2, 5, 7, 8, 9])
+def test_subpixel_form_equals_the_transposed_convolution(dim, keep):
+    from lesscli.models.patch_decoder import subpixel_conv_t, subpixel_weights
+
+    gen = torch.Generator().manual_seed(dim)
+    conv_t = getattr(torch.nn, f"ConvTranspose{dim}d")(3, 5, kernel_size=4, stride=2, padding=1)
+    x = torch.randn(2, 3, *[4, 3, 5][:dim], generator=gen)
+    with torch.no_grad():
+        want = conv_t(x)
+        got = subpixel_conv_t(x, *subpixel_weights(conv_t), keep=keep)
+    rows = want.shape[2] if keep is None else min(keep, want.shape[2])
+    assert got.shape == (*want.shape[:2], rows, *want.shape[3:])
+    assert float((got - want[:, :, :rows]).abs().max()) <= 1e-6
+
+
+@pytest.mark.parametrize("dim,patch_px,width,depth", [(2, 16, 16, 1), (3, 16, 16, 13), (3, 32, 24, 13),
+                                                     (3, 32, 16, 26), (3, 64, 32, 7), (2, 64, 16, 1),
+                                                     (3, 64, 16, 64)])
+def test_evaluation_decodes_like_training(dim, patch_px, width, depth):
+    """Eval mode runs every layer in sub-pixel form and crops columns early; same patches as training."""
+    dec = PatchDecoder(d_z=6, n_classes=4, dim=dim, patch_px=patch_px, depth_px=depth, width=width)
+    z = torch.randn(2, 3, 6, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        trained = dec.train().patches(z)
+        evaluated = dec.eval().patches(z)
+    assert evaluated.shape == trained.shape == (2, 3, 4, depth, patch_px, patch_px)
+    assert float((evaluated - trained).abs().max()) <= 1e-5
+
+
+def test_evaluation_weights_follow_parameter_updates():
+    """The rearranged sub-pixel weights are reused, and rebuilt after an optimiser step or a load."""
+    from lesscli.models.patch_decoder import eval_weights, subpixel_weights
+
+    dec = PatchDecoder(d_z=6, n_classes=4, dim=2, patch_px=16, width=16).eval()
+    last = dec.up[-1]
+    z = torch.randn(1, 2, 6, generator=torch.Generator().manual_seed(2))
+    first = eval_weights(last)
+    assert eval_weights(last)[0] is first[0]
+    with torch.no_grad():
+        last.weight.mul_(2.0)                           # in place, as an optimiser step is
+        stepped = eval_weights(last)[0]
+        assert torch.equal(stepped, subpixel_weights(last)[0]) and not torch.equal(stepped, first[0])
+        dec.load_state_dict(PatchDecoder(d_z=6, n_classes=4, dim=2, patch_px=16, width=16).state_dict())
+        loaded = dec.patches(z)
+        assert float((loaded - dec.train().patches(z)).abs().max()) <= 1e-5
+
+
+def test_subpixel_form_refuses_other_transposed_convolutions():
+    from lesscli.models.patch_decoder import subpixel_weights
+
+    with pytest.raises(ValueError, match="kernel 4, stride 2, padding 1"):
+        subpixel_weights(torch.nn.ConvTranspose2d(3, 5, kernel_size=3, stride=2, padding=1))
