@@ -55,11 +55,11 @@ def test_jobs_default_to_the_free_cores_at_most_one_a_scan(tmp_path, monkeypatch
     from lesscli import threads
     from lesscli.cli.main import cli
 
-    (tmp_path / "tiny.toml").write_text(SCENE)
+    (tmp_path / "tiny.toml").write_text(TINY_SCENE)
     monkeypatch.setattr(threads, "usable_cores", lambda: 3)
     runs = {}
     for load, orientations in ((0.0, "[0]"), (0.0, "[0, 4]"), (2.2, "[0]")):
-        monkeypatch.setattr(threads, "other_load", lambda load=load: load)
+        monkeypatch.setattr(threads, "other_load", lambda starting=0.0, load=load: load + starting)
         res = CliRunner().invoke(cli, ["simulate", str(tmp_path / "tiny.toml"), "-o", str(tmp_path / "x.npz"),
                                        "--set", f"phantoms.orientations={orientations}", "--set", "motion.n_traj=1",
                                        "--format", "jsonl"])

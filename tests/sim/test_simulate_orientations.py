@@ -38,7 +38,7 @@ def shared(tmp_path_factory):
 
 
 def test_one_precompute_serves_every_orientation(shared):
-    scene, scans, cache = shared
+    _, scans, cache = shared
     assert list(scans.scan_orientation) == ORIENTATIONS
     assert len(list(cache.glob("green-*.npz"))) == 1
 
