@@ -118,9 +118,16 @@ def apply_threads(work: Work = "throughput", size: float = 0, override: int | No
     return n
 
 
+# Read by BLAS/OpenMP libraries when they load: scipy bundles its own OpenBLAS, loaded on first use,
+# after the limit below has been applied to the pools already loaded.
+POOL_ENV_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def set_threads(n: int, torch_too: bool = True) -> None:
     """Set torch's intra-op threads (``torch_too``) and, where threadpoolctl is installed, the BLAS/OpenMP
-    pools (forked workers inherit both)."""
+    pools (forked workers inherit both); pools loaded later start with ``n`` threads from the environment."""
+    for name in POOL_ENV_VARS:
+        os.environ[name] = str(n)
     if torch_too:
         import torch
 

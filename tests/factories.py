@@ -1,6 +1,9 @@
-"""Small valid objects for tests: random scan sets and label volumes with known geometry."""
+"""Small valid objects for tests: random scan sets, label volumes with known geometry, a tiny scene and a
+tiny pretraining config; REPO is the repository root (tests run from any folder under tests/)."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
@@ -8,6 +11,7 @@ from lesscli.io.labels import LabelVolume
 from lesscli.io.scans import ScanSet, default_meta
 from lesscli.io.sensor import xela_uscu
 
+REPO = Path(__file__).resolve().parents[1]
 GRID_SHAPE = (26, 128, 128)
 GRID_SPACING_MM = (0.9, 0.4774, 0.4774)
 
@@ -88,3 +92,42 @@ def poke_scanset(n_scans: int, seed: int, traj_per_scan: int = 10, steps: int = 
                    traj_scan=np.array(traj_scan, np.int64), scan_insert=np.array([f"St12C{s}" for s in range(n_scans)]),
                    scan_orientation=np.zeros(n_scans, np.int64), scan_label=-np.ones(n_scans, np.int64),
                    meta=default_meta(xela_uscu()))
+
+
+# A two-insert winkler scene of 3 short pokes per scan, on a coarse label grid (seconds to simulate).
+TINY_SCENE = """
+name = "tiny"
+seed = 3
+[phantoms]
+set = "single"
+names = ["St16C9", "St12D13"]
+orientations = [0, 4]
+[contact]
+tier = "winkler"
+[motion]
+kind = "poke"
+n_traj = 3
+approach_mm = [1.0, 1.0]
+press_s = [0.2, 0.3]
+hold_s = [0.1, 0.1]
+[labels]
+shape = [6, 16, 16]
+spacing_mm = [3.0, 4.0, 4.0]
+[effects.tilt]
+[effects.sensor]
+[effects.noise]
+[effects.pose]
+"""
+
+
+def tiny_cfg(**train):
+    """A small pretraining config (d_z 16, 8 mm particles over 48 mm, 2 epochs on the CPU); ``train`` sets
+    its train.* fields."""
+    from lesscli.train.config import PretrainConfig
+
+    cfg = PretrainConfig()
+    cfg.model.dim, cfg.model.n_freq, cfg.model.spacing_mm, cfg.model.grid_extent_mm = 16, 4, 8.0, 48.0
+    cfg.train.epochs, cfg.train.lr, cfg.train.device = 2, 3e-3, "cpu"
+    for k, v in train.items():
+        setattr(cfg.train, k, v)
+    return cfg

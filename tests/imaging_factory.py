@@ -1,12 +1,18 @@
-"""A tiny learnable scan set for imaging tests: the pad feels more force near the inclusion."""
+"""Imaging test data: a tiny learnable scan set (the pad feels more force near the inclusion) and tiny
+randomly initialised imagers with the checkpoint config that rebuilds them."""
 
 from __future__ import annotations
 
 import numpy as np
+import torch
 from factories import sphere_labels
 
 from lesscli.io.scans import ScanSet, default_meta
 from lesscli.io.sensor import xela_uscu
+from lesscli.models.encoders import GlobalEncoder, ParticleEncoder
+from lesscli.models.imager import Imager, grid_to_dict
+from lesscli.models.registry import build_decoder
+from lesscli.types import ImageGrid
 
 SMALL_SHAPE = (6, 32, 32)
 SMALL_SPACING_MM = (2.0, 1.9, 1.9)        # the 61 mm field of view at a quarter of the resolution
@@ -48,11 +54,58 @@ def make_representation(path: str, scans: ScanSet, name: str = "less", dim: int 
     import torch
 
     from lesscli.data.batching import compute_norm_stats
+    from lesscli.io.checkpoint import save_checkpoint
     from lesscli.models.registry import ENCODERS
-    from lesscli.train.checkpoint import save_checkpoint
 
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         encoder = ENCODERS[name](force_dim=scans.n_taxels * 3, dim=dim)
     state = {f"encoder.{k}": v for k, v in encoder.state_dict().items()}
     save_checkpoint(path, state, {"encoder": encoder.config()}, compute_norm_stats(scans), [])
+
+
+# ------------------------------------------------------------ tiny random imagers (stream, guide, CLI)
+
+FORCE_DIM = 90                      # 30 taxels x 3, the default sensor
+SPACING_MM, EXTENT_MM, RADIUS_MM = 6.0, 36.0, 10.0
+HALF_MM = 18.0                      # outermost particle row/column
+
+
+def tiny_imager(dim: int = 2, cap: int | None = None, encoder: str = "less", seed: int = 0,
+                grid: ImageGrid | None = None, gain: float = 8.0, stitch: str = "sum") -> tuple[Imager, dict, dict]:
+    """A randomly initialised imager, its norm stats, and the checkpoint config that rebuilds it.
+
+    ``gain`` scales the decoder's last layer so logits are O(10) and a 1e-4 tolerance is strict.
+    """
+    grid = grid or ImageGrid((3 if dim == 3 else 1, 48, 48), (-1.8 if dim == 3 else 0.0, -23.5, -23.5),
+                             (0.9, 1.0, 1.0))
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        if encoder == "less":
+            enc = ParticleEncoder(FORCE_DIM, dim=8, spacing_mm=SPACING_MM, grid_extent_mm=EXTENT_MM,
+                                  receptive_field_mm=RADIUS_MM, max_steps_per_particle=cap, n_freq=4)
+            dec = {"name": "patch", "d_z": 8, "n_classes": 4, "dim": dim, "width": 8, "patch_px": 8,
+                   "depth_px": grid.shape[0], "patch_spacing_mm": [0.9, 1.0, 1.0], "stitch": stitch}
+        else:
+            enc = GlobalEncoder(FORCE_DIM, dim=8, max_steps_per_particle=cap, n_freq=4)
+            dec = {"name": "global", "d_z": 8, "n_classes": 4, "dim": dim, "width": 8, "shape": list(grid.shape)}
+        decoder = build_decoder(dec, seed)
+    last = [m for m in decoder.modules() if isinstance(m, (torch.nn.ConvTranspose2d, torch.nn.ConvTranspose3d))][-1]
+    with torch.no_grad():
+        last.weight.mul_(gain)
+        last.bias.mul_(gain)
+    imager = Imager(enc, decoder, grid).eval()
+    rng = np.random.default_rng(seed)
+    stats = {"force_mean": rng.normal(0, 0.1, FORCE_DIM).tolist(),
+             "force_std": rng.uniform(0.5, 2.0, FORCE_DIM).tolist(), "n_steps": 100, "force_units": "N"}
+    config = {"encoder": enc.config(), "decoder": dec, "grid": grid_to_dict(grid),
+              "image": {"dim": dim, "slice": -1}}
+    return imager, stats, config
+
+
+def save_tiny_imager(path: str, **kwargs) -> None:
+    """Write a tiny imaging checkpoint (see :func:`tiny_imager`)."""
+    from lesscli.io.checkpoint import save_checkpoint
+
+    imager, stats, config = tiny_imager(**kwargs)
+    save_checkpoint(path, imager.state_dict(), config, stats, [])

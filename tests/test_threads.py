@@ -10,7 +10,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 from factories import random_scanset
-from test_stream import save_tiny_imager
+from imaging_factory import save_tiny_imager
 
 from lesscli.bench.timing import SPIN, busy_processes
 from lesscli.cli.bench_stream import load_levels

@@ -31,7 +31,8 @@ def _case(dim: int, batch: int, repeat: int, gen) -> list[dict]:
 
     from lesscli.models.imaging_loss import imaging_loss
     from lesscli.models.particles import particle_grid
-    from lesscli.models.patch_decoder import ImageGrid, place_patches
+    from lesscli.models.patch_decoder import place_patches
+    from lesscli.types import ImageGrid
 
     shape = (26 if dim == 3 else 1, 128, 128)
     grid = ImageGrid(shape, (-(shape[0] - 1) * SPACING_MM[0], -63.5 * SPACING_MM[1], -63.5 * SPACING_MM[2]),

@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import time
 
-
 FULL_SIZE, QUICK_SIZE = 256, 96
 FIELD_OF_VIEW_MM = 76.8          # the posed phantom (66 mm across corners, 30 mm tall) fits with air around
 

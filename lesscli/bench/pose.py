@@ -42,6 +42,7 @@ def _rendered(n_frames: int, seed: int):
 def _run_variant(cam, traj, frames, refine: str, edge_fit: bool, mode: str) -> dict:
     import numpy as np
 
+    from lesscli.geometry import rotations
     from lesscli.vision import se3
     from lesscli.vision.detect import TagDetector
     from lesscli.vision.track import TrackOptions, detect_all, solve_frames
@@ -54,7 +55,7 @@ def _run_variant(cam, traj, frames, refine: str, edge_fit: bool, mode: str) -> d
     est = se3.pose_to_T(np.array([r["position_mm"] for r in rows])[ok], np.array([r["rotvec_rad"] for r in rows])[ok])
     true = (se3.inv_T(traj["T_cam_global"]) @ traj["T_cam_sensor_tag"])[ok]
     pos = np.linalg.norm(est[:, :3, 3] - true[:, :3, 3], axis=1)
-    ang = np.rad2deg(se3.rotation_angle(np.swapaxes(true[:, :3, :3], 1, 2) @ est[:, :3, :3]))
+    ang = np.rad2deg(rotations.rotation_angle(np.swapaxes(true[:, :3, :3], 1, 2) @ est[:, :3, :3]))
     return {"frames_ok": int(ok.sum()), "median_position_mm": float(np.median(pos)),
             "p90_position_mm": float(np.percentile(pos, 90)), "median_angle_deg": float(np.median(ang)),
             "p90_angle_deg": float(np.percentile(ang, 90)), "seconds_per_frame": seconds}

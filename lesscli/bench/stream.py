@@ -33,9 +33,10 @@ def default_imager(dim: int, seed: int, width: int | None = None):
     from lesscli.io.labels import N_CLASSES
     from lesscli.models.encoders import ParticleEncoder
     from lesscli.models.imager import Imager
-    from lesscli.models.patch_decoder import ImageGrid, PatchDecoder
+    from lesscli.models.patch_decoder import PatchDecoder
     from lesscli.train.config import ModelConfig
     from lesscli.train.image_fit import ImageModelConfig
+    from lesscli.types import ImageGrid
 
     m, im = ModelConfig(), ImageModelConfig()
     shape, spacing = (26, 128, 128), (0.9, 0.4774, 0.4774)

@@ -126,6 +126,17 @@ def threads_option(help: str = "CPU threads for torch and BLAS (default: chosen 
     return click.option("--threads", type=click.IntRange(1), default=None, metavar="N", help=help)
 
 
+def labelling_options(func):
+    """``--threshold`` and ``--min-volume-mm3``: the labelling rule of every command that labels images
+    (``image predict``, ``stream``, ``guide``); both default to the model's (see infer.predict.labelling_rule)."""
+    func = click.option("--min-volume-mm3", "min_volume_mm3", type=click.FloatRange(min=0), default=None,
+                        help="Drop inclusion regions smaller than this volume (mm^3; 0: keep all). Default: the "
+                             "model's, chosen on --val by image fit; else 0.")(func)
+    return click.option("--threshold", type=click.FloatRange(0, 1), default=None,
+                        help="Pillar/inclusion only above this probability (hand-held setting: 0.8). Default: the "
+                             "model's, chosen on --val by image fit; else argmax.")(func)
+
+
 def device_option(help: str = "auto (CUDA when available, else CPU), cpu, cuda or cuda:N."):
     """``--device``, ``auto`` by default in every command."""
     return click.option("--device", default="auto", show_default=True, help=help)
@@ -149,6 +160,39 @@ def output_option(required: bool = True, help: str = "Output file ('-' for stdou
                         callback=checked_output(folder))
 
 
+_PRINT_CONFIG = "less.print_config"
+
+
+def set_options(help: str):
+    """``--set KEY=VALUE`` (repeatable, keyword ``overrides``; syntax in lesscli.io.overrides) and with it
+    ``--print-config``: the command hands its resolved configuration to :func:`config_resolved`, which
+    then prints it as TOML on stdout and exits 0 before any work is done."""
+    def remember(ctx: click.Context, param: click.Parameter, value: bool) -> bool:
+        ctx.meta[_PRINT_CONFIG] = value
+        return value
+
+    set_option = click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help=help)
+    print_option = click.option("--print-config", is_flag=True, expose_value=False, callback=remember,
+                                help="Print the resolved settings (defaults < file < options < --set) "
+                                     "as TOML and exit without doing the work.")
+    return lambda func: set_option(print_option(func))
+
+
+def print_config_requested() -> bool:
+    """Whether this command was given ``--print-config``."""
+    return bool(click.get_current_context().meta.get(_PRINT_CONFIG))
+
+
+def config_resolved(doc: dict) -> None:
+    """Called by a command once its configuration ``doc`` (a nested dict) is resolved: with ``--print-config``
+    print it as TOML and exit 0, else return."""
+    if print_config_requested():
+        from lesscli.io.toml_files import dump_toml
+
+        click.echo(dump_toml(doc), nl=False)
+        raise click.exceptions.Exit(0)
+
+
 def training_options(default_epochs: int, tables: str, set_example: str):
     """The options every training command shares (``--epochs`` ... ``--resume``); None = not given.
 
@@ -163,8 +207,7 @@ def training_options(default_epochs: int, tables: str, set_example: str):
         click.option("--device", default=None, help="auto, cpu, cuda or cuda:N.  [default: auto]"),
         click.option("--config", "config_path", type=click.Path(), default=None,
                      help=f"TOML file with {tables} tables."),
-        click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
-                     help=f"Override a setting, e.g. {set_example} (repeatable)."),
+        set_options(f"Override a setting, e.g. {set_example} (repeatable)."),
         click.option("--resume", is_flag=True, help="Continue from <stem>.last.pt with the same settings."),
         threads_option(),
         click.option("--tensorboard", default=None, type=click.Path(file_okay=False), metavar="DIR",
@@ -180,11 +223,14 @@ def training_options(default_epochs: int, tables: str, set_example: str):
 
 
 def training_config(cls, explicit: dict, train_opts: dict):
-    """``cls`` config from defaults < ``--config`` < ``explicit`` and the shared options < ``--set``."""
-    from lesscli.train.config import load_config
+    """``cls`` config from defaults < ``--config`` < ``explicit`` and the shared options < ``--set`` (printed
+    and the command ended here with ``--print-config``)."""
+    from lesscli.train.config import load_config, to_dict
 
     loop = {f"train.{k}": train_opts[k] for k in ("epochs", "batch_size", "lr", "seed", "device")}
-    return load_config(cls, train_opts["config_path"], train_opts["overrides"], {**explicit, **loop})
+    cfg = load_config(cls, train_opts["config_path"], train_opts["overrides"], {**explicit, **loop})
+    config_resolved(to_dict(cfg))
+    return cfg
 
 
 def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, output: str, fmt: str | None,

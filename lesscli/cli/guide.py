@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import checked_output, device_option, format_option, threads_option
+from lesscli.cli.common import checked_output, device_option, format_option, labelling_options, threads_option
 
 
 @click.command("guide")
@@ -25,11 +25,12 @@ from lesscli.cli.common import checked_output, device_option, format_option, thr
               help="Phantom octagon across flats (default: the scan's label footprint, else 60 mm).")
 @click.option("--score", default="entropy", show_default=True,
               help="Uncertainty to cover: 'entropy' (all classes) or 'inclusion' (inclusion vs the rest).")
+@labelling_options
 @device_option()
 @threads_option()
 @format_option
-def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margin_mm, width_mm, score, device,
-        threads, fmt) -> None:
+def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margin_mm, width_mm, score, threshold,
+        min_volume_mm3, device, threads, fmt) -> None:
     """Suggest the next K touches (x, y mm) for each scan of the partial scan set PARTIAL.
 
     The partial scan is imaged with MODEL; touches go where the most entropy lies within a touch's
@@ -62,7 +63,7 @@ def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margi
     opts = GuideOptions(k, radius_mm, exclusion_mm, margin_mm, score)
     rows = []
     for s in chosen:
-        g = guide_scan(imager, ckpt, scans, s, opts, width_mm)
+        g = guide_scan(imager, ckpt, scans, s, opts, width_mm, threshold, min_volume_mm3)
         rows += [{"scan": s, "insert": str(scans.scan_insert[s]), "steps": len(g.touches_xy_mm), **r} for r in g.rows]
         if plot_path:
             _plot(plot_path, g, str(scans.scan_insert[s]))

@@ -9,6 +9,7 @@ from lesscli.cli.common import (
     checked_output,
     device_option,
     format_option,
+    labelling_options,
     output_option,
     threads_option,
     training_options,
@@ -71,7 +72,9 @@ def fit_cmd(data, model, rep_path, output, val_path, select, dim, finetune, slic
 
 
 def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
-    given = [f"--{k}" for k, v in learned_only.items() if v]
+    from lesscli.cli.common import print_config_requested
+
+    given = [f"--{k}" for k, v in learned_only.items() if v] + ["--print-config"] * print_config_requested()
     if given:
         raise click.UsageError(f"{', '.join(given)} only apply to learned models, not --model forcemap")
     from lesscli.cli.common import LOG, training_scans
@@ -91,12 +94,7 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
 @click.argument("model", type=click.Path())
 @click.argument("data", type=click.Path())
 @output_option(help="Prediction file (less.pred/1 .npz; '-' for stdout).")
-@click.option("--threshold", type=click.FloatRange(0, 1), default=None,
-              help="Pillar/inclusion only above this probability (hand-held setting: 0.8). Default: the "
-                   "model's, chosen on --val by image fit; else argmax.")
-@click.option("--min-volume-mm3", "min_volume_mm3", type=click.FloatRange(min=0), default=None,
-              help="Drop inclusion regions smaller than this volume (mm^3; 0: keep all). Default: the "
-                   "model's, chosen on --val by image fit; else 0.")
+@labelling_options
 @click.option("--steps", type=click.IntRange(min=1), default=None,
               help="Image N evenly spaced prefixes of each scan's sequence.")
 @click.option("--every", type=click.IntRange(min=1), default=None, help="Image every K-th prefix (and the whole).")

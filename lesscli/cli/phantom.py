@@ -19,15 +19,15 @@ def _ints(text: str, what: str, count: int | None = None) -> tuple[int, ...]:
 
 def _random_phantoms(count: int | None, seed: int | None, pairs: tuple[str, ...]):
     """The random family from --count, --seed and --random KEY=VALUE (values parse as TOML)."""
+    from lesscli.io.overrides import parse_value
     from lesscli.phantom.randomised import RandomRanges, random_set
-    from lesscli.sim.scene import parse_value
 
     table = {}
     for item in pairs:
         key, eq, value = item.partition("=")
         if not eq:
             raise click.BadParameter(f"'{item}' is not of the form KEY=VALUE", param_hint="--random")
-        table[key.strip()] = parse_value(value.strip())
+        table[key.strip()] = parse_value(value, f"--random '{item}'")
     table.update({k: v for k, v in (("count", count), ("seed", seed)) if v is not None})
     return random_set(RandomRanges.from_dict(table, "--set random"))
 

@@ -133,8 +133,8 @@ def calibrate_cmd(estimated: str, robot: str, output: str, threshold_mm: float, 
     """
     import numpy as np
 
+    from lesscli.geometry import rotations
     from lesscli.io.records import emit_records
-    from lesscli.vision import se3
     from lesscli.vision.calibrate import calibrate, save_calibration
     from lesscli.vision.streams import load_stream
 
@@ -143,8 +143,8 @@ def calibrate_cmd(estimated: str, robot: str, output: str, threshold_mm: float, 
     save_calibration(output, cal, seed=seed)
     emit_records([{"output": output, "time_offset_s": cal.time_offset_s, "inlier_fraction": cal.inlier_fraction,
                    "rmse_mm": cal.rmse_mm, "t_pos_mm": cal.t_pos,
-                   "r_pos_rotvec_rad": se3.matrix_to_rotvec(cal.r_pos),
-                   "R_ori_rotvec_rad": se3.matrix_to_rotvec(cal.R_ori)}], fmt)
+                   "r_pos_rotvec_rad": rotations.matrix_to_rotvec(cal.r_pos),
+                   "R_ori_rotvec_rad": rotations.matrix_to_rotvec(cal.R_ori)}], fmt)
 
 
 @cli.command("accuracy")

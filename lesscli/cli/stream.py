@@ -7,7 +7,13 @@ import time
 
 import click
 
-from lesscli.cli.common import checked_output, device_option, renamed_option, threads_option
+from lesscli.cli.common import (
+    checked_output,
+    device_option,
+    labelling_options,
+    renamed_option,
+    threads_option,
+)
 
 EMIT_DEFAULT = 10
 LATENCY_PERCENTILES = (50, 90, 99)
@@ -24,12 +30,12 @@ LATENCY_PERCENTILES = (50, 90, 99)
                 callback=checked_output(folder=True), help="Write PNG frames (image | uncertainty | touches) here.")
 @click.option("--on-error", type=click.Choice(["skip", "stop"]), default="skip", show_default=True,
               help="Live input: a malformed line is reported with its line number and skipped, or stops the stream.")
-@click.option("--threshold", type=click.FloatRange(0, 1), default=None,
-              help="Pillar/inclusion only above this probability (hand-held setting: 0.8). Default: argmax.")
+@labelling_options
 @click.option("--defer", is_flag=True, help="Re-decode patches only when a record is written (same images, faster).")
 @device_option()
 @threads_option()
-def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer, device, threads) -> None:
+def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, min_volume_mm3, defer, device,
+        threads) -> None:
     """Image SOURCE incrementally with the imaging checkpoint MODEL.
 
     SOURCE is a scan set (each scan replayed from a fresh state, at --rate samples/s or as fast as
@@ -43,7 +49,7 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer
     """
     import os
 
-    from lesscli.infer.predict import load_imager
+    from lesscli.infer.predict import labelling_rule, load_imager
     from lesscli.infer.stream import update_work
     from lesscli.threads import apply_threads
     from lesscli.train.distributed import resolve_device
@@ -53,7 +59,7 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer
     apply_threads("latency", update_work(imager), threads)
     if monitor_dir:
         os.makedirs(monitor_dir, exist_ok=True)
-    emitter = Emitter(emit_every, monitor_dir, threshold)
+    emitter = Emitter(emit_every, monitor_dir, *labelling_rule(ckpt["config"]["image"], threshold, min_volume_mm3))
     try:
         if source == "-":
             run_live(imager, ckpt, sys.stdin.buffer, emitter, on_error, defer)
@@ -66,8 +72,10 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, defer
 class Emitter:
     """Per-sample bookkeeping: latencies, records every N samples, monitor frames."""
 
-    def __init__(self, every: int, monitor_dir: str | None, threshold: float | None) -> None:
-        self.every, self.monitor_dir, self.threshold = every, monitor_dir, threshold
+    def __init__(self, every: int, monitor_dir: str | None, threshold: float | None = None,
+                 min_volume_mm3: float = 0.0) -> None:
+        self.every, self.monitor_dir = every, monitor_dir
+        self.threshold, self.min_volume_mm3 = threshold, min_volume_mm3
         self.latency_s: list[float] = []
         self.scan, self.insert, self.touches, self.last_emitted = 0, "", [], -1
         self.last_t: float | None = None
@@ -99,7 +107,7 @@ class Emitter:
         probs = stream.probs()
         refresh_ms = (time.perf_counter() - t0) * 1e3
         ent = stream.entropy()
-        labels = labels_from_probs(probs, self.threshold)
+        labels = labels_from_probs(probs, self.threshold, self.min_volume_mm3, stream.grid.spacing_mm)
         row = {"scan": self.scan, "insert": self.insert, "step": stream.n_steps, "t": t,
                "particles_seen": int(stream.seen.sum()), "particles_advanced": advanced,
                **entropy_summary(ent, probs.shape[0]), "inclusion_voxels": int((labels == INCLUSION).sum()),

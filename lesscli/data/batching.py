@@ -6,48 +6,15 @@ stored in the checkpoint, and reused unchanged for validation, test and inferenc
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
-
 import numpy as np
 import torch
-from torch import Tensor
 
 from lesscli.errors import DataError
 from lesscli.io.scans import ScanSet
+from lesscli.types import Batch
 
 # Force features whose standard deviation is below this are only centred, not scaled.
 STD_FLOOR = 1e-8
-
-
-@dataclass
-class Batch:
-    """A padded batch of scans (each scan = its trajectories concatenated in time).
-
-    Attributes:
-        pose: (B, L, 6) float32, x, y, z mm and roll, pitch, yaw rad (phantom frame), padded.
-        force: (B, L, T*3) float32, normalised forces (see :func:`compute_norm_stats`), padded.
-        valid: (B, L) bool, real steps (padding is False).
-        scan_index: (B,) long, index of each scan in its ScanSet.
-    """
-
-    pose: Tensor
-    force: Tensor
-    valid: Tensor
-    scan_index: Tensor
-
-    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> Batch:
-        """Move to a device; ``dtype`` converts the float fields (pose, force)."""
-        out = {}
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if dtype is not None and value.is_floating_point():
-                value = value.to(dtype)
-            out[f.name] = value.to(device) if device is not None else value
-        return Batch(**out)
-
-    @property
-    def size(self) -> int:
-        return int(self.pose.shape[0])
 
 
 NORM_MODES = ("global", "feature", "scale")

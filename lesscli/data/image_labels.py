@@ -11,11 +11,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from lesscli.data.batching import Batch, ScanDataset, collate
+from lesscli.data.batching import ScanDataset, collate
 from lesscli.errors import DataError
 from lesscli.io.labels import INCLUSION, LabelVolume
 from lesscli.io.scans import ScanSet
-from lesscli.models.patch_decoder import ImageGrid
+from lesscli.types import Batch, ImageGrid
 
 AUTO_SLICE = -1          # --slice value meaning "through the inclusion centre"
 GEOMETRY_ATOL_MM = 1e-6  # label grids that agree this well share one training grid

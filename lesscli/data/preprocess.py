@@ -9,7 +9,7 @@ The steps reproduce the published pipeline (``REFERENCE.md``, "Their per-traject
    truncate) trajectories with more than ``max_steps`` sensor samples from the onset;
 3. positions interpolated linearly and rotations by SLERP to the sensor timestamps;
 4. recentring on the file's reference pose ``p <- (p - t_ref) R_ref``, ``R <- R_ref^T R``, then
-   Euler angles (:func:`euler_from_matrix`), metres -> millimetres;
+   Euler angles (:func:`lesscli.geometry.rotations.matrix_to_euler`), metres -> millimetres;
 5. force baseline removal: the first kept force sample is subtracted.
 
 Conventions fixed here (the published text leaves them open; each is tested with hand values):
@@ -27,6 +27,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from lesscli.geometry.rotations import matrix_to_euler, slerp_at
 
 MIN_SAMPLES = 10
 ONSET_WINDOW_S = 0.2
@@ -88,67 +90,6 @@ def onset_index(time_s: np.ndarray, z_mm: np.ndarray, window_s: float = ONSET_WI
     return int(hits[0]) if hits.size else None
 
 
-def quat_from_matrix(rot: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) rotation matrices -> (n, 4) unit quaternions (w, x, y, z), w >= 0."""
-    rot = np.asarray(rot, np.float64).reshape(-1, 3, 3)
-    m = rot
-    tr = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
-    cand = np.stack([
-        np.stack([1 + tr, m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], -1),
-        np.stack([m[:, 2, 1] - m[:, 1, 2], 1 + 2 * m[:, 0, 0] - tr, m[:, 0, 1] + m[:, 1, 0], m[:, 0, 2] + m[:, 2, 0]], -1),
-        np.stack([m[:, 0, 2] - m[:, 2, 0], m[:, 0, 1] + m[:, 1, 0], 1 + 2 * m[:, 1, 1] - tr, m[:, 1, 2] + m[:, 2, 1]], -1),
-        np.stack([m[:, 1, 0] - m[:, 0, 1], m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1], 1 + 2 * m[:, 2, 2] - tr], -1),
-    ], axis=1)  # (n, 4 candidates, 4); candidate c is 4 q_c q; pick the best-conditioned one
-    best = np.argmax(np.linalg.norm(cand, axis=2), axis=1)
-    q = cand[np.arange(len(m)), best]
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return q * np.where(q[:, :1] < 0, -1.0, 1.0)
-
-
-def matrix_from_quat(q: np.ndarray) -> np.ndarray:
-    """(n, 4) quaternions (w, x, y, z) -> (n, 3, 3) rotation matrices."""
-    q = np.asarray(q, np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=1)
-
-
-SLERP_LINEAR_EPS = 1e-6  # below this angle between keys, SLERP falls back to normalised linear blending
-
-
-def slerp(t_src: np.ndarray, rot_src: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
-    """Spherical linear interpolation of rotations.
-
-    Args:
-        t_src: (M,) strictly increasing key times, s.
-        rot_src: (M, 3, 3) key rotations.
-        t_dst: (n,) query times, s; clamped to ``[t_src[0], t_src[-1]]``.
-
-    Returns:
-        (n, 3, 3) rotations, along the shortest arc between the neighbouring keys.
-    """
-    t_src, t_dst = np.asarray(t_src, np.float64), np.clip(np.asarray(t_dst, np.float64), t_src[0], t_src[-1])
-    q = quat_from_matrix(rot_src)
-    hi = np.clip(np.searchsorted(t_src, t_dst, side="right"), 1, len(t_src) - 1)
-    lo = hi - 1
-    frac = ((t_dst - t_src[lo]) / (t_src[hi] - t_src[lo]))[:, None]
-    q0, q1 = q[lo], q[hi]
-    dot = np.sum(q0 * q1, axis=1, keepdims=True)
-    q1 = np.where(dot < 0, -q1, q1)
-    dot = np.abs(dot).clip(max=1.0)
-    theta = np.arccos(dot)
-    sin = np.sin(theta)
-    small = theta < SLERP_LINEAR_EPS
-    safe = np.where(small, 1.0, sin)
-    w0 = np.where(small, 1 - frac, np.sin((1 - frac) * theta) / safe)
-    w1 = np.where(small, frac, np.sin(frac * theta) / safe)
-    return matrix_from_quat(w0 * q0 + w1 * q1)
-
-
 def recentre(pos: np.ndarray, rot: np.ndarray, t_ref: np.ndarray, rot_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Express poses in the reference frame: ``p <- (p - t_ref) R_ref``, ``R <- R_ref^T R``.
 
@@ -161,16 +102,6 @@ def recentre(pos: np.ndarray, rot: np.ndarray, t_ref: np.ndarray, rot_ref: np.nd
     rot_ref = np.asarray(rot_ref, np.float64).reshape(3, 3)
     return (np.asarray(pos, np.float64) - np.asarray(t_ref, np.float64).reshape(1, 3)) @ rot_ref, \
         np.einsum("ji,njk->nik", rot_ref, np.asarray(rot, np.float64))
-
-
-def euler_from_matrix(rot: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) -> (n, 3) roll, pitch, yaw rad: roll = atan2(R21, R22),
-    pitch = atan2(-R20, sqrt(R21^2 + R22^2)), yaw = atan2(R10, R00) (so R = Rz(yaw) Ry(pitch) Rx(roll))."""
-    r = np.asarray(rot, np.float64).reshape(-1, 3, 3)
-    roll = np.arctan2(r[:, 2, 1], r[:, 2, 2])
-    pitch = np.arctan2(-r[:, 2, 0], np.hypot(r[:, 2, 1], r[:, 2, 2]))
-    yaw = np.arctan2(r[:, 1, 0], r[:, 0, 0])
-    return np.stack([roll, pitch, yaw], axis=1)
 
 
 def remove_baseline(force: np.ndarray) -> np.ndarray:
@@ -266,8 +197,8 @@ def preprocess(stream: Stream, t_ref_m: np.ndarray, rot_ref: np.ndarray,
         return None, "too_long"
     t = ts[sel]
     pos = np.stack([np.interp(t, tr, pos_m[:, a]) for a in range(3)], axis=1)
-    rot_t = slerp(tr, rot, t)
+    rot_t = slerp_at(tr, rot, t)
     pos, rot_t = recentre(pos, rot_t, t_ref_m, rot_ref)
-    pose = np.concatenate([pos * M_TO_MM, euler_from_matrix(rot_t)], axis=1).astype(np.float32)
+    pose = np.concatenate([pos * M_TO_MM, matrix_to_euler(rot_t)], axis=1).astype(np.float32)
     force = remove_baseline(np.asarray(stream.sensor_counts)[sel])
     return Processed(pose, force, t - t[0]), ""

@@ -44,10 +44,11 @@ Example ``lift.toml`` (every key optional; defaults shown)::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 
 from lesscli.errors import DataError
 from lesscli.hardware.protocol import TICKS_PER_TURN
+from lesscli.io.overrides import check_known, resolve_dataclass, set_path
 from lesscli.io.toml_files import read_toml
 
 ORIENTATIONS = 8
@@ -143,52 +144,30 @@ class LiftConfig:
         return self
 
 
-_SECTIONS = {
+_SECTIONS = {     # lift.toml table -> key -> LiftConfig field
     "bus": {"port": "port", "baud": "baud", "retries": "retries", "latency_ms": "latency_ms"},
     "lift": {"id": "lift_id", "velocity": "lift_velocity", "homing_velocity": "homing_velocity",
              "tolerance_ticks": "tolerance_ticks"},
     "rotator": {"id": "rotator_id", "velocity": "rotator_velocity", "zero_ticks": "rotator_zero_ticks"},
+    "geometry": {f.name: f"geometry.{f.name}" for f in fields(ScissorGeometry)},
     "limits": {k: k for k in ("min_height_mm", "max_height_mm", "lowered_height_mm", "raised_height_mm")},
     "timing": {k: k for k in ("poll_s", "stall_s", "timeout_factor", "timeout_margin_s", "homing_timeout_s")},
 }
 
 
 def load_config(path: str | None = None, **overrides) -> LiftConfig:
-    """Read ``lift.toml`` (None: defaults), then apply non-None ``overrides`` (LiftConfig field names).
+    """Defaults < ``lift.toml`` (None: none) < non-None ``overrides`` (LiftConfig field names), layered by
+    lesscli.io.overrides.
 
     Raises:
         DataError: unreadable file, unknown section or key, wrong value type, inconsistent values.
     """
-    values: dict = {}
-    geometry: dict = {}
+    doc: dict = {}
     if path:
         data = read_toml(path, "lift config")
-        geometry_keys = {f.name for f in fields(ScissorGeometry)}
+        check_known(data, _SECTIONS, path)
         for section, table in data.items():
-            known = geometry_keys if section == "geometry" else _SECTIONS.get(section)
-            if known is None or not isinstance(table, dict):
-                raise DataError(f"{path}: unknown section [{section}] (known: geometry, {', '.join(_SECTIONS)})")
             for key, value in table.items():
-                if key not in known:
-                    raise DataError(f"{path}: [{section}] unknown key '{key}' (known: {', '.join(sorted(known))})")
-                if section == "geometry":
-                    geometry[key] = value
-                else:
-                    values[_SECTIONS[section][key]] = value
-    values.update({k: v for k, v in overrides.items() if v is not None})
-    try:
-        config = replace(LiftConfig(), geometry=ScissorGeometry(**geometry), **values)
-    except TypeError as exc:
-        raise DataError(f"{path or 'lift config'}: {exc}") from None
-    _check_types(config, path or "lift config")
+                set_path(doc, tuple(_SECTIONS[section][key].split(".")), value, path)
+    config = resolve_dataclass(LiftConfig, doc, path or "lift config", overrides)
     return config.validate(path or "lift config")
-
-
-def _check_types(config: LiftConfig, source: str) -> None:
-    for obj in (config, config.geometry):
-        for f in fields(obj):
-            value = getattr(obj, f.name)
-            if f.type in ("int", "float") and (isinstance(value, bool) or not isinstance(value, (int, float))):
-                raise DataError(f"{source}: '{f.name}' must be a number, got {value!r}")
-            if f.type == "int" and not isinstance(value, int):
-                raise DataError(f"{source}: '{f.name}' must be an integer, got {value!r}")

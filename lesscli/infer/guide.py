@@ -19,7 +19,7 @@ import numpy as np
 
 from lesscli.errors import DataError
 from lesscli.io.labels import INCLUSION
-from lesscli.models.patch_decoder import ImageGrid
+from lesscli.types import ImageGrid
 
 DEFAULT_MARGIN_MM = 3.0       # suggestions keep the pad centre this far inside the outline
 DEFAULT_WIDTH_MM = 60.0       # octagon across flats when no label volume gives the footprint
@@ -164,14 +164,14 @@ class Guidance:
 
 
 def guide_scan(imager, ckpt: dict, scans, s: int, opts: GuideOptions, width_mm: float | None = None,
-               threshold: float | None = None) -> Guidance:
+               threshold: float | None = None, min_volume_mm3: float | None = None) -> Guidance:
     """Image scan ``s`` of a (partial) scan set and suggest its next touches.
 
     The candidate region is the scan's label footprint when it has a label volume and ``width_mm``
     is None, else the octagon of ``width_mm`` (default 60 mm), both shrunk by ``opts.margin_mm``.
     """
     from lesscli.data.image_labels import AUTO_SLICE
-    from lesscli.infer.predict import scan_grid
+    from lesscli.infer.predict import labelling_rule, scan_grid
     from lesscli.infer.stream import StreamingImager
     from lesscli.io.predictions import labels_from_probs
     from lesscli.models.registry import lookup
@@ -190,5 +190,6 @@ def guide_scan(imager, ckpt: dict, scans, s: int, opts: GuideOptions, width_mm: 
     probs = stream.probs()
     ent = stream.entropy() if opts.score == "entropy" else lookup(UNCERTAINTY, opts.score, "guide score")(probs)
     rows = suggest_touches(ent, grid, allowed, opts, stream.radius_mm)
-    return Guidance(rows, labels_from_probs(probs, threshold), ent, allowed, grid,
+    threshold, min_volume_mm3 = labelling_rule(image_cfg, threshold, min_volume_mm3)
+    return Guidance(rows, labels_from_probs(probs, threshold, min_volume_mm3, grid.spacing_mm), ent, allowed, grid,
                     np.asarray(scans.pose[steps][:, :2], np.float64))

@@ -22,11 +22,11 @@ from lesscli.data.batching import ScanDataset, check_force_features, collate
 from lesscli.data.image_labels import AUTO_SLICE, grid_of, target_volume
 from lesscli.errors import DataError, LessError
 from lesscli.infer import forcemap
+from lesscli.io.checkpoint import load_checkpoint
 from lesscli.io.predictions import PredictionSet, ScanPrediction, labels_from_probs, nothing_known
 from lesscli.io.scans import ScanSet, load_scans
 from lesscli.models.imager import Imager, grid_from_dict
-from lesscli.models.patch_decoder import ImageGrid
-from lesscli.train.checkpoint import load_checkpoint
+from lesscli.types import ImageGrid
 
 
 @dataclass
@@ -104,6 +104,14 @@ def check_image_config(image, path: str) -> None:
         raise DataError(f"{path}: config image.min_volume_mm3 must be a volume >= 0 mm^3, got {min_volume!r}")
 
 
+def labelling_rule(image_cfg: dict, threshold: float | None = None,
+                   min_volume_mm3: float | None = None) -> tuple[float | None, float]:
+    """The threshold and smallest kept inclusion volume to label with: the given ones, else the model's
+    (``config['image']``, chosen on validation data by ``image fit``), else argmax and 0."""
+    return (threshold if threshold is not None else image_cfg.get("threshold"),
+            min_volume_mm3 if min_volume_mm3 is not None else image_cfg.get("min_volume_mm3") or 0.0)
+
+
 def scans_for_model(path: str, ckpt: dict) -> ScanSet:
     """The scan set at ``path``, checked against the model's force features (DataError names the file)."""
     scans = load_scans(path)
@@ -172,8 +180,7 @@ def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, de
     if opts.grow and grids:
         imager.encoder = imager.encoder.with_grid(grow_extent_mm([g for g, _ in grids]))
     imager = imager.to(device).eval()
-    threshold = opts.threshold if opts.threshold is not None else cfg["image"].get("threshold")
-    min_volume = opts.min_volume_mm3 if opts.min_volume_mm3 is not None else cfg["image"].get("min_volume_mm3") or 0.0
+    threshold, min_volume = labelling_rule(cfg["image"], opts.threshold, opts.min_volume_mm3)
     data = ScanDataset(scans, ckpt["norm_stats"], name)
     offsets = scans.scan_step_offsets()
     preds = []

@@ -177,7 +177,7 @@ class StreamingImager:
 
     def __init__(self, imager: torch.nn.Module, norm_stats: dict, grid: ImageGrid | None = None,
                  device: torch.device | str | None = None, defer_decode: bool = False) -> None:
-        imager.eval()                  # batch prediction's path: exactly local states, fast decoding
+        imager.eval()                  # evaluation mode, as batch prediction
         self.encoder, self.decoder = imager.encoder, imager.decoder
         self.grid = grid or imager.grid
         self.device = torch.device(device) if device is not None else next(imager.parameters()).device

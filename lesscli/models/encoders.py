@@ -3,14 +3,13 @@
 For every particle: gather its in-field steps in time order, centre their x-y on the particle,
 encode each (pose, force) pair with the force-location encoder (sinusoidal pose encoding + MLP of
 the force, summed), and run one GRU whose weights all particles share. Only particles that saw at
-least one step are run, each only over its own real steps (packed sequences): the state read at
-the last real step equals a masked update, and no compute is spent on padding.
+least one step are run, each only over its own real steps (:mod:`lesscli.models.recurrence`): the
+state read at the last real step equals a masked update, and no compute is spent on padding or on
+particles that saw nothing. Training and evaluation take the same path.
 
-In evaluation mode (``model.eval()``) the final states come from a fixed-shape masked update instead:
-all B x P particles advance together, one slot at a time, on (B * P, .) tensors whose shapes depend only
-on the batch size and the grid. A particle's state is then a bitwise function of its own gathered steps:
-touches added or moved outside its receptive field leave it exactly unchanged (with packed sequences the
-matrix sizes follow the other particles' step counts, and BLAS rounds differently, ~1e-7).
+A particle's state is a function of its own gathered steps only: touches added or moved outside its
+receptive field leave it unchanged to float rounding (~1e-7: the matrix sizes follow the other
+particles' step counts, and BLAS may round a row differently in a product of another size).
 """
 
 from __future__ import annotations
@@ -18,17 +17,14 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor, nn
-from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
 
 from lesscli.models.encoding import POSE_DIM, PoseEncoding
-from lesscli.models.particles import gather_receptive_field, particle_grid
-
-if TYPE_CHECKING:
-    from lesscli.data.batching import Batch
+from lesscli.models.particles import Gathered, gather_receptive_field, particle_grid
+from lesscli.models.recurrence import ragged_gru, ragged_gru_from_gates
+from lesscli.types import Batch
 
 
 def mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:
@@ -168,53 +164,72 @@ class ParticleEncoder(nn.Module):
     def n_particles(self) -> int:
         return int(self.xy_mm.shape[0])
 
-    def encode_sequence(self, batch: Batch) -> ParticleSequence:
-        """Run the GRU over every seen particle's gathered steps (see :class:`ParticleSequence`)."""
+    def _gather(self, batch: Batch) -> tuple[Gathered, Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """The receptive-field gather and, for the N seen (batch, particle) rows: batch index, particle
+        index, step indices (N, C), centred poses (N, C, 6) and real-step mask (N, C)."""
         xy = self.xy_mm.to(batch.pose.dtype)
         g = gather_receptive_field(batch.pose[..., :2], batch.valid, xy, self.receptive_field_mm, self.max_steps)
         bi, pi = g.seen.nonzero(as_tuple=True)
         index = g.index[bi, pi]                                      # (N, C)
-        pose = batch.pose[bi[:, None], index]                        # (N, C, 6)
-        shift = torch.zeros(pi.shape[0], 1, POSE_DIM, dtype=pose.dtype, device=pose.device)
+        shift = torch.zeros(pi.shape[0], 1, POSE_DIM, dtype=batch.pose.dtype, device=batch.pose.device)
         shift[:, 0, :2] = xy[pi]
-        pose = pose - shift
+        return g, bi, pi, index, batch.pose[bi[:, None], index] - shift, g.mask[bi, pi]
+
+    def _folded_states(self, batch: Batch, gathered: tuple, last_only: bool) -> Tensor:
+        """The ragged GRU over the folded input gates of ``gathered`` (:meth:`_gather`): (N, C, d_z) states,
+        or (N, d_z) with ``last_only``."""
+        g, bi, pi, index, pose, mask = gathered
+        gates = self._input_gates(batch, pose[mask], bi[:, None].expand_as(index)[mask], index[mask])
+        return ragged_gru_from_gates(gates, g.count[bi, pi], self.gru, int(mask.shape[1]), last_only)
+
+    def encode_sequence(self, batch: Batch) -> ParticleSequence:
+        """Run the GRU over every seen particle's gathered steps (see :class:`ParticleSequence`)."""
+        xy = self.xy_mm.to(batch.pose.dtype)
+        gathered = self._gather(batch)
+        g, bi, pi, index, pose, mask = gathered
         force = batch.force[bi[:, None], index]                      # (N, C, F)
         count = g.count[bi, pi]
-        z = self._run_gru(self.fle(pose, force), count)
+        if self._folds_inputs():
+            z = self._folded_states(batch, gathered, last_only=False)
+        else:
+            real = self.fle(pose[mask], force[mask])                 # inputs of real steps only
+            z = self._run_gru(real.new_zeros(*mask.shape, real.shape[-1]).index_put((mask,), real), count)
         return ParticleSequence(batch_index=bi, particle_index=pi, z=z, pose=pose, force=force,
-                                mask=g.mask[bi, pi], count=count,
+                                mask=mask, count=count,
                                 shape=(int(g.count.shape[0]), int(g.count.shape[1])), xy_mm=xy)
 
+    def _folds_inputs(self) -> bool:
+        """The paper's FLE feeds the GRU directly (no subclass changes the inputs or the recurrence)."""
+        return isinstance(self._modules.get("fle"), ForceLocationEncoder) \
+            and type(self)._run_gru is ParticleEncoder._run_gru
+
+    def _input_gates(self, batch: Batch, pose: Tensor, scan: Tensor, step: Tensor) -> Tensor:
+        """The GRU's input gates ``W_ih FLE(pose, force) + b_ih`` of S real steps, with the linear maps folded.
+
+        ``W_ih (P phi(pose) + p + MLP(force))``: the pose part goes through the product ``W_ih P`` (3H x
+        6 * 2 n_freq, much narrower than d_z), the force part is computed once per scan step and gathered
+        (a step lies in the fields of several particles).
+
+        Args:
+            batch: the batch (its forces).
+            pose: (S, 6) centred poses of the real steps.
+            scan, step: (S,) long, the batch row and time step of each.
+
+        Returns:
+            (S, 3H).
+        """
+        w, proj = self.gru.weight_ih_l0, self.fle.pose_encoding.proj
+        per_step = self.fle.force_mlp(batch.force) @ w.t()                   # (B, L, 3H)
+        bias = torch.addmv(self.gru.bias_ih_l0, w, proj.bias)
+        return torch.addmm(bias, self.fle.pose_encoding.features(pose), (w @ proj.weight).t()) + per_step[scan, step]
+
     def _run_gru(self, x: Tensor, count: Tensor) -> Tensor:
-        """GRU over (N, C, dim) inputs, each row only up to its ``count`` real steps (packed).
+        """GRU over (N, C, dim) inputs, each row only up to its ``count`` real steps (inputs past it are
+        zeros and never read; see :func:`~lesscli.models.recurrence.ragged_gru`).
 
         Returns (N, C, dim) states; slots past a row's count are zeros.
         """
-        if x.shape[0] == 0:
-            return self.gru(x)[0]
-        packed = pack_padded_sequence(x, count.cpu(), batch_first=True, enforce_sorted=False)
-        out, _ = self.gru(packed)
-        return pad_packed_sequence(out, batch_first=True, total_length=x.shape[1])[0]
-
-    def final_states_fixed_shape(self, batch: Batch) -> ParticleStates:
-        """Final states by a masked update of every particle on fixed-shape tensors (exactly local).
-
-        Slot by slot, every (batch, particle) row is encoded and stepped by the GRU cell; a row keeps
-        its state where the slot is not a real step. The shapes are (B * P, .) at every slot, so the
-        same kernels see the same row positions whatever the other particles saw.
-        """
-        xy = self.xy_mm.to(batch.pose.dtype)
-        g = gather_receptive_field(batch.pose[..., :2], batch.valid, xy, self.receptive_field_mm, self.max_steps)
-        b, p, c = g.index.shape
-        shift = torch.zeros(p, POSE_DIM, dtype=batch.pose.dtype, device=batch.pose.device)
-        shift[:, :2] = xy
-        scan = torch.arange(b, device=batch.pose.device)[:, None]
-        h = batch.pose.new_zeros(b * p, self.dim)
-        for slot in range(c):
-            step = g.index[:, :, slot]                                           # (B, P)
-            x = self.fle(batch.pose[scan, step] - shift, batch.force[scan, step]).reshape(b * p, -1)
-            h = torch.where(g.mask[:, :, slot].reshape(-1, 1), self.gru_step(x, h), h)
-        return ParticleStates(z=h.view(b, p, self.dim), xy_mm=xy, seen=g.seen)
+        return ragged_gru(x, count, self.gru)
 
     def gru_step(self, x: Tensor, h: Tensor) -> Tensor:
         """One step of the shared GRU as a cell: inputs x and states h, (N, d_z) each -> new states."""
@@ -222,10 +237,14 @@ class ParticleEncoder(nn.Module):
         return torch.gru_cell(x, h, gru.weight_ih_l0, gru.weight_hh_l0, gru.bias_ih_l0, gru.bias_hh_l0)
 
     def forward(self, batch: Batch) -> ParticleStates:
-        """Batch -> ParticleStates with z (B, P, d_z) (packed in training, fixed-shape in evaluation)."""
-        if not self.training:
-            return self.final_states_fixed_shape(batch)
-        return self.encode_sequence(batch).final_states()
+        """Batch -> ParticleStates with z (B, P, d_z)."""
+        if not self._folds_inputs():
+            return self.encode_sequence(batch).final_states()
+        gathered = self._gather(batch)
+        g, bi, pi = gathered[:3]
+        last = self._folded_states(batch, gathered, last_only=True)
+        z = last.new_zeros(*g.count.shape, self.dim).index_put((bi, pi), last)
+        return ParticleStates(z=z, xy_mm=self.xy_mm.to(batch.pose.dtype), seen=g.seen)
 
 
 class GlobalEncoder(ParticleEncoder):

@@ -1,7 +1,9 @@
 """Force decoder: predict the force at a (centred) query pose from a particle state.
 
 ``FD(z, pose) = MLP_out(PE(pose) + MLP_z(z))``; the state and query halves are computed once and
-broadcast, so K states x K' queries cost K + K' encodings plus one output MLP over the pairs.
+broadcast, so K states x K' queries cost K + K' encodings. The first layer of ``MLP_out`` is linear, so it
+is applied to each half before the broadcast (``W (a + b) = W a + W b``): only the activation and the
+last layer, d_z -> F, run over the K x K' pairs.
 """
 
 from __future__ import annotations
@@ -40,5 +42,7 @@ class ForceDecoder(nn.Module):
         Returns:
             (N, K, K', F) predicted (normalised) forces.
         """
-        hidden = self.state_mlp(z)[:, :, None, :] + self.pose_encoding(pose)[:, None, :, :]
-        return self.out_mlp(hidden)
+        first, act, last = self.out_mlp
+        states = first(self.state_mlp(z))                                        # (N, K, d_z), with the bias
+        queries = self.pose_encoding(pose) @ first.weight.t()                   # (N, K', d_z)
+        return last(act(states[:, :, None, :] + queries[:, None, :, :]))

@@ -14,7 +14,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from lesscli.models.patch_decoder import BASE_PX, ImageGrid, upsampling_stack
+from lesscli.models.patch_decoder import BASE_PX, upsampling_stack
+from lesscli.types import ImageGrid
 
 
 class GlobalDecoder(nn.Module):

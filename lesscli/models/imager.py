@@ -12,7 +12,8 @@ import torch
 from torch import Tensor, nn
 
 from lesscli.models.global_decoder import GlobalDecoder
-from lesscli.models.patch_decoder import ImageGrid, PatchDecoder
+from lesscli.models.patch_decoder import PatchDecoder
+from lesscli.types import ImageGrid
 
 DECODERS: dict[str, type] = {"patch": PatchDecoder, "global": GlobalDecoder}
 # the decoder each encoder pairs with by default

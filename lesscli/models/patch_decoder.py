@@ -22,38 +22,18 @@ convolutions as they are; both give the same values to float32 rounding.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+from lesscli.types import ImageGrid
 
 PATCH_PX = 32               # in-plane patch side, pixels of the training grid
 DEPTH_PX = 26               # depth of a 3D column, slices of the training grid
 BASE_PX = 4                 # spatial side of the first feature map
 SPACING_RTOL = 1e-6         # grids whose spacings agree this well need no resampling
 STITCH_MODES = ("sum", "mean")
-
-
-@dataclass(frozen=True)
-class ImageGrid:
-    """Where an output image lives: (D, H, W) = (z, y, x) voxels with phantom-frame geometry.
-
-    Attributes:
-        shape: (D, H, W); a 2D image has D = 1.
-        origin_mm: z, y, x of voxel [0, 0, 0]'s centre, mm.
-        spacing_mm: dz, dy, dx, mm.
-    """
-
-    shape: tuple[int, int, int]
-    origin_mm: tuple[float, float, float]
-    spacing_mm: tuple[float, float, float]
-
-    def pixel_of(self, xy_mm: Tensor) -> Tensor:
-        """(P, 2) x, y mm -> (P, 2) fractional (column, row) pixel coordinates."""
-        x = (xy_mm[:, 0] - self.origin_mm[2]) / self.spacing_mm[2]
-        y = (xy_mm[:, 1] - self.origin_mm[1]) / self.spacing_mm[1]
-        return torch.stack([x, y], dim=1)
 
 
 def _up_block(dim: int, c_in: int, c_out: int, stride, last: bool) -> nn.Module:

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lesscli.errors import DataError
+from lesscli.geometry.rotations import axis_rotation
 from lesscli.io.labels import BACKGROUND, INCLUSION, INSERT, PILLAR, LabelVolume
 from lesscli.phantom.geometry import Phantom
 
@@ -85,21 +86,13 @@ class SyntheticMRI:
     params: MRIParams = field(default_factory=MRIParams)
 
 
-def _rot(axis: int, angle_rad: float) -> np.ndarray:
-    c, s = math.cos(angle_rad), math.sin(angle_rad)
-    i, j = [a for a in range(3) if a != axis]
-    m = np.eye(3)
-    m[i, i], m[i, j], m[j, i], m[j, j] = c, -s, s, c
-    return m
-
-
 def random_pose(params: MRIParams, rng: np.random.Generator) -> tuple[np.ndarray, float]:
     """(3, 3) rotation: yaw about z, then a tilt of at most ``max_tilt_deg`` about a random horizontal axis."""
     yaw_deg = float(rng.uniform(0.0, 360.0)) if params.yaw_deg is None else float(params.yaw_deg)
     tilt = math.radians(params.max_tilt_deg) * float(rng.uniform(0.0, 1.0))
     azimuth = float(rng.uniform(0.0, 2 * math.pi))
-    tilt_rot = _rot(2, azimuth) @ _rot(0, tilt) @ _rot(2, -azimuth)
-    return tilt_rot @ _rot(2, math.radians(yaw_deg)), yaw_deg
+    tilt_rot = axis_rotation("z", azimuth) @ axis_rotation("x", tilt) @ axis_rotation("z", -azimuth)
+    return tilt_rot @ axis_rotation("z", math.radians(yaw_deg)), yaw_deg
 
 
 def _grid(phantom: Phantom, rotation: np.ndarray, params: MRIParams,

@@ -1,9 +1,9 @@
 """Pad kinematics: pose -> pad frame, corners, taxel centres and normals (SE(3)).
 
 A pose is (x, y, z mm, roll, pitch, yaw rad) of the pad face centre in the phantom frame. The
-rotation is R = Rz(yaw) Ry(pitch) Rx(roll) (the Euler convention of the recorded data:
-roll = atan2(R21, R22), pitch = atan2(-R20, .), yaw = atan2(R10, R00)). The pad's own z axis is
-its outward normal: with zero rotation the face is parallel to the surface and z < 0 presses.
+rotation is R = Rz(yaw) Ry(pitch) Rx(roll) (the Euler convention of the recorded data, see
+:mod:`lesscli.geometry.rotations`). The pad's own z axis is its outward normal: with zero rotation
+the face is parallel to the surface and z < 0 presses.
 
 The contact tiers use a small-slope model: each surface point (x, y) meets the pad plane along
 the vertical. It is valid to about ``MAX_TILT_RAD`` of tilt; beyond that results are flagged.
@@ -17,22 +17,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from lesscli.errors import SimulationError
+from lesscli.geometry.rotations import euler_to_matrix
 
 MAX_TILT_RAD = math.radians(30.0)     # small-slope model validity
 MIN_COS_TILT = 1e-3                   # below this the pad is edge-on (or upside down): not modelled
-
-
-def rotation_matrices(rpy_rad: np.ndarray) -> np.ndarray:
-    """(n, 3) roll, pitch, yaw rad -> (n, 3, 3) rotation matrices Rz(yaw) Ry(pitch) Rx(roll)."""
-    rpy = np.asarray(rpy_rad, dtype=np.float64).reshape(-1, 3)
-    cr, sr = np.cos(rpy[:, 0]), np.sin(rpy[:, 0])
-    cp, sp = np.cos(rpy[:, 1]), np.sin(rpy[:, 1])
-    cy, sy = np.cos(rpy[:, 2]), np.sin(rpy[:, 2])
-    r = np.empty((rpy.shape[0], 3, 3))
-    r[:, 0, 0], r[:, 0, 1], r[:, 0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
-    r[:, 1, 0], r[:, 1, 1], r[:, 1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
-    r[:, 2, 0], r[:, 2, 1], r[:, 2, 2] = -sp, cp * sr, cp * cr
-    return r
 
 
 def check_poses(pose: np.ndarray, where: str = "pose") -> np.ndarray:
@@ -49,7 +37,7 @@ def check_poses(pose: np.ndarray, where: str = "pose") -> np.ndarray:
     bad = ~np.isfinite(p).all(axis=1)
     if bad.any():
         raise SimulationError(f"{where}: sample {int(np.argmax(bad))} is not finite: {p[bad][0].tolist()}")
-    cos_tilt = rotation_matrices(p[:, 3:])[:, 2, 2]
+    cos_tilt = euler_to_matrix(p[:, 3:])[:, 2, 2]
     bad = cos_tilt < MIN_COS_TILT
     if bad.any():
         i = int(np.argmax(bad))
@@ -61,7 +49,7 @@ def check_poses(pose: np.ndarray, where: str = "pose") -> np.ndarray:
 
 def tilt_rad(pose: np.ndarray) -> np.ndarray:
     """(n, 6) -> (n,) angle between the pad normal and the phantom's z axis, rad."""
-    r = rotation_matrices(np.asarray(pose, dtype=np.float64).reshape(-1, 6)[:, 3:])
+    r = euler_to_matrix(np.asarray(pose, dtype=np.float64).reshape(-1, 6)[:, 3:])
     return np.arccos(np.clip(r[:, 2, 2], -1.0, 1.0))
 
 
@@ -81,7 +69,7 @@ def pad_to_world(pose: np.ndarray, local_xy_mm: np.ndarray) -> np.ndarray:
         (n, k, 3) mm.
     """
     p = np.asarray(pose, dtype=np.float64).reshape(-1, 6)
-    r = rotation_matrices(p[:, 3:])
+    r = euler_to_matrix(p[:, 3:])
     loc = np.asarray(local_xy_mm, dtype=np.float64)
     u, v = loc[None, :, 0], loc[None, :, 1]
     return np.stack([p[:, None, i] + r[:, i, 0, None] * u + r[:, i, 1, None] * v for i in range(3)], axis=-1)
@@ -94,7 +82,7 @@ def taxel_centres_mm(pose: np.ndarray, sensor: dict) -> np.ndarray:
 
 def pad_normals(pose: np.ndarray) -> np.ndarray:
     """(n, 6) -> (n, 3) outward unit normal of the pad face (pad z axis) in the phantom frame."""
-    return rotation_matrices(np.asarray(pose, dtype=np.float64).reshape(-1, 6)[:, 3:])[:, :, 2]
+    return euler_to_matrix(np.asarray(pose, dtype=np.float64).reshape(-1, 6)[:, 3:])[:, :, 2]
 
 
 def pad_corners_mm(pose: np.ndarray, pad_size_mm: tuple[float, float]) -> np.ndarray:
@@ -129,7 +117,7 @@ def project_surface(pose: np.ndarray, world_xy_mm: np.ndarray) -> VerticalProjec
         VerticalProjection with (n, k) arrays.
     """
     p = np.asarray(pose, dtype=np.float64).reshape(-1, 6)
-    r = rotation_matrices(p[:, 3:])
+    r = euler_to_matrix(p[:, 3:])
     xy = np.asarray(world_xy_mm, dtype=np.float64)
     d = (xy if xy.ndim == 3 else xy[None]) - p[:, None, :2]          # (n, k, 2)
     a = r[:, :2, :2]

@@ -30,17 +30,18 @@ base), ``filling_kpa`` ([10, 40]), ``inclusion_kpa`` ([150, 600]), ``skin_kpa`` 
 another scene seed) gives another. ``names``, ``limit`` and ``orientations`` apply as for the catalogues;
 ``[phantoms.random]`` is ignored for other sets (so ``--set phantoms.set=single`` works on a random scene).
 
-Unknown keys are errors that name the closest valid key. ``--set a.b=value`` overrides apply to the
-document before validation (values parse as TOML, else as strings).
+Unknown keys are errors that name the closest valid key. Options (``--seed``), then ``--set a.b=value``
+overrides, apply to the document before validation (lesscli.io.overrides: values parse as TOML, bare
+words as strings).
 """
 
 from __future__ import annotations
 
 import os
-import tomllib
 from dataclasses import dataclass, field
 
 from lesscli.errors import DataError, did_you_mean
+from lesscli.io.overrides import apply_overrides, parse_value  # noqa: F401 - parse_value re-exported
 from lesscli.io.sensor import xela_uscu
 from lesscli.io.toml_files import read_toml
 from lesscli.phantom.catalogue import CATALOGUES, load_phantom_file
@@ -122,37 +123,10 @@ def _check_types(values: dict, defaults: dict, where: str, prefix: str) -> dict:
     return out
 
 
-def parse_value(text: str):
-    """A ``--set`` value: TOML syntax (numbers, booleans, arrays, quoted strings), else a plain string."""
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
-def apply_overrides(doc: dict, overrides: list[str], where: str) -> dict:
-    """A copy of ``doc`` with ``key.path=value`` assignments applied."""
-    import copy
-
-    out = copy.deepcopy(doc)
-    for item in overrides:
-        if "=" not in item:
-            raise DataError(f"{where}: --set '{item}' is not of the form key.path=value")
-        path, value = item.split("=", 1)
-        keys = path.strip().split(".")
-        node = out
-        for key in keys[:-1]:
-            node = node.setdefault(key, {})
-            if not isinstance(node, dict):
-                raise DataError(f"{where}: --set '{item}': '{key}' is not a table")
-        node[keys[-1]] = parse_value(value.strip())
-    return out
-
-
-def _random_phantoms(table, where: str, seed: int) -> list[Phantom]:
-    """The random family of ``[phantoms.random]``; its seed defaults to the scene's."""
+def _random_ranges(table, where: str, seed: int) -> RandomRanges:
+    """The ranges of ``[phantoms.random]``; the family's seed defaults to the scene's."""
     check_keys(table, RANDOM_KEYS, where, "phantoms.random.")
-    return random_set(RandomRanges.from_dict({"seed": seed, **table}, f"{where}: phantoms.random"))
+    return RandomRanges.from_dict({"seed": seed, **table}, f"{where}: phantoms.random")
 
 
 def _phantoms(table: dict, where: str, base_dir: str, seed: int) -> tuple[list[Phantom], tuple[int, ...]]:
@@ -161,7 +135,7 @@ def _phantoms(table: dict, where: str, base_dir: str, seed: int) -> tuple[list[P
     if which in CATALOGUES:
         phantoms = CATALOGUES[which]()
     elif which == RANDOM_SET:
-        phantoms = _random_phantoms(table.get("random", {}), where, seed)
+        phantoms = random_set(_random_ranges(table.get("random", {}), where, seed))
     elif which.endswith((".toml", ".json")):
         path = which if os.path.isabs(which) or os.path.exists(which) else os.path.join(base_dir, which)
         phantoms = load_phantom_file(path)
@@ -279,7 +253,26 @@ def parse_scene(doc: dict, where: str = "<scene>", base_dir: str = ".") -> Scene
                  source=where, doc=doc)
 
 
-def load_scene(path: str, overrides: list[str] | tuple[str, ...] = ()) -> Scene:
-    """Read, override and validate a scene file; errors name the file."""
-    doc = read_toml(path, "scene file")
-    return parse_scene(apply_overrides(doc, list(overrides), path), path, os.path.dirname(os.path.abspath(path)))
+def load_scene(path: str, overrides: list[str] | tuple[str, ...] = (), options: dict | None = None) -> Scene:
+    """Read a scene file, apply ``options`` (dotted key -> value, None = not given) and the ``--set``
+    ``overrides`` over it, and validate; errors name the file."""
+    doc = apply_overrides(read_toml(path, "scene file"), overrides, path, options)
+    return parse_scene(doc, path, os.path.dirname(os.path.abspath(path)))
+
+
+def scene_document(scene: Scene) -> dict:
+    """``scene`` as a TOML-ready document with every default filled in (``less simulate --print-config``);
+    read back as a scene file it gives the same scene. A selection of inserts (``names``, ``limit``) is
+    written as the names it selects."""
+    table = scene.doc.get("phantoms", {})
+    phantoms = {"set": str(table.get("set", "single")), "orientations": list(scene.orientations)}
+    if "names" in table or "limit" in table:
+        phantoms["names"] = [p.name for p in scene.phantoms]
+    if phantoms["set"] == RANDOM_SET:
+        phantoms["random"] = _random_ranges(table.get("random", {}), scene.source, scene.seed).to_dict()
+    labels = {"shape": list(scene.labels["shape"]), "spacing_mm": scene.labels["spacing_mm"]}
+    sensor = {k: scene.sensor[k] for k in SECTION_KEYS["sensor"] if k in scene.sensor}
+    motion = {"kind": scene.motion["kind"], **scene.motion["params"]}
+    return {"name": scene.name, "seed": scene.seed, "description": scene.doc.get("description"),
+            "phantoms": phantoms, "sensor": sensor, "contact": dict(scene.contact), "motion": motion,
+            "labels": labels, "effects": dict(scene.effects)}

@@ -1,4 +1,4 @@
-"""Dataclass configs with TOML files and ``key=value`` overrides.
+"""Dataclass configs of the training commands, layered by lesscli.io.overrides.
 
 Precedence: dataclass defaults < ``--config file.toml`` < explicit command-line options < ``--set``.
 A key is ``section.field`` (``train.lr``) or a bare field name when only one section has it (``lr``).
@@ -8,12 +8,11 @@ TOML files use the same sections: ``[model]``, ``[train]``, ``[ssl]``.
 from __future__ import annotations
 
 import dataclasses
-import tomllib
-import types
 import typing
 from dataclasses import dataclass, field
 
-from lesscli.errors import LessError, did_you_mean
+from lesscli.errors import LessError
+from lesscli.io.overrides import resolve_dataclass
 from lesscli.io.toml_files import read_toml
 
 
@@ -85,6 +84,12 @@ def check_rules(cfg, rules) -> None:
             raise LessError(f"setting {key} = {value!r} is invalid: must be {need}")
 
 
+def check_sections(cfg, sections: tuple[str, ...]):
+    """Pretraining's rules for the settings of ``sections`` only (a config with just those sections)."""
+    check_rules(cfg, [rule for rule in _RULES if rule[0].split(".")[0] in sections])
+    return cfg
+
+
 def check_pretrain_config(cfg: PretrainConfig) -> PretrainConfig:
     """Raise LessError naming the first out-of-range setting."""
     check_rules(cfg, _RULES)
@@ -96,84 +101,8 @@ def to_dict(cfg) -> dict:
     return dataclasses.asdict(cfg)
 
 
-def from_dict(cls, data: dict, where: str = "config"):
-    """Build ``cls`` from a nested dict, checking keys and types (LessError names the bad key)."""
-    cfg = cls()
-    for section, values in data.items():
-        if section not in _sections(cfg):
-            raise LessError(f"{where}: unknown section [{section}]{did_you_mean(section, _sections(cfg))}")
-        if not isinstance(values, dict):
-            raise LessError(f"{where}: [{section}] must be a table of settings")
-        for key, value in values.items():
-            _assign(cfg, f"{section}.{key}", value, where)
-    return cfg
-
-
 def load_config(cls, path: str | None = None, overrides: typing.Iterable[str] = (), explicit: dict | None = None):
-    """Defaults, then a TOML file, then ``explicit`` (``{"section.field": value}``), then ``--set`` pairs."""
-    cfg = cls()
-    if path:
-        cfg = from_dict(cls, read_toml(path, "config file"), where=path)
-    for key, value in (explicit or {}).items():
-        if value is not None:
-            _assign(cfg, key, value, "option")
-    for item in overrides:
-        if "=" not in item:
-            raise LessError(f"--set '{item}': expected key=value (e.g. train.lr=3e-4)")
-        key, text = item.split("=", 1)
-        _assign(cfg, key.strip(), _parse_text(text.strip()), "--set")
-    return cfg
-
-
-def _sections(cfg) -> dict:
-    return {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)}
-
-
-def _resolve(cfg, key: str, where: str) -> tuple[object, str]:
-    sections = _sections(cfg)
-    if "." in key:
-        section, name = key.split(".", 1)
-        if section not in sections:
-            raise LessError(f"{where}: unknown section '{section}' in '{key}'{did_you_mean(section, sections)}")
-        target = sections[section]
-        names = [f.name for f in dataclasses.fields(target)]
-        if name not in names:
-            raise LessError(f"{where}: unknown setting '{key}'{did_you_mean(name, names)}")
-        return target, name
-    owners = [s for s, sub in sections.items() if key in {f.name for f in dataclasses.fields(sub)}]
-    if len(owners) == 1:
-        return sections[owners[0]], key
-    every = [f"{s}.{f.name}" for s, sub in sections.items() for f in dataclasses.fields(sub)]
-    if owners:
-        raise LessError(f"{where}: '{key}' is ambiguous; use one of {', '.join(f'{o}.{key}' for o in owners)}")
-    raise LessError(f"{where}: unknown setting '{key}'{did_you_mean(key, [e.split('.', 1)[1] for e in every])}")
-
-
-def _assign(cfg, key: str, value, where: str) -> None:
-    target, name = _resolve(cfg, key, where)
-    kind = typing.get_type_hints(type(target))[name]
-    setattr(target, name, _coerce(value, kind, f"{where}: '{key}'"))
-
-
-def _parse_text(text: str):
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text                                            # bare words are strings
-
-
-def _coerce(value, kind, what: str):
-    options = typing.get_args(kind) if isinstance(kind, types.UnionType) else (kind,)
-    for option in options:
-        if option is type(None) and value is None:
-            return None
-        if option is bool and isinstance(value, bool):
-            return value
-        if option is int and isinstance(value, int) and not isinstance(value, bool):
-            return value
-        if option is float and isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
-        if option is str and isinstance(value, str):
-            return value
-    names = "/".join(getattr(o, "__name__", str(o)) for o in options)
-    raise LessError(f"{what} expects {names}, got {value!r}")
+    """Defaults, then a TOML file, then ``explicit`` (``{"section.field": value}``, None = not given), then
+    ``--set`` pairs (lesscli.io.overrides: a key is ``section.field`` or a field that one section has)."""
+    doc = read_toml(path, "config file") if path else None
+    return resolve_dataclass(cls, doc, path or "config", explicit, overrides, short_keys=True)

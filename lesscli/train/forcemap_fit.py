@@ -14,9 +14,9 @@ from dataclasses import asdict
 from lesscli.data.image_labels import AUTO_SLICE, grid_of, target_volume
 from lesscli.errors import DataError
 from lesscli.infer import forcemap
+from lesscli.io.checkpoint import save_checkpoint
 from lesscli.io.scans import ScanSet
 from lesscli.models.imager import grid_to_dict
-from lesscli.train.checkpoint import save_checkpoint
 
 
 def fit_forcemap(scans: ScanSet, output: str, dim: int = 3, slice_index: int | None = None,

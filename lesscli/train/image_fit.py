@@ -19,13 +19,13 @@ import numpy as np
 import torch
 
 from lesscli.data.image_labels import AUTO_SLICE, ImageDataset, collate_images, training_targets
+from lesscli.io.checkpoint import load_checkpoint, save_checkpoint
 from lesscli.io.labels import INCLUSION, N_CLASSES
 from lesscli.io.scans import ScanSet
 from lesscli.models.imager import DECODERS, DEFAULT_DECODER, Imager, grid_to_dict
 from lesscli.models.imaging_loss import ALPHA_POWER, GAMMA, LAMBDA, imaging_loss
-from lesscli.models.registry import build_decoder, lookup
+from lesscli.models.registry import build_decoder, load_representation, lookup
 from lesscli.train import distributed
-from lesscli.train.checkpoint import load_checkpoint, load_representation, save_checkpoint
 from lesscli.train.config import LoopConfig, check_rules, to_dict
 from lesscli.train.loop import FitResult, data_identity, fit
 from lesscli.train.state_cache import CachedImager, cache_states, collate_states

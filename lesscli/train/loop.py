@@ -31,8 +31,8 @@ import torch
 from torch import nn
 
 from lesscli.errors import TrainingError
+from lesscli.io.checkpoint import load_checkpoint, save_checkpoint
 from lesscli.train import distributed
-from lesscli.train.checkpoint import load_checkpoint, save_checkpoint
 from lesscli.train.config import LoopConfig
 from lesscli.train.watch import Watch, bar_postfix
 

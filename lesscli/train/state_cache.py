@@ -14,7 +14,7 @@ from torch import Tensor, nn
 from lesscli.data.image_labels import ImageDataset, collate_images
 from lesscli.models.encoders import ParticleStates
 from lesscli.models.imager import Imager
-from lesscli.models.patch_decoder import ImageGrid
+from lesscli.types import ImageGrid
 
 
 class StatesDataset(torch.utils.data.Dataset):

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from lesscli.errors import DataError
-from lesscli.vision import se3
+from lesscli.geometry import rotations
 from lesscli.vision.calibrate import Calibration
 from lesscli.vision.streams import PoseStream, sync
 
@@ -34,7 +34,7 @@ def pose_errors(est: PoseStream, ref: PoseStream, calibration: Calibration | Non
         raise DataError(f"accuracy: no tracked pose lies inside the reference's time span "
                         f"({ref.time_s[0] if len(ref) else float('nan'):.3f}.."
                         f"{ref.time_s[-1] if len(ref) else float('nan'):.3f} s)")
-    ang = se3.matrix_to_rotvec(np.swapaxes(matched.rotation, 1, 2) @ kept.rotation)
+    ang = rotations.matrix_to_rotvec(np.swapaxes(matched.rotation, 1, 2) @ kept.rotation)
     return {"time_s": kept.time_s, "position_mm": kept.position_mm - matched.position_mm, "angle_rad": ang}
 
 

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from lesscli.errors import DataError
+from lesscli.geometry import rotations
 from lesscli.io.atomic import atomic_path
 from lesscli.io.scans import append_history, read_npz
-from lesscli.vision import se3
 from lesscli.vision.streams import PoseStream, sync
 
 SCHEMA = "less.posecal/1"
@@ -68,7 +68,7 @@ def kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) 
     w = w / w.sum()
     cs, cd = w @ src, w @ dst
     cov = (dst - cd).T @ ((src - cs) * w[:, None])
-    rot = se3.project_to_so3(cov)
+    rot = rotations.project_to_so3(cov)
     return rot, cd - rot @ cs
 
 
@@ -163,7 +163,7 @@ def calibrate(est: PoseStream, ref: PoseStream, rng: np.random.Generator, thresh
         raise DataError(f"calibration: only {len(kept)} tracked poses overlap the robot's time span")
     rot, t, inl = ransac_kabsch(kept.position_mm, matched.position_mm, rng, threshold_mm, iterations)
     rotated = rot @ kept.rotation[inl]
-    r_ori = se3.project_to_so3(np.sum(np.swapaxes(rotated, 1, 2) @ matched.rotation[inl], axis=0))
+    r_ori = rotations.project_to_so3(np.sum(np.swapaxes(rotated, 1, 2) @ matched.rotation[inl], axis=0))
     resid = np.linalg.norm(kept.position_mm[inl] @ rot.T + t - matched.position_mm[inl], axis=1)
     return Calibration(rot, t, r_ori, rot.copy(), float(offset), float(inl.mean()),
                        float(np.sqrt(np.mean(resid**2))))
@@ -204,5 +204,5 @@ def apply_to_pose6(pose: np.ndarray, cal: Calibration) -> np.ndarray:
     """Apply a calibration to scan-set poses (n, 6) = x, y, z mm, roll, pitch, yaw rad (Rz Ry Rx)."""
     pose = np.asarray(pose, np.float64)
     pos = pose[:, :3] @ cal.r_pos.T + cal.t_pos
-    rot = cal.R_pre @ se3.euler_to_matrix(pose[:, 3:]) @ cal.R_ori
-    return np.concatenate([pos, se3.matrix_to_euler(rot)], axis=1)
+    rot = cal.R_pre @ rotations.euler_to_matrix(pose[:, 3:]) @ cal.R_ori
+    return np.concatenate([pos, rotations.matrix_to_euler(rot)], axis=1)

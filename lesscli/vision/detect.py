@@ -15,13 +15,14 @@ import cv2
 import numpy as np
 
 from lesscli.errors import DataError
+from lesscli.geometry import rotations
 from lesscli.vision import se3
 from lesscli.vision.camera import Camera
 from lesscli.vision.edges import refine_corners
 
 # Added to the corners from CORNER_REFINE_APRILTAG (px, both axes): they come out about half a pixel too far
 # right and down against the pixel-centre convention (measured on renders with exactly known corners, see
-# tests/test_vision_detect.py; the other refinements show no such offset).
+# tests/vision/test_vision_detect.py; the other refinements show no such offset).
 APRILTAG_CORNER_OFFSET_PX = -0.5
 AMBIGUITY_RATIO = 2.0       # second IPPE solution within this factor of the best reprojection error: ambiguous
 REFINE_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
@@ -128,18 +129,18 @@ class TagPose:
 
 def reprojection_rms(camera: Camera, object_mm: np.ndarray, image_px: np.ndarray, T: np.ndarray) -> float:
     """RMS pixel distance between ``image_px`` (n, 2) and the projections of ``object_mm`` (n, 3) under T."""
-    rvec = se3.matrix_to_rotvec(T[:3, :3])
+    rvec = rotations.matrix_to_rotvec(T[:3, :3])
     proj, _ = cv2.projectPoints(object_mm.reshape(-1, 1, 3), rvec, T[:3, 3], camera.matrix, camera.dist_coeffs)
     return float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - image_px) ** 2, axis=1))))
 
 
 def refine_pose(camera: Camera, object_mm: np.ndarray, image_px: np.ndarray, T: np.ndarray) -> np.ndarray:
     """Levenberg-Marquardt refinement of ``T`` (4, 4) minimising the reprojection error."""
-    rvec = se3.matrix_to_rotvec(T[:3, :3]).reshape(3, 1).copy()
+    rvec = rotations.matrix_to_rotvec(T[:3, :3]).reshape(3, 1).copy()
     tvec = T[:3, 3].reshape(3, 1).copy()
     rvec, tvec = cv2.solvePnPRefineLM(object_mm.reshape(-1, 1, 3), image_px.reshape(-1, 1, 2), camera.matrix,
                                       camera.dist_coeffs, rvec, tvec, criteria=REFINE_CRITERIA)
-    return se3.make_T(se3.rotvec_to_matrix(rvec.ravel()), tvec.ravel())
+    return se3.make_T(rotations.rotvec_to_matrix(rvec.ravel()), tvec.ravel())
 
 
 def solve_tag_pose(camera: Camera, corners_px: np.ndarray, tag_size_mm: float) -> TagPose:
@@ -159,7 +160,7 @@ def solve_tag_pose(camera: Camera, corners_px: np.ndarray, tag_size_mm: float) -
                                              camera.dist_coeffs, flags=cv2.SOLVEPNP_IPPE_SQUARE)
     cands = []
     for rvec, tvec in zip(rvecs[:n], tvecs[:n]):
-        T = refine_pose(camera, obj, corners_px, se3.make_T(se3.rotvec_to_matrix(rvec.ravel()), tvec.ravel()))
+        T = refine_pose(camera, obj, corners_px, se3.make_T(rotations.rotvec_to_matrix(rvec.ravel()), tvec.ravel()))
         if T[2, 3] > 0:
             cands.append((reprojection_rms(camera, obj, corners_px, T), T))
     if not cands:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from lesscli.geometry import rotations
 from lesscli.vision import se3
 from lesscli.vision.camera import Camera
 from lesscli.vision.detect import DICTIONARY, marker_cells
@@ -168,7 +169,7 @@ def facing_rotation(tilt_rotvec_rad: np.ndarray) -> np.ndarray:
     """Rotation of a tag that faces the camera (x right, y up in the image, z towards the camera),
     then tilted by ``tilt_rotvec_rad`` (3,) about its own axes."""
     facing = np.diag([1.0, -1.0, -1.0])
-    return facing @ se3.rotvec_to_matrix(tilt_rotvec_rad)
+    return facing @ rotations.rotvec_to_matrix(tilt_rotvec_rad)
 
 
 def make_trajectory(rng: np.random.Generator, n_frames: int = 30, fps: float = 30.0,

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lesscli.errors import DataError
+from lesscli.geometry import rotations
 from lesscli.io.records import read_jsonl
 from lesscli.io.scans import read_npz
 from lesscli.vision import se3
@@ -74,7 +75,7 @@ def _from_rows(rows: list[dict], name: str) -> PoseStream:
         raise DataError(f"{name}: 'rotvec_rad' must hold 3 numbers per row") from None
     if rv_arr.shape != (len(good), 3):
         raise DataError(f"{name}: 'rotvec_rad' must hold 3 numbers per row")
-    return _checked(t, pos, se3.rotvec_to_matrix(rv_arr), name)
+    return _checked(t, pos, rotations.rotvec_to_matrix(rv_arr), name)
 
 
 def _from_npz(arrays: dict, name: str) -> PoseStream:
@@ -91,7 +92,7 @@ def _from_npz(arrays: dict, name: str) -> PoseStream:
     if "rotation" in arrays:
         rot = arrays["rotation"]
     elif "rotvec_rad" in arrays:
-        rot = se3.rotvec_to_matrix(np.asarray(arrays["rotvec_rad"], np.float64))
+        rot = rotations.rotvec_to_matrix(np.asarray(arrays["rotvec_rad"], np.float64))
     else:
         raise DataError(f"{name}: needs 'rotation' (n, 3, 3) or 'rotvec_rad' (n, 3)")
     return _checked(t, arrays["position_mm"], rot, name)

@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from lesscli.errors import DataError
+from lesscli.geometry import rotations
 from lesscli.vision import se3
 from lesscli.vision.camera import Camera
 from lesscli.vision.detect import (
@@ -198,8 +199,8 @@ def _pick(pose: TagPose, prev_rot: np.ndarray | None) -> np.ndarray:
     """Resolve the planar ambiguity: the best reprojection, or when ambiguous the rotation nearest the last one."""
     if not pose.ambiguous or pose.alternative is None or prev_rot is None:
         return pose.T_cam_tag
-    d_best = se3.rotation_angle(prev_rot.T @ pose.T_cam_tag[:3, :3])
-    d_alt = se3.rotation_angle(prev_rot.T @ pose.alternative[:3, :3])
+    d_best = rotations.rotation_angle(prev_rot.T @ pose.T_cam_tag[:3, :3])
+    d_alt = rotations.rotation_angle(prev_rot.T @ pose.alternative[:3, :3])
     return pose.alternative if d_alt < d_best else pose.T_cam_tag
 
 

@@ -16,10 +16,11 @@ from __future__ import annotations
 import numpy as np
 
 from lesscli.errors import SimulationError
+from lesscli.geometry.rotations import euler_to_matrix
 from lesscli.sim import fem, kinematics
 from lesscli.sim.contact import cache
 from lesscli.sim.contact.base import ContactModel, check_params
-from lesscli.sim.contact.qp import cholesky_lower, solve_contact
+from lesscli.sim.contact.qp import solve_contact
 from lesscli.sim.contact.winkler import phantom_nu
 
 CACHE_VERSION = 1
@@ -93,7 +94,7 @@ class GreenContact(ContactModel):
         skin_kpa = float(self.params["sensor_skin_kpa"])
         self.skin_compliance = (float(self.params["sensor_skin_mm"]) / (skin_kpa * fem.KPA_TO_N_MM2 * h * h)
                                 if skin_kpa > 0 else 0.0)
-        self._last = None          # (idx, skin, M, Cholesky factor of M) of the previous step
+        self._last = None          # (idx, skin, M, cached factors of M's submatrices) of the previous step
 
     # ----------------------------------------------------------------------------- per step
 
@@ -101,13 +102,13 @@ class GreenContact(ContactModel):
         """Nodal forces (N) on surface nodes ``idx`` with penetration ``g`` (mm) and series compliance ``skin``."""
         last = self._last
         if last is not None and np.array_equal(last[0], idx) and np.array_equal(last[1], skin):
-            m, factor = last[2], last[3]
+            m, factors = last[2], last[3]
         else:
             m = self.c[np.ix_(idx, idx)]
             m[np.diag_indices_from(m)] += skin
-            factor = cholesky_lower(m)
-            self._last = (idx, skin, m, factor)
-        return solve_contact(m, g, full_factor=factor)
+            factors = {}
+            self._last = (idx, skin, m, factors)
+        return solve_contact(m, g, factors=factors)
 
     def _candidates(self, local_xy: np.ndarray, pen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Nodes the pad can touch and their series compliance (mm/N).
@@ -151,7 +152,7 @@ class GreenContact(ContactModel):
         if not steps:
             return np.zeros((n, t))
         step, xy, p = np.concatenate(steps), np.concatenate(local), np.concatenate(force)
-        rot = kinematics.rotation_matrices(pose[:, 3:])
+        rot = euler_to_matrix(pose[:, 3:])
         cells, weights = self.pad.share(xy, float(self.params["mesh_mm"]))
         flat = (step[:, None] * t + cells).ravel()
         normal = np.bincount(flat, weights=(weights * p[:, None]).ravel(), minlength=n * t).reshape(n, t)

@@ -21,6 +21,7 @@ from scipy.optimize import nnls
 from lesscli.errors import SimulationError
 
 MAX_ACTIVE_SET_ITERS = 25
+MAX_CACHED_FACTORS = 64     # Cholesky factors of active-set submatrices kept per compliance
 KKT_REL_TOL = 1e-9          # relative tolerance of the optimality check (scale: max |g|)
 
 
@@ -54,16 +55,30 @@ def solve_nnls(m: np.ndarray, g: np.ndarray) -> np.ndarray:
     return p
 
 
+def _factor(m: np.ndarray, idx: np.ndarray, act: np.ndarray, factors: dict | None) -> np.ndarray:
+    """``cholesky_lower(M[idx, idx])``, from / into the cache ``factors`` (keyed by ``act``) when given."""
+    if factors is None:
+        return cholesky_lower(m[np.ix_(idx, idx)])
+    key = act.tobytes()
+    factor = factors.get(key)
+    if factor is None:
+        if len(factors) >= MAX_CACHED_FACTORS:
+            factors.clear()
+        factor = factors[key] = cholesky_lower(m[np.ix_(idx, idx)])
+    return factor
+
+
 def solve_contact(m: np.ndarray, g: np.ndarray, active: np.ndarray | None = None,
-                  full_factor: np.ndarray | None = None) -> np.ndarray:
+                  factors: dict | None = None) -> np.ndarray:
     """Nodal contact forces p (N) >= 0 of the QP above.
 
     Args:
         m: (k, k) SPD compliance, mm/N.
         g: (k,) penetration, mm (> 0 where the pad is below the undeformed surface).
         active: (k,) bool initial guess of the contact set (default g > 0).
-        full_factor: ``cholesky_lower(m)``, reused when every node is active (consecutive steps of a
-            press share the candidate set).
+        factors: cache of ``cholesky_lower`` of M's active-set submatrices, keyed by the active
+            set's bytes, for this M only (consecutive steps of a press share M and mostly the active
+            set); filled here. The factors are those computed without it, so the result is the same.
 
     Returns:
         (k,) float64 nodal forces, N.
@@ -75,11 +90,8 @@ def solve_contact(m: np.ndarray, g: np.ndarray, active: np.ndarray | None = None
     for _ in range(MAX_ACTIVE_SET_ITERS):
         p = np.zeros(k)
         if act.any():
-            if full_factor is not None and act.all():
-                p = cholesky_solve(full_factor, g)
-            else:
-                idx = np.nonzero(act)[0]
-                p[idx] = cholesky_solve(cholesky_lower(m[np.ix_(idx, idx)]), g[idx])
+            idx = np.nonzero(act)[0]
+            p[idx] = cholesky_solve(_factor(m, idx, act, factors), g[idx])
         gap = m @ p - g
         scale = float(np.max(np.abs(g)))
         new = np.where(act, p > 0, gap < -KKT_REL_TOL * scale)

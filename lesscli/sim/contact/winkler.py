@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from lesscli.errors import SimulationError
+from lesscli.geometry.rotations import euler_to_matrix
 from lesscli.sim import kinematics
 from lesscli.sim.contact.base import ContactModel, check_params
 from lesscli.sim.fem import KPA_TO_N_MM2, NU_MAX
@@ -128,7 +129,7 @@ class WinklerContact(ContactModel):
         flat = np.zeros((starts.size - 1, 6))
         flat[:, [0, 1, 3, 4, 5]] = key[starts[:-1]]
         world = kinematics.pad_to_world(flat, self.points)                 # (u, M, 3) at z = 0
-        cos_t = kinematics.rotation_matrices(flat[:, 3:])[:, 2, 2]
+        cos_t = euler_to_matrix(flat[:, 3:])[:, 2, 2]
         # vertical force per sample on its horizontal area, projected onto the pad normal
         weight = self.gain * self.stiffness_at(world[..., :2]) * (self.cell_area * cos_t[:, None] ** 2) * self.rim
         n = pose.shape[0]

@@ -16,6 +16,7 @@ from dataclasses import replace
 import numpy as np
 
 from lesscli.errors import DataError
+from lesscli.geometry.rotations import rotvec_to_matrix
 from lesscli.sim.state import SimState, Stage
 
 DEFAULTS = {"mode": "robot", "robot_sd_mm": 0.1, "robot_sd_rad": 0.001, "calib_mm": 1.0, "calib_deg": 0.5,
@@ -30,12 +31,6 @@ def validate(params: dict, where: str) -> None:
         raise DataError(f"{where}: rate_hz must be > 0 and delay_s >= 0")
 
 
-def _rotation(axis: np.ndarray, angle_rad: float) -> np.ndarray:
-    axis = axis / np.linalg.norm(axis)
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + math.sin(angle_rad) * k + (1 - math.cos(angle_rad)) * k @ k
-
-
 def _robot(state: SimState, params: dict, rng: np.random.Generator) -> np.ndarray:
     noise = np.concatenate([rng.normal(0, params["robot_sd_mm"], size=(len(state.pose_cmd), 3)),
                             rng.normal(0, params["robot_sd_rad"], size=(len(state.pose_cmd), 3))], 1)
@@ -43,7 +38,9 @@ def _robot(state: SimState, params: dict, rng: np.random.Generator) -> np.ndarra
 
 
 def _handheld(state: SimState, params: dict, rng: np.random.Generator) -> np.ndarray:
-    rot = _rotation(rng.normal(size=3), rng.normal(0, math.radians(params["calib_deg"])))
+    axis = rng.normal(size=3)
+    angle_rad = rng.normal(0, math.radians(params["calib_deg"]))
+    rot = rotvec_to_matrix(axis / np.linalg.norm(axis) * angle_rad)
     shift = rng.normal(0, params["calib_mm"], size=3)
     out = np.empty_like(state.pose_true)
     for r in range(len(state.offsets) - 1):

@@ -51,6 +51,44 @@ def test_v4_compliance_symmetric_positive_definite():
     assert np.linalg.eigvalsh(data["c"]).min() > 0
 
 
+def skfem_stiffness(body, bm, nu):
+    """The stiffness by scikit-fem's generic assembly (reference for the box-element assembly)."""
+    from skfem import Basis, BilinearForm, ElementHex1, ElementVector, asm
+    from skfem.helpers import ddot, sym_grad, trace
+
+    basis = Basis(bm.mesh, ElementVector(ElementHex1()), intorder=2)
+    x = np.asarray(basis.mapping.F(basis.X))                    # (3, ne, nq)
+    e = np.asarray(body.youngs_kpa(x.reshape(3, -1).T)).reshape(x.shape[1:])
+    e = np.where(e > 0, e, np.asarray(body.youngs_kpa(x.mean(axis=2).T))[:, None]) * fem.KPA_TO_N_MM2
+    lam, mu = nu / ((1 + nu) * (1 - 2 * nu)), 1 / (2 * (1 + nu))
+
+    @BilinearForm
+    def elasticity(u, v, w):
+        eu, ev = sym_grad(u), sym_grad(v)
+        return w["E"] * (2 * mu * ddot(eu, ev) + lam * trace(eu) * trace(ev))
+
+    return asm(elasticity, basis, E=e).tocsr()
+
+
+def test_box_assembly_equals_generic_assembly():
+    ph = Phantom("asm", width_mm=20.0, height_mm=8.0, inclusions=(Sphere((2, 1, -3), 2.5),))
+    bm = fem.phantom_mesh(ph, 2.5, 1.0, 1.5, 3.0)
+    ours, ref = fem.stiffness(ph, bm, 0.45), skfem_stiffness(ph, bm, 0.45)
+    assert ours.shape == ref.shape and abs(ours - ref).max() < 1e-13 * abs(ref).max()
+    assert abs(ours - ours.T).max() < 1e-13 * abs(ref).max()
+
+
+def test_banded_gram_equals_dense():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(40, 40))
+    s = a @ a.T + 40 * np.eye(40)
+    b = np.tril(rng.normal(size=(40, 30)), 12)[:, rng.permutation(30)]   # columns zero above varying rows
+    b[:, 5] = 0.0
+    gram = fem.solve_gram(s, b, block=7)
+    np.testing.assert_allclose(gram, b.T @ np.linalg.solve(s, b), rtol=0, atol=1e-12 * np.abs(gram).max())
+    assert np.array_equal(gram, gram.T)
+
+
 def test_layered_elimination_equals_sparse_lu():
     ph = Phantom("lu", width_mm=20.0, height_mm=8.0, inclusions=(Sphere((2, 0, -4), 2),))
     bm = fem.phantom_mesh(ph, 2.5, 1.0, 1.5, 3.0)

@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 
 from lesscli.errors import DataError
-from lesscli.vision import se3
+from lesscli.geometry import rotations
 from lesscli.vision.accuracy import pose_errors, sigma, summarize
 from lesscli.vision.calibrate import Calibration, apply_to_pose6, calibrate, kabsch, ransac_kabsch
 from lesscli.vision.streams import PoseStream, sync
 
-TRUE_ROT = se3.rotvec_to_matrix(np.array([0.3, -1.1, 0.6]))
+TRUE_ROT = rotations.rotvec_to_matrix(np.array([0.3, -1.1, 0.6]))
 TRUE_T = np.array([412.0, -87.0, 233.0])
-TRUE_ORI = se3.rotvec_to_matrix(np.array([0.05, 0.4, -0.2]))
+TRUE_ORI = rotations.rotvec_to_matrix(np.array([0.05, 0.4, -0.2]))
 OFFSET_S = 0.137
 
 
@@ -20,7 +20,7 @@ def _motion(t):
     pos = np.stack([60 * np.sin(0.7 * t) + 20 * np.sin(2.3 * t), 45 * np.sin(1.1 * t + 1.0),
                     25 * np.sin(0.5 * t + 0.3) + 10 * np.cos(1.9 * t)], axis=1)
     rv = np.stack([0.3 * np.sin(0.9 * t), 0.25 * np.sin(0.6 * t + 2), 0.4 * np.sin(0.4 * t)], axis=1)
-    return pos, se3.rotvec_to_matrix(rv)
+    return pos, rotations.rotvec_to_matrix(rv)
 
 
 def _streams(rng, noise_mm=1.0, outliers=0.2, offset_s=OFFSET_S, duration_s=30.0):
@@ -33,7 +33,7 @@ def _streams(rng, noise_mm=1.0, outliers=0.2, offset_s=OFFSET_S, duration_s=30.0
     pos_e = pos_e + rng.normal(0, noise_mm, pos_e.shape)
     bad = rng.random(len(t_est)) < outliers
     pos_e[bad] += rng.uniform(-60, 60, (bad.sum(), 3))
-    rot_e = rot_e @ se3.rotvec_to_matrix(rng.normal(0, 0.005, (len(t_est), 3)))
+    rot_e = rot_e @ rotations.rotvec_to_matrix(rng.normal(0, 0.005, (len(t_est), 3)))
     return PoseStream(t_est, pos_e, rot_e), robot
 
 
@@ -51,13 +51,13 @@ def test_calibration_recovers_transform_from_noisy_streams():
     rng = np.random.default_rng(1)
     est, robot = _streams(rng)
     cal = calibrate(est, robot, np.random.default_rng(2))
-    angle_deg = np.rad2deg(se3.rotation_angle(TRUE_ROT.T @ cal.r_pos))
+    angle_deg = np.rad2deg(rotations.rotation_angle(TRUE_ROT.T @ cal.r_pos))
     print(f"offset {cal.time_offset_s:.4f} s, t error {np.linalg.norm(cal.t_pos - TRUE_T):.3f} mm, "
           f"R error {angle_deg:.4f} deg, inliers {cal.inlier_fraction:.2f}")
     assert abs(cal.time_offset_s - OFFSET_S) < 0.005
     assert np.linalg.norm(cal.t_pos - TRUE_T) <= 0.5
     assert angle_deg <= 0.2
-    assert np.rad2deg(se3.rotation_angle(TRUE_ORI.T @ cal.R_ori)) <= 0.2
+    assert np.rad2deg(rotations.rotation_angle(TRUE_ORI.T @ cal.R_ori)) <= 0.2
     assert 0.7 < cal.inlier_fraction < 0.9
     # mapped back, the inlying tracked poses land on the robot's within the noise
     errors = pose_errors(est, robot, cal)
@@ -91,12 +91,12 @@ def test_no_time_overlap_raises():
 
 def test_sync_interpolates_reference_at_shifted_times():
     ref = PoseStream(np.array([0.0, 1.0]), np.array([[0.0, 0, 0], [10.0, 0, 0]]),
-                     se3.rotvec_to_matrix(np.array([[0, 0, 0], [0, 0, 1.0]])))
+                     rotations.rotvec_to_matrix(np.array([[0, 0, 0], [0, 0, 1.0]])))
     est = PoseStream(np.array([0.2, 0.6, 0.95]), np.zeros((3, 3)), np.stack([np.eye(3)] * 3))
     kept, matched = sync(est, ref, 0.1)
     assert np.allclose(kept.time_s, [0.2, 0.6])                  # 0.95 + 0.1 is past the reference
     assert np.allclose(matched.position_mm[:, 0], [3.0, 7.0])
-    assert np.allclose(se3.matrix_to_rotvec(matched.rotation)[:, 2], [0.3, 0.7])
+    assert np.allclose(rotations.matrix_to_rotvec(matched.rotation)[:, 2], [0.3, 0.7])
 
 
 def test_sigma_matches_the_paper_definition():
@@ -112,4 +112,4 @@ def test_apply_to_scan_poses_uses_published_layout():
     pose = np.array([[10.0, -5.0, 2.0, 0.1, -0.2, 0.3]])
     out = apply_to_pose6(pose, cal)
     assert np.allclose(out[0, :3], pose[0, :3] @ TRUE_ROT.T + TRUE_T)
-    assert np.allclose(se3.euler_to_matrix(out[0, 3:]), se3.euler_to_matrix(pose[0, 3:]) @ TRUE_ORI)
+    assert np.allclose(rotations.euler_to_matrix(out[0, 3:]), rotations.euler_to_matrix(pose[0, 3:]) @ TRUE_ORI)

@@ -3,36 +3,13 @@
 import json
 
 import numpy as np
+from factories import TINY_SCENE
 
 from lesscli.io.scans import load_scans
 
-SCENE = """
-name = "tiny"
-seed = 3
-[phantoms]
-set = "single"
-names = ["St16C9", "St12D13"]
-orientations = [0, 4]
-[contact]
-tier = "winkler"
-[motion]
-kind = "poke"
-n_traj = 3
-approach_mm = [1.0, 1.0]
-press_s = [0.2, 0.3]
-hold_s = [0.1, 0.1]
-[labels]
-shape = [6, 16, 16]
-spacing_mm = [3.0, 4.0, 4.0]
-[effects.tilt]
-[effects.sensor]
-[effects.noise]
-[effects.pose]
-"""
-
 
 def test_simulate_then_info_subsample_concat_split(run_less, tmp_path):
-    (tmp_path / "tiny.toml").write_text(SCENE)
+    (tmp_path / "tiny.toml").write_text(TINY_SCENE)
     sim = run_less("simulate", "tiny.toml", "-o", "raw.npz", "--jobs", "2", check=True)
     raw = load_scans(str(tmp_path / "raw.npz"))
     assert raw.n_scans == 4 and raw.n_traj == 12 and len(raw.labels) == 4
@@ -57,7 +34,7 @@ def test_simulate_then_info_subsample_concat_split(run_less, tmp_path):
 
 
 def test_simulate_overrides_and_errors(run_less, tmp_path):
-    (tmp_path / "tiny.toml").write_text(SCENE)
+    (tmp_path / "tiny.toml").write_text(TINY_SCENE)
     run_less("simulate", "tiny.toml", "-o", "one.npz", "--set", "phantoms.names=[\"St12D13\"]",
              "--set", "phantoms.orientations=[1]", "--seed", "9", check=True)
     one = load_scans(str(tmp_path / "one.npz"))
@@ -70,3 +47,40 @@ def test_simulate_overrides_and_errors(run_less, tmp_path):
     assert run_less("simulate", "tiny.toml", "-o", "x.npz", "--shard", "2/2").returncode == 2
     missing = run_less("simulate", "nope.toml", "-o", "x.npz")
     assert missing.returncode == 1 and b"nope.toml: no such scene file" in missing.stderr
+
+
+def test_jobs_default_to_the_free_cores_at_most_one_a_scan(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from lesscli import threads
+    from lesscli.cli.main import cli
+
+    (tmp_path / "tiny.toml").write_text(TINY_SCENE)
+    monkeypatch.setattr(threads, "usable_cores", lambda: 3)
+    runs = {}
+    for load, orientations in ((0.0, "[0]"), (0.0, "[0, 4]"), (2.2, "[0]")):
+        monkeypatch.setattr(threads, "other_load", lambda starting=0.0, load=load: load + starting)
+        res = CliRunner().invoke(cli, ["simulate", str(tmp_path / "tiny.toml"), "-o", str(tmp_path / "x.npz"),
+                                       "--set", f"phantoms.orientations={orientations}", "--set", "motion.n_traj=1",
+                                       "--format", "jsonl"])
+        assert res.exit_code == 0, res.output
+        record = json.loads(res.output.strip().splitlines()[-1])
+        runs[load, orientations] = (record["scans"], record["jobs"], record["threads"])
+    # three free cores: a worker each, but never more workers than scans; one free core (load 2.2): one worker
+    assert runs == {(0.0, "[0]"): (2, 2, 1), (0.0, "[0, 4]"): (4, 3, 1), (2.2, "[0]"): (2, 1, 1)}
+
+
+def test_thread_limit_reaches_the_blas_that_scipy_loads_later():
+    """The simulator's linear algebra runs on scipy's own BLAS, loaded after the command set its threads."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom lesscli.threads import set_threads\nset_threads(1, torch_too=False)\n"
+            "assert 'scipy.linalg' not in sys.modules\nimport scipy.linalg\n"
+            "from threadpoolctl import threadpool_info\n"
+            "print(json.dumps({i['filepath']: i['num_threads'] for i in threadpool_info()}))")
+    env = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", "import json\n" + code], env=env, capture_output=True, check=True)
+    pools = json.loads(out.stdout)
+    assert any("scipy" in path for path in pools) and set(pools.values()) == {1}, pools

@@ -5,8 +5,8 @@ import pytest
 import torch
 from imaging_factory import learnable_scanset, make_representation
 
+from lesscli.io.checkpoint import load_checkpoint
 from lesscli.models.registry import build_decoder
-from lesscli.train.checkpoint import load_checkpoint
 from lesscli.train.config import LoopConfig
 from lesscli.train.image_fit import ImageFitConfig, ImageModelConfig, fit_imager
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from lesscli.errors import SimulationError
+from lesscli.geometry.rotations import euler_to_matrix
 from lesscli.io.sensor import xela_uscu
 from lesscli.sim import kinematics as kin
 
@@ -13,7 +14,7 @@ from lesscli.sim import kinematics as kin
 def test_rotation_matches_recorded_euler_convention():
     rng = np.random.default_rng(0)
     rpy = rng.uniform([-1, -1.2, -3], [1, 1.2, 3], size=(50, 3))
-    r = kin.rotation_matrices(rpy)
+    r = euler_to_matrix(rpy)
     np.testing.assert_allclose(np.einsum("nij,nkj->nik", r, r), np.broadcast_to(np.eye(3), r.shape), atol=1e-12)
     np.testing.assert_allclose(np.linalg.det(r), 1.0, atol=1e-12)
     # REFERENCE.md: roll = atan2(R21, R22), pitch = atan2(-R20, sqrt(R21^2 + R22^2)), yaw = atan2(R10, R00)

@@ -10,7 +10,7 @@ A checkpoint is a dict of tensors and plain Python values::
      "extra": {...}}
 
 Any checkpoint whose ``config["encoder"]`` is an encoder config and whose model state holds the
-encoder under the prefix ``encoder.`` can be opened with :func:`load_representation` (pretraining
+encoder under the prefix ``encoder.`` can be opened with ``lesscli.models.registry.load_representation`` (pretraining
 writes such files; an imaging model that keeps its encoder as the submodule ``encoder`` and copies
 the representation's ``config["encoder"]`` does too).
 """
@@ -105,27 +105,3 @@ def encoder_state(model_state: dict) -> dict:
     """The ``encoder.*`` entries of a state dict, prefix removed."""
     n = len(ENCODER_PREFIX)
     return {k[n:]: v for k, v in model_state.items() if k.startswith(ENCODER_PREFIX)}
-
-
-def load_representation(path: str, map_location: str | torch.device = "cpu"):
-    """Rebuild the encoder stored in a checkpoint.
-
-    Returns:
-        (encoder, checkpoint): the encoder in eval mode with its weights loaded, and the checkpoint
-        dict (``checkpoint["norm_stats"]`` normalises new data exactly as in training).
-    """
-    from lesscli.models.registry import build_encoder
-
-    ckpt = load_checkpoint(path, map_location)
-    enc_cfg = ckpt.get("config", {}).get("encoder")
-    if not isinstance(enc_cfg, dict) or "name" not in enc_cfg:
-        raise DataError(f"{path}: checkpoint config has no 'encoder' section; not a representation")
-    encoder = build_encoder(enc_cfg)
-    state = encoder_state(ckpt["model_state"])
-    try:
-        encoder.load_state_dict(state)
-    except RuntimeError as exc:
-        raise DataError(f"{path}: encoder weights do not match its config ({str(exc).splitlines()[0]})")
-    encoder.to(map_location)
-    encoder.eval()
-    return encoder, ckpt

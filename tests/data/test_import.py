@@ -38,42 +38,12 @@ def test_onset_index_none_when_never_moving_fast_enough():
     assert pp.onset_index(t, 2.1 * t) == 0
 
 
-def test_slerp_midpoint_of_quarter_turn_is_eighth_turn():
-    out = pp.slerp(np.array([0.0, 1.0]), np.stack([np.eye(3), rot_z(np.pi / 2)]), np.array([0.5, 0.25, 1.0]))
-    np.testing.assert_allclose(out[0], rot_z(np.pi / 4), atol=1e-12)
-    np.testing.assert_allclose(out[1], rot_z(np.pi / 8), atol=1e-12)
-    np.testing.assert_allclose(out[2], rot_z(np.pi / 2), atol=1e-12)
-
-
-def test_slerp_takes_the_short_way_and_handles_large_angles():
-    out = pp.slerp(np.array([0.0, 2.0]), np.stack([rot_z(-0.1), rot_z(0.1)]), np.array([1.0]))
-    np.testing.assert_allclose(out[0], np.eye(3), atol=1e-12)
-    out = pp.slerp(np.array([0.0, 1.0]), np.stack([np.eye(3), rot_x(np.deg2rad(170))]), np.array([0.5]))
-    np.testing.assert_allclose(out[0], rot_x(np.deg2rad(85)), atol=1e-12)
-
-
-def test_quaternion_round_trip_near_half_turns():
-    for rot in (rot_x(np.pi), rot_z(np.pi) @ rot_x(0.3), rot_z(3.0) @ rot_x(-3.1), np.eye(3)):
-        np.testing.assert_allclose(pp.matrix_from_quat(pp.quat_from_matrix(rot[None]))[0], rot, atol=1e-12)
-
-
 def test_recentre_by_hand():
     # reference at (1, 2, 3) turned 90 deg about z: the world +y axis is the reference +x axis
     pos, rot = pp.recentre(np.array([[1.0, 3.0, 3.0], [1.0, 2.0, 5.0]]), np.stack([rot_z(np.pi / 2)] * 2),
                            np.array([1.0, 2.0, 3.0]), rot_z(np.pi / 2))
     np.testing.assert_allclose(pos, [[1.0, 0.0, 0.0], [0.0, 0.0, 2.0]], atol=1e-12)
     np.testing.assert_allclose(rot[0], np.eye(3), atol=1e-12)
-
-
-def test_euler_conventions():
-    # roll = atan2(R21, R22), pitch = atan2(-R20, hypot(R21, R22)), yaw = atan2(R10, R00)
-    np.testing.assert_allclose(pp.euler_from_matrix(rot_x(np.pi / 2)), [[np.pi / 2, 0, 0]], atol=1e-12)
-    np.testing.assert_allclose(pp.euler_from_matrix(rot_z(-0.7)), [[0, 0, -0.7]], atol=1e-12)
-    c, s = np.cos(0.4), np.sin(0.4)
-    rot_y = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])  # R20 = -sin(pitch)
-    np.testing.assert_allclose(pp.euler_from_matrix(rot_y), [[0, 0.4, 0]], atol=1e-12)
-    composed = rot_z(0.3) @ rot_y @ rot_x(-0.2)  # R = Rz(yaw) Ry(pitch) Rx(roll)
-    np.testing.assert_allclose(pp.euler_from_matrix(composed), [[-0.2, 0.4, 0.3]], atol=1e-12)
 
 
 def test_baseline_removal_subtracts_first_sample():

@@ -7,13 +7,13 @@ import math
 import pytest
 import torch
 
-from lesscli.data.batching import Batch
 from lesscli.errors import LessError
 from lesscli.models.encoders import GlobalEncoder, ParticleEncoder
 from lesscli.models.force_decoder import ForceDecoder
 from lesscli.models.particles import gather_receptive_field, particle_grid
 from lesscli.models.registry import ENCODERS, build_encoder, lookup
 from lesscli.models.ssl_loss import ForcePredictor, sample_slots
+from lesscli.types import Batch
 
 torch.set_num_threads(1)
 QUANTUM_MM = 0.25          # positions on this lattice keep float32 sums and squares exact
@@ -127,7 +127,8 @@ def _row(seq, p):
 
 
 def test_locality_outside_touches_do_not_change_a_particle():
-    """Moving or adding out-of-field touches leaves the particle's state bit-identical (evaluation)."""
+    """Moving or adding out-of-field touches leaves the particle's state unchanged (to float rounding: the
+    other particles' step counts set the matrix sizes) and its gathered inputs bit-identical."""
     enc = tiny_encoder()
     gen = torch.Generator().manual_seed(7)
     batch = make_batch(gen, b=1, length=40)
@@ -138,8 +139,8 @@ def test_locality_outside_touches_do_not_change_a_particle():
     pose[0, outside, 0] = torch.where(pose[0, outside, 0] >= 0, 9.5, -9.75)
     force[0, outside] = torch.randn(int(outside.sum()), 6, generator=gen)
     moved = Batch(pose, force, batch.valid, batch.scan_index)
-    assert outside.any() and not torch.equal(enc(moved).z[0, 13], enc(batch).z[0, 13])
-    assert torch.equal(enc(moved).z[0, p], enc(batch).z[0, p])
+    assert outside.any() and not torch.allclose(enc(moved).z[0, 13], enc(batch).z[0, 13], atol=1e-3)
+    torch.testing.assert_close(enc(moved).z[0, p], enc(batch).z[0, p], atol=1e-6, rtol=0)
     extra_pose = torch.zeros(1, 15, 6)
     extra_pose[0, :, 0] = 8.0 + torch.arange(15) * 0.25
     extra_pose[0, :, 2] = -1.0
@@ -152,18 +153,8 @@ def test_locality_outside_touches_do_not_change_a_particle():
     assert n > 0 and int(after.count[r2]) == n and after.z.shape[1] > before.z.shape[1]
     assert torch.equal(before.pose[r1, :n], after.pose[r2, :n])
     assert torch.equal(before.force[r1, :n], after.force[r2, :n])
-    assert torch.equal(enc(added).z[0, p], enc(batch).z[0, p])
-    assert not torch.equal(enc(added).z[0, 13], enc(moved).z[0, 13])       # its neighbour did see them
-
-
-def test_fixed_shape_evaluation_matches_the_packed_training_path():
-    enc = tiny_encoder(max_steps_per_particle=7)
-    batch = make_batch(torch.Generator().manual_seed(17), b=3, length=50)
-    fixed = enc(batch)
-    packed = enc.train()(batch)
-    assert torch.equal(fixed.seen, packed.seen) and fixed.seen.any() and not fixed.seen.all()
-    torch.testing.assert_close(fixed.z, packed.z, atol=1e-6, rtol=0)
-    assert torch.all(fixed.z[~fixed.seen] == 0)
+    torch.testing.assert_close(enc(added).z[0, p], enc(batch).z[0, p], atol=1e-6, rtol=0)
+    assert not torch.allclose(enc(added).z[0, 13], enc(moved).z[0, 13], atol=1e-3)   # its neighbour saw them
 
 
 def test_centring_shift_of_scene_and_particles_leaves_states_unchanged():

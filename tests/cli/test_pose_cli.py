@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
+from lesscli.geometry import rotations
 from lesscli.io.scans import load_scans
-from lesscli.vision import se3
 from lesscli.vision.camera import default_camera, save_camera
 
 
@@ -88,14 +88,14 @@ def _write_streams(tmp_path, rng):
     t = np.arange(0, 20, 1 / 30)
     pos = np.stack([50 * np.sin(0.8 * t), 40 * np.sin(1.3 * t + 1), 20 * np.sin(0.5 * t)], axis=1)
     rv = np.stack([0.2 * np.sin(t), 0.1 * np.cos(0.7 * t), 0.3 * np.sin(0.3 * t)], axis=1)
-    rot_true = se3.rotvec_to_matrix(np.array([0.2, 0.9, -0.4]))
+    rot_true = rotations.rotvec_to_matrix(np.array([0.2, 0.9, -0.4]))
     t_true = np.array([300.0, 20.0, -150.0])
     est = tmp_path / "est.jsonl"
     noisy = pos + rng.normal(0, 0.5, pos.shape)
     est.write_text("".join(json.dumps({"frame": i, "t": float(t[i]), "position_mm": noisy[i].tolist(),
                                        "rotvec_rad": rv[i].tolist(), "ok": True}) + "\n" for i in range(len(t))))
     robot = tmp_path / "robot.npz"
-    np.savez(robot, time_s=t, position_mm=pos @ rot_true.T + t_true, rotation=rot_true @ se3.rotvec_to_matrix(rv))
+    np.savez(robot, time_s=t, position_mm=pos @ rot_true.T + t_true, rotation=rot_true @ rotations.rotvec_to_matrix(rv))
     return est, robot, rot_true, t_true
 
 

@@ -7,12 +7,11 @@ with their own rotation, not the toolkit's); the round trip runs the CLI on simu
 import json
 import math
 from dataclasses import asdict
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from factories import sphere_labels
+from factories import REPO, sphere_labels
 
 from lesscli.data.ops import split, subsample
 from lesscli.infer import forcemap as fm
@@ -146,10 +145,6 @@ def _one_line_error(proc, name: str) -> str:
     return err
 
 
-def _repo_root() -> Path:
-    return Path(__file__).resolve().parents[1]
-
-
 def test_cli_round_trip_on_held_out_simulated_inserts(tmp_path, run_less):
     """Fit on 6 simulated inserts, image 2 others (both orientations).
 
@@ -160,7 +155,7 @@ def test_cli_round_trip_on_held_out_simulated_inserts(tmp_path, run_less):
     """
     _ok(run_less("simulate", "examples/scenes/quick.toml", "-o", tmp_path / "raw.npz", "--set", "motion.n_traj=25",
                  "--set", "phantoms.set=single", "--set", f"phantoms.names={json.dumps(SMALL_SET)}",
-                 "--set", "phantoms.orientations=[0,4]", cwd=_repo_root()))
+                 "--set", "phantoms.orientations=[0,4]", cwd=REPO))
     parts = split(subsample(load_scans(str(tmp_path / "raw.npz")), every=50), "insert", 0.25, 0.0,
                   np.random.default_rng(0))
     for key, part in parts.items():

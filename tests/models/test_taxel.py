@@ -8,15 +8,15 @@ import math
 import numpy as np
 import pytest
 import torch
-from factories import random_scanset
-from test_pretrain import tiny_cfg
+from factories import random_scanset, tiny_cfg
 
-from lesscli.data.batching import Batch, compute_norm_stats
+from lesscli.data.batching import compute_norm_stats
 from lesscli.errors import DataError
 from lesscli.io.sensor import xela_uscu
 from lesscli.models.registry import ENCODERS, build_encoder
 from lesscli.models.taxel import TaxelParticleEncoder, taxel_xy
 from lesscli.train.pretrain import build_model, pretrain
+from lesscli.types import Batch
 
 torch.set_num_threads(1)
 LAYOUT = xela_uscu()["taxel_xy_mm"]

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 from factories import random_scanset
-from test_stream import save_tiny_imager, tiny_imager
+from imaging_factory import save_tiny_imager, tiny_imager
 
 from lesscli.infer.guide import (
     GuideOptions,
@@ -18,7 +18,7 @@ from lesscli.infer.guide import (
     pixel_centres_mm,
     suggest_touches,
 )
-from lesscli.models.patch_decoder import ImageGrid
+from lesscli.types import ImageGrid
 
 GRID = ImageGrid((1, 61, 61), (0.0, -30.0, -30.0), (0.9, 1.0, 1.0))     # 1 mm pixels, x = y = 0 at [30, 30]
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from lesscli.errors import DataError
+from lesscli.geometry import rotations
 from lesscli.vision import render, se3
 from lesscli.vision.camera import default_camera, load_camera
 from lesscli.vision.detect import tag_object_points
@@ -36,13 +37,13 @@ def _detections(T_global, T_sensors):
 
 def test_chain_and_tag_to_sensor_offset():
     traj = render.make_trajectory(np.random.default_rng(0), 5, step=20)
-    offset = se3.make_T(se3.rotvec_to_matrix(np.array([0.0, 0.3, 0.1])), [5.0, -12.0, 30.0])
+    offset = se3.make_T(rotations.rotvec_to_matrix(np.array([0.0, 0.3, 0.1])), [5.0, -12.0, 30.0])
     opts = TrackOptions(T_stag_sensor=offset)
     rows = list(solve_frames(CAM, _detections(traj["T_cam_global"], traj["T_cam_sensor_tag"]), opts))
     true = se3.inv_T(traj["T_cam_global"]) @ traj["T_cam_sensor_tag"] @ offset
     est = se3.pose_to_T(np.array([r["position_mm"] for r in rows]), np.array([r["rotvec_rad"] for r in rows]))
     assert np.abs(est[:, :3, 3] - true[:, :3, 3]).max() < 1e-3
-    assert se3.rotation_angle(np.swapaxes(true[:, :3, :3], 1, 2) @ est[:, :3, :3]).max() < 1e-6
+    assert rotations.rotation_angle(np.swapaxes(true[:, :3, :3], 1, 2) @ est[:, :3, :3]).max() < 1e-6
 
 
 def test_static_global_tag_falls_back_per_frame_when_it_moves():

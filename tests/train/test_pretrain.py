@@ -4,33 +4,24 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from factories import poke_scanset, random_scanset
+from factories import REPO, poke_scanset, random_scanset, tiny_cfg
 
 from lesscli.data.batching import ScanDataset, batches, collate, compute_norm_stats
 from lesscli.errors import LessError, TrainingError
+from lesscli.io.checkpoint import load_checkpoint, save_checkpoint
 from lesscli.io.scans import save_scans
+from lesscli.models.registry import load_representation
 from lesscli.train import loop as loop_mod
 from lesscli.train import pretrain as pretrain_mod
-from lesscli.train.checkpoint import load_checkpoint, load_representation, save_checkpoint
 from lesscli.train.config import LoopConfig, PretrainConfig, load_config
 from lesscli.train.pretrain import build_model, pretrain
 
 torch.set_num_threads(1)
-REPO = Path(__file__).resolve().parents[1]
 
-
-def tiny_cfg(**train) -> PretrainConfig:
-    cfg = PretrainConfig()
-    cfg.model.dim, cfg.model.n_freq, cfg.model.spacing_mm, cfg.model.grid_extent_mm = 16, 4, 8.0, 48.0
-    cfg.train.epochs, cfg.train.lr, cfg.train.device = 2, 3e-3, "cpu"
-    for k, v in train.items():
-        setattr(cfg.train, k, v)
-    return cfg
 
 
 # ------------------------------------------------------------------------------------------- config

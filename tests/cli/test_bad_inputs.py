@@ -24,9 +24,9 @@ from imaging_factory import learnable_scanset, make_representation
 from lesscli.cli.main import main
 from lesscli.errors import DataError
 from lesscli.infer.stream import parse_live_line
+from lesscli.io.checkpoint import FORMAT
 from lesscli.io.predictions import PredictionSet, ScanPrediction, save_predictions
 from lesscli.io.scans import save_scans, to_arrays
-from lesscli.train.checkpoint import FORMAT
 
 # ---------------------------------------------------------------------------------------------- harness
 
@@ -699,12 +699,12 @@ def _run_ok(capsys, args) -> tuple[str, str]:
 
 def test_a_scan_without_touches_images_as_nothing_known(capsys, in_tmp):
     """simulate -> (one scan left untouched) -> pretrain -> fit -> predict -> metrics, guide, noise-sweep."""
-    from test_simulate_cli import SCENE
+    from factories import TINY_SCENE
 
     from lesscli.io.predictions import load_predictions
     from lesscli.io.scans import load_scans
 
-    (in_tmp / "tiny.toml").write_text(SCENE)
+    (in_tmp / "tiny.toml").write_text(TINY_SCENE)
     _run_ok(capsys, ["-q", "simulate", "tiny.toml", "-o", "raw.npz"])
     raw = load_scans("raw.npz")
     save_scans("scans.npz", raw.select_trajectories(raw.traj_scan != 0))

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 from factories import random_scanset
-from test_stream import save_tiny_imager
+from imaging_factory import save_tiny_imager
 
 from lesscli.io.scans import save_scans
 
@@ -104,3 +104,37 @@ def test_bench_stream_tiny_run_and_bad_input(run_less):
     missing = run_less("bench", "stream", "--model", "nope.pt", "--steps", "5")
     err = missing.stderr.decode().strip()
     assert missing.returncode == 1 and "nope.pt" in err and len(err.splitlines()) == 1
+
+
+def test_stream_and_guide_label_with_the_models_rule(files, run_less, tmp_path):
+    """The labelling rule stored in the checkpoint (threshold, smallest kept inclusion region) is the one
+    ``stream`` and ``guide`` use, as ``image predict`` does; ``--threshold``/``--min-volume-mm3`` override it."""
+    from imaging_factory import tiny_imager
+
+    from lesscli.io.checkpoint import save_checkpoint
+
+    folder, scans = files
+    imager, stats, config = tiny_imager(gain=4.0)
+    config["image"].update(threshold=None, min_volume_mm3=1e9)        # every inclusion region is too small
+    save_checkpoint(str(tmp_path / "rule.pt"), imager.state_dict(), config, stats, [])
+
+    def final_inclusion(*opts):
+        rows = _records(run_less("stream", tmp_path / "rule.pt", folder / "s.npz", *opts, check=True))
+        return [max((r for r in rows if r["scan"] == s), key=lambda r: r["step"])["inclusion_voxels"]
+                for s in range(scans.n_scans)]
+
+    kept = final_inclusion("--min-volume-mm3", "0")
+    assert sum(kept) > 0, "the test model must mark some inclusion for the rule to matter"
+    assert final_inclusion() == [0] * scans.n_scans
+    run_less("image", "predict", tmp_path / "rule.pt", folder / "s.npz", "-o", tmp_path / "p.npz",
+             "--min-volume-mm3", "0", check=True)
+    from lesscli.io.predictions import load_predictions
+
+    assert kept == [int((p.label == 3).sum()) for p in load_predictions(str(tmp_path / "p.npz")).scans]
+
+    from lesscli.infer.guide import GuideOptions, guide_scan
+
+    opts = GuideOptions(2, None, None, 3.0, "entropy")
+    ckpt = {"config": config, "norm_stats": stats}
+    assert not (guide_scan(imager, ckpt, scans, 0, opts).labels == 3).any()
+    assert (guide_scan(imager, ckpt, scans, 0, opts, min_volume_mm3=0.0).labels == 3).sum() == kept[0]

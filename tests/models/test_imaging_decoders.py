@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from lesscli.models.global_decoder import GlobalDecoder
-from lesscli.models.patch_decoder import ImageGrid, PatchDecoder, place_patches
+from lesscli.models.patch_decoder import PatchDecoder, place_patches
+from lesscli.types import ImageGrid
 
 SPACING = (0.9, 0.4774, 0.4774)
 

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from lesscli.geometry import rotations
 from lesscli.vision import render, se3
 from lesscli.vision.camera import Camera, default_camera
 from lesscli.vision.detect import TagDetector, solve_tag_pose, tag_object_points
@@ -66,9 +67,9 @@ def test_planar_ambiguity_picks_the_true_pose_from_exact_corners():
     cam = default_camera()
     T = se3.make_T(render.facing_rotation(np.array([0.45, -0.2, 0.1])), [60.0, 30.0, 600.0])
     pose = solve_tag_pose(cam, _true_corners(cam, T), TAG_MM)
-    assert se3.rotation_angle(T[:3, :3].T @ pose.T_cam_tag[:3, :3]) < 1e-6
+    assert rotations.rotation_angle(T[:3, :3].T @ pose.T_cam_tag[:3, :3]) < 1e-6
     assert pose.alternative is not None
-    assert se3.rotation_angle(T[:3, :3].T @ pose.alternative[:3, :3]) > np.deg2rad(5)
+    assert rotations.rotation_angle(T[:3, :3].T @ pose.alternative[:3, :3]) > np.deg2rad(5)
 
 
 @pytest.fixture(scope="module")
@@ -87,7 +88,7 @@ def rendered_set():
 def test_rendered_set_spans_the_required_range(rendered_set):
     _, traj, _ = rendered_set
     depth = traj["T_cam_sensor_tag"][:, 2, 3]
-    tilt = np.rad2deg(se3.rotation_angle(np.diag([1.0, -1.0, -1.0]) @ traj["T_cam_sensor_tag"][:, :3, :3]))
+    tilt = np.rad2deg(rotations.rotation_angle(np.diag([1.0, -1.0, -1.0]) @ traj["T_cam_sensor_tag"][:, :3, :3]))
     assert depth.min() >= 350 and depth.max() <= 700 and depth.max() - depth.min() > 150
     assert tilt.max() <= 35.0 and tilt.max() > 20.0
 
@@ -99,7 +100,7 @@ def _pose_errors(cam, traj, frames, refine, mode="static"):
     est = se3.pose_to_T(np.array([r["position_mm"] for r in rows]), np.array([r["rotvec_rad"] for r in rows]))
     true = se3.inv_T(traj["T_cam_global"]) @ traj["T_cam_sensor_tag"]
     pos = np.linalg.norm(est[:, :3, 3] - true[:, :3, 3], axis=1)
-    ang = np.rad2deg(se3.rotation_angle(np.swapaxes(true[:, :3, :3], 1, 2) @ est[:, :3, :3]))
+    ang = np.rad2deg(rotations.rotation_angle(np.swapaxes(true[:, :3, :3], 1, 2) @ est[:, :3, :3]))
     return pos, ang, rows
 
 
