@@ -14,6 +14,8 @@ Every function accepts a single item or leading batch axes.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 AXES = "xyz"
@@ -43,6 +45,15 @@ def axis_rotation(axis: str, angle_rad: np.ndarray | float) -> np.ndarray:
     out[..., i, i] = 1.0
     out[..., j, j], out[..., j, k] = c, -s
     out[..., k, j], out[..., k, k] = s, c
+    return out
+
+
+def turn_xy(points: np.ndarray, angle_rad: float) -> np.ndarray:
+    """A copy of ``points`` (..., >= 2) with x and y turned by ``angle_rad`` about z (other columns kept)."""
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    out = np.array(points, dtype=np.result_type(points, np.float64), copy=True)
+    out[..., 0] = c * points[..., 0] - s * points[..., 1]
+    out[..., 1] = s * points[..., 0] + c * points[..., 1]
     return out
 
 

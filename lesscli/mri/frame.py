@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lesscli.errors import DataError
+from lesscli.geometry.rotations import turn_xy
 from lesscli.io.labels import BACKGROUND, INCLUSION, INSERT, LabelVolume
 
 SLAB_MM = 0.25                  # slab thickness along the axis for the top surface
@@ -171,8 +172,7 @@ def resample(labels: np.ndarray, affine: np.ndarray, frame: InsertFrame, shape=(
     axes = [origin[a] + spacing_mm[a] * np.arange(shape[a]) for a in range(3)]
     z, y, x = np.meshgrid(*axes, indexing="ij")
     back = math.radians(-STEP_DEG * orientation)           # sample the unrotated insert at R_k^-1 q
-    c, s = math.cos(back), math.sin(back)
-    pts = np.stack([(c * x - s * y).ravel(), (s * x + c * y).ravel(), z.ravel()], axis=1)
+    pts = turn_xy(np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1), back)
     world = frame.to_world(pts)
     inv = np.linalg.inv(np.asarray(affine, dtype=np.float64))
     idx = np.rint(inv[:3, 3] + world[:, 0:1] * inv[:3, 0] + world[:, 1:2] * inv[:3, 1]

@@ -18,6 +18,7 @@ import os
 import numpy as np
 
 from lesscli.errors import DataError
+from lesscli.geometry.rotations import turn_xy
 from lesscli.io.labels import INCLUSION, INSERT, PILLAR, LabelVolume
 from lesscli.phantom.geometry import DEFAULT_LABEL_SHAPE, DEFAULT_LABEL_SPACING_MM, label_grid_origin
 
@@ -81,14 +82,6 @@ def contains_on_grid(triangles: np.ndarray, z_mm: np.ndarray, y_mm: np.ndarray, 
     return np.transpose(inside, (2, 0, 1))
 
 
-def _rotate(vertices: np.ndarray, k: int) -> np.ndarray:
-    ang = k * math.pi / 4
-    c, s = math.cos(ang), math.sin(ang)
-    out = vertices.copy()
-    out[:, 0], out[:, 1] = c * vertices[:, 0] - s * vertices[:, 1], s * vertices[:, 0] + c * vertices[:, 1]
-    return out
-
-
 def stl_label_volume(insert_path: str, inclusion_paths=(), pillar_paths=(), orientation: int = 0,
                      shape=DEFAULT_LABEL_SHAPE, spacing_mm=DEFAULT_LABEL_SPACING_MM, frame: str = "auto",
                      name: str | None = None) -> tuple[LabelVolume, dict]:
@@ -108,7 +101,7 @@ def stl_label_volume(insert_path: str, inclusion_paths=(), pillar_paths=(), orie
     data = np.zeros(shape, dtype=np.uint8)
     for key, code in (("insert", INSERT), ("pillar", PILLAR), ("inclusion", INCLUSION)):
         for mesh in meshes[key]:
-            verts = _rotate(np.asarray(mesh.vertices, dtype=np.float64) + shift, orientation)
+            verts = turn_xy(np.asarray(mesh.vertices, dtype=np.float64) + shift, orientation * math.pi / 4)
             data[contains_on_grid(verts[np.asarray(mesh.faces)], *axes)] = code
     base = name or os.path.splitext(os.path.basename(insert_path))[0]
     spec = {"schema": "less.phantom-stl", "version": 1, "name": base, "orientation": int(orientation) % 8,

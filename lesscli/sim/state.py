@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from lesscli.geometry.rotations import turn_xy
 from lesscli.phantom.geometry import Phantom
 
 # Pipeline slots in execution order; every stage sits in one slot.
@@ -111,10 +112,7 @@ class Stage:
 def rotate_pose(pose: np.ndarray, k: int) -> np.ndarray:
     """(n, 6) poses rotated by k * 45 deg about z (x, y and yaw; roll/pitch are pad-frame angles)."""
     ang = k * ORIENTATION_STEP_RAD
-    c, s = math.cos(ang), math.sin(ang)
-    out = np.array(pose, dtype=np.float64, copy=True)
-    out[:, 0] = c * pose[:, 0] - s * pose[:, 1]
-    out[:, 1] = s * pose[:, 0] + c * pose[:, 1]
+    out = turn_xy(pose, ang)
     out[:, 5] = pose[:, 5] + ang
     return out
 

@@ -1,5 +1,7 @@
 """Rotations: one table cross-checked against scipy.spatial.transform, then hand-derived values."""
 
+import math
+
 import numpy as np
 import pytest
 from published_fixture import rot_x, rot_z
@@ -161,3 +163,14 @@ def test_euler_conventions():
     np.testing.assert_allclose(rot.matrix_to_euler(rot_y[None]), [[0, 0.4, 0]], atol=1e-12)
     composed = rot_z(0.3) @ rot_y @ rot_x(-0.2)  # R = Rz(yaw) Ry(pitch) Rx(roll)
     np.testing.assert_allclose(rot.matrix_to_euler(composed[None]), [[-0.2, 0.4, 0.3]], atol=1e-12)
+
+
+@pytest.mark.parametrize("angle", [0.0, math.pi / 4, -3 * math.pi / 4, 2.0])
+def test_turn_xy_is_the_z_rotation_and_keeps_other_columns(angle):
+    rng = np.random.default_rng(3)
+    points = rng.normal(0, 10, (7, 4))
+    want = Rotation.from_euler("z", angle).apply(np.column_stack([points[:, :2], np.zeros(7)]))[:, :2]
+    turned = rot.turn_xy(points, angle)
+    np.testing.assert_allclose(turned[:, :2], want, atol=1e-12)
+    np.testing.assert_array_equal(turned[:, 2:], points[:, 2:])
+    assert turned is not points and np.array_equal(rot.turn_xy(points[:, :2], 0.0), points[:, :2])
