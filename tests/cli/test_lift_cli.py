@@ -185,11 +185,14 @@ def test_interrupt_mid_move_drops_torque(cfg_path, sig, code):
 
     emulator = ServoEmulator(lift_servos(load_config(str(cfg_path))), time_scale=1.0)  # homing takes seconds
     with PtyEmulator(emulator) as pty:
-        # a suite started in the background (`make test &`) ignores SIGINT, and children inherit that: give
-        # the command the default disposition, as an interactive shell would
-        proc = subprocess.Popen([str(BIN / "less"), "lift", "--port", pty.port, "--config", str(cfg_path), "home"],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        # a suite started in the background (`make test &`) ignores SIGINT, and a child inherits an ignored
+        # signal; a handled one is reset to the default at exec, as an interactive shell would give it
+        previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+        try:
+            proc = subprocess.Popen([str(BIN / "less"), "lift", "--port", pty.port, "--config", str(cfg_path),
+                                     "home"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        finally:
+            signal.signal(signal.SIGINT, previous)
         try:
             first = json.loads(proc.stdout.readline())
             assert first["event"] == "homing" and first["torque"][0] is True
