@@ -52,20 +52,38 @@ def load_average() -> float:
         return 0.0
 
 
-def runnable_now(path: str = "/proc/loadavg") -> float | None:
-    """Other processes runnable right now: the mean over a short sample of the kernel's runnable count
-    (4th field of ``/proc/loadavg``, ``running/total``) less this process; None where there is no such
-    file."""
+def runnable_now(path: str = "/proc/loadavg", own_tasks: str = "/proc/self/task") -> float | None:
+    """Other processes' threads runnable right now: the mean over a short sample of the kernel's runnable
+    count (4th field of ``/proc/loadavg``, ``running/total``) less this process's own running threads
+    (``own_tasks``; a thread pool still spinning after its last job is runnable too, and at least the
+    thread reading); None where there is no such file."""
     counts = []
     for i in range(LOAD_SAMPLES):
         try:
             with open(path) as f:
-                counts.append(int(f.read().split()[3].split("/")[0]))
+                running = int(f.read().split()[3].split("/")[0])
         except (OSError, IndexError, ValueError):
             return None
+        counts.append(running - max(1, _own_running(own_tasks)))
         if i + 1 < LOAD_SAMPLES:
             time.sleep(SAMPLE_GAP_S)
-    return max(0.0, sum(counts) / len(counts) - 1)
+    return max(0.0, sum(counts) / len(counts))
+
+
+def _own_running(own_tasks: str) -> int:
+    """Threads of this process in state R (0 where the task folder cannot be read)."""
+    try:
+        tids = os.listdir(own_tasks)
+    except OSError:
+        return 0
+    n = 0
+    for tid in tids:
+        try:
+            with open(os.path.join(own_tasks, tid, "stat")) as f:
+                n += f.read().rsplit(")", 1)[1].split()[0] == "R"
+        except (OSError, IndexError):
+            continue
+    return n
 
 
 def combined_load(average: float, now: float | None, starting: float = 0.0) -> float:

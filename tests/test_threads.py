@@ -43,9 +43,15 @@ def test_others_load_is_the_smaller_of_average_and_sample(average, now, starting
 
 
 def test_runnable_now_reads_the_kernel_count_less_this_process(tmp_path):
-    fake = tmp_path / "loadavg"
-    fake.write_text("1.90 0.80 0.40 3/412 98765\n")
-    assert runnable_now(str(fake)) == 2.0
+    fake, tasks = tmp_path / "loadavg", tmp_path / "task"
+    fake.write_text("1.90 0.80 0.40 4/412 98765\n")
+    for tid, state in (("11", "R"), ("12", "S"), ("13", "R")):     # the reader and a spinning pool thread
+        (tasks / tid).mkdir(parents=True)
+        (tasks / tid / "stat").write_text(f"{tid} (py thon) {state} 1 2 3\n")
+    assert runnable_now(str(fake), str(tasks)) == 2.0
+    (tasks / "13" / "stat").write_text("13 (py thon) S 1 2 3\n")
+    assert runnable_now(str(fake), str(tasks)) == 3.0
+    assert runnable_now(str(fake), str(tmp_path / "no-tasks")) == 3.0    # unreadable: at least the reader
     fake.write_text("garbage\n")
     assert runnable_now(str(fake)) is None
     assert runnable_now(str(tmp_path / "missing")) is None
