@@ -125,14 +125,21 @@ def choose_threads(cores: int, load: float, work: Work = "throughput", size: flo
 
 
 def apply_threads(work: Work = "throughput", size: float = 0, override: int | None = None, jobs: int = 1,
-                  torch_too: bool = True, extra_load: float = 0.0) -> int:
+                  torch_too: bool = True, extra_load: float = 0.0, load: float | None = None) -> int:
     """Choose threads for each of ``jobs`` processes from the machine's free cores, set them here (before
     the workers fork), and return the count. ``torch_too=False`` leaves torch unimported (numpy work);
-    ``extra_load`` counts busy processes started too recently for the 1-minute load to show them."""
-    load = other_load(extra_load)
-    n = choose_threads(usable_cores(), load, work, size, override, jobs)
+    ``extra_load`` counts busy processes started too recently for the 1-minute load to show them; ``load``
+    is the others' load when the caller has read it already (the machine is read once, and not at all
+    with ``override``)."""
+    log = logging.getLogger("less")
+    if override is not None:
+        n = choose_threads(usable_cores(), 0.0, work, size, override, jobs)
+        log.info("threads: %d (--threads)", n)
+    else:
+        load = other_load(extra_load) if load is None else load
+        n = choose_threads(usable_cores(), load, work, size, override, jobs)
+        log.info("threads: %d (cores %d, others' load %.2f)", n, usable_cores(), load)
     set_threads(n, torch_too)
-    logging.getLogger("less").info("threads: %d (cores %d, others' load %.2f)", n, usable_cores(), load)
     return n
 
 

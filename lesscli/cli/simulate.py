@@ -41,8 +41,9 @@ def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | No
     i_n = parse_shard(shard)
     scene = load_scene(scene_path, overrides, options={"seed": seed})
     config_resolved(scene_document(scene))
-    jobs = min(jobs or free_cores(usable_cores(), other_load()), max(1, len(scan_jobs(scene, i_n))))
-    threads = apply_threads("throughput", jobs=jobs, torch_too=False)     # per worker: --jobs splits the cores
+    load = other_load()                                                     # read the machine once
+    jobs = min(jobs or free_cores(usable_cores(), load), max(1, len(scan_jobs(scene, i_n))))
+    threads = apply_threads("throughput", jobs=jobs, torch_too=False, load=load)   # per worker: --jobs splits the cores
     scans = simulate(scene, jobs=jobs, shard=i_n,
                      progress=lambda it, total: progress(it, total=total, desc="scans", unit="scan"))
     scans.meta = append_history(scans.meta, seed=scene.seed)
