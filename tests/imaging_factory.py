@@ -72,7 +72,8 @@ HALF_MM = 18.0                      # outermost particle row/column
 
 
 def tiny_imager(dim: int = 2, cap: int | None = None, encoder: str = "less", seed: int = 0,
-                grid: ImageGrid | None = None, gain: float = 8.0, stitch: str = "sum") -> tuple[Imager, dict, dict]:
+                grid: ImageGrid | None = None, gain: float = 8.0, stitch: str = "sum",
+                context: int = 0) -> tuple[Imager, dict, dict]:
     """A randomly initialised imager, its norm stats, and the checkpoint config that rebuilds it.
 
     ``gain`` scales the decoder's last layer so logits are O(10) and a 1e-4 tolerance is strict.
@@ -85,7 +86,8 @@ def tiny_imager(dim: int = 2, cap: int | None = None, encoder: str = "less", see
             enc = ParticleEncoder(FORCE_DIM, dim=8, spacing_mm=SPACING_MM, grid_extent_mm=EXTENT_MM,
                                   receptive_field_mm=RADIUS_MM, max_steps_per_particle=cap, n_freq=4)
             dec = {"name": "patch", "d_z": 8, "n_classes": 4, "dim": dim, "width": 8, "patch_px": 8,
-                   "depth_px": grid.shape[0], "patch_spacing_mm": [0.9, 1.0, 1.0], "stitch": stitch}
+                   "depth_px": grid.shape[0], "patch_spacing_mm": [0.9, 1.0, 1.0], "stitch": stitch,
+                   **({"context": context} if context else {})}
         else:
             enc = GlobalEncoder(FORCE_DIM, dim=8, max_steps_per_particle=cap, n_freq=4)
             dec = {"name": "global", "d_z": 8, "n_classes": 4, "dim": dim, "width": 8, "shape": list(grid.shape)}

@@ -14,7 +14,9 @@ it has seen. A new sample
    :mod:`lesscli.models.patch_decoder`), adds each new patch to and subtracts its old one from the
    summed logit canvas (one slice per particle: the patch's part on the image grid), so only the
    pixels under those patches change. With the decoder's ``stitch="mean"`` a coverage count of the
-   seen patches per pixel is kept too, and the image is the sum divided by it.
+   seen patches per pixel is kept too, and the image is the sum divided by it. With the decoder's
+   neighbour context (``context=k``) the particles whose context reads an advanced one are re-decoded
+   too (up to k^2 times as many patches per update).
 
 **Step cap.** The batch encoder keeps each particle's *earliest* ``max_steps_per_particle`` in-field
 steps and drops later ones. The stream does the same: a particle whose count has reached the cap ignores
@@ -31,10 +33,12 @@ after each advancing sample; the result is still exact, just not local.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from lesscli.errors import DataError
@@ -103,7 +107,13 @@ class PatchCanvas:
         self.placed = [False] * len(self.placed)
 
     def update(self, particles: Tensor, z: Tensor, hidden: Tensor, seen: Tensor) -> None:
-        """Re-decode ``particles`` (k,) from their states ``z`` (k, d_z) and update the canvas."""
+        """Re-decode ``particles`` (k,) from their states ``z`` (k, d_z) and update the canvas.
+
+        With a neighbour context (``decoder.context``) every particle within reach of the convolution
+        is re-decoded too, from the whole grid's states ``hidden`` (P, d_z) and ``seen`` (P,)."""
+        if self.decoder.context:
+            particles = self.within_context(particles, seen)
+            z = self.decoder.with_context(hidden[None], seen[None])[0, particles]
         new = resample_patches(self.decoder.patches(z[None]), self.size)[0]    # (k, C, D, ph, pw)
         for j, p in enumerate(particles.tolist()):
             if self.place[p] is None:
@@ -115,6 +125,15 @@ class PatchCanvas:
             if not self.placed[p]:
                 self.cover[on_grid[1:]] += 1.0
                 self.placed[p] = True
+
+    def within_context(self, particles: Tensor, seen: Tensor) -> Tensor:
+        """(k,) particle indices -> every seen particle whose context convolution reads one of them
+        (an unseen particle places no patch)."""
+        n, reach = math.isqrt(len(self.placed)), self.decoder.context
+        mask = torch.zeros(len(self.placed), device=particles.device)
+        mask[particles] = 1.0
+        grown = F.max_pool2d(mask.view(1, 1, n, n), reach, stride=1, padding=reach // 2)
+        return (grown.reshape(-1).bool() & seen).nonzero()[:, 0]
 
     def logits(self) -> Tensor:
         """(C, D, H, W) float32 summed logits (0 where no seen particle's patch reaches)."""
@@ -148,7 +167,8 @@ PARTICLES_PER_TOUCH = 10        # particles a touch typically reaches (default m
 
 def update_work(imager: torch.nn.Module) -> int:
     """Floating-point operations of one stream update, roughly: each particle a touch reaches takes a
-    step through the encoder's weights and re-decodes its patch (counted by torch's flop counter)."""
+    step through the encoder's weights and re-decodes its patch (counted by torch's flop counter), and
+    so does every particle whose neighbour context reads one of them."""
     from torch.utils.flop_counter import FlopCounterMode
 
     decoder = imager.decoder
@@ -159,7 +179,9 @@ def update_work(imager: torch.nn.Module) -> int:
             decoder.patches(torch.zeros(1, 1, decoder.inp.in_features))
         per_patch = counter.get_total_flops()
     encoder = 2 * sum(p.numel() for p in imager.encoder.parameters())
-    return PARTICLES_PER_TOUCH * (encoder + per_patch)
+    reach = getattr(decoder, "context", 0) or 1             # a context re-decodes the advanced ones' neighbours
+    decoded = (math.sqrt(PARTICLES_PER_TOUCH) + reach - 1) ** 2
+    return round(PARTICLES_PER_TOUCH * encoder + decoded * per_patch)
 
 
 class StreamingImager:

@@ -53,24 +53,26 @@ class ParticleSequence:
 
     Attributes:
         batch_index, particle_index: (N,) long, which (b, p) each row is.
-        z: (N, C, d_z) GRU state after each gathered step.
+        z: (N, C, d_z) GRU state after each gathered step (None from ``gather_sequence``).
         pose: (N, C, 6) gathered poses, x-y centred on the particle.
         force: (N, C, F) gathered forces (normalised).
         mask: (N, C) bool, real steps (pose/force slots past ``count`` repeat the last step; z is 0 there).
         count: (N,) long, real steps per row (>= 1).
         shape: (B, P) of the full particle grid.
         xy_mm: (P, 2) particle positions.
+        gathered: the encoder's gather behind the rows (what :meth:`ParticleEncoder.states_at` reads).
     """
 
     batch_index: Tensor
     particle_index: Tensor
-    z: Tensor
+    z: Tensor | None
     pose: Tensor
     force: Tensor
     mask: Tensor
     count: Tensor
     shape: tuple[int, int]
     xy_mm: Tensor
+    gathered: tuple | None = None
 
     def final_states(self) -> ParticleStates:
         """Scatter each row's state at its last real step into a (B, P, d_z) tensor."""
@@ -175,28 +177,41 @@ class ParticleEncoder(nn.Module):
         shift[:, 0, :2] = xy[pi]
         return g, bi, pi, index, batch.pose[bi[:, None], index] - shift, g.mask[bi, pi]
 
-    def _folded_states(self, batch: Batch, gathered: tuple, last_only: bool) -> Tensor:
+    def _folded_states(self, batch: Batch, gathered: tuple, last_only: bool, at: Tensor | None = None) -> Tensor:
         """The ragged GRU over the folded input gates of ``gathered`` (:meth:`_gather`): (N, C, d_z) states,
-        or (N, d_z) with ``last_only``."""
+        (N, d_z) with ``last_only``, or (N, k, d_z) after the slots ``at`` (N, k) (each row run only up to
+        its last slot in ``at``)."""
         g, bi, pi, index, pose, mask = gathered
+        count = g.count[bi, pi]
+        if at is not None and at.shape[0]:
+            count = at.max(1).values + 1
+            mask = torch.arange(mask.shape[1], device=mask.device) < count[:, None]
         gates = self._input_gates(batch, pose[mask], bi[:, None].expand_as(index)[mask], index[mask])
-        return ragged_gru_from_gates(gates, g.count[bi, pi], self.gru, int(mask.shape[1]), last_only)
+        return ragged_gru_from_gates(gates, count, self.gru, int(mask.shape[1]), last_only, at)
+
+    def gather_sequence(self, batch: Batch) -> ParticleSequence:
+        """Every seen particle's gathered steps, without states (``z`` None; see :meth:`states_at`)."""
+        gathered = self._gather(batch)
+        g, bi, pi, index, pose, mask = gathered
+        return ParticleSequence(batch_index=bi, particle_index=pi, z=None, pose=pose,
+                                force=batch.force[bi[:, None], index], mask=mask, count=g.count[bi, pi],
+                                shape=(int(g.count.shape[0]), int(g.count.shape[1])),
+                                xy_mm=self.xy_mm.to(batch.pose.dtype), gathered=gathered)
+
+    def states_at(self, batch: Batch, seq: ParticleSequence, at: Tensor | None = None) -> Tensor:
+        """GRU states of :meth:`gather_sequence`'s rows: (N, C, d_z) after every slot, or (N, k, d_z) after
+        the slots ``at`` (N, k), each below its row's count (the recurrence stops at a row's last one)."""
+        if self._folds_inputs():
+            return self._folded_states(batch, seq.gathered, last_only=False, at=at)
+        real = self.fle(seq.pose[seq.mask], seq.force[seq.mask])      # inputs of real steps only
+        z = self._run_gru(real.new_zeros(*seq.mask.shape, real.shape[-1]).index_put((seq.mask,), real), seq.count)
+        return z if at is None else z.gather(1, at[..., None].expand(-1, -1, z.shape[-1]))
 
     def encode_sequence(self, batch: Batch) -> ParticleSequence:
         """Run the GRU over every seen particle's gathered steps (see :class:`ParticleSequence`)."""
-        xy = self.xy_mm.to(batch.pose.dtype)
-        gathered = self._gather(batch)
-        g, bi, pi, index, pose, mask = gathered
-        force = batch.force[bi[:, None], index]                      # (N, C, F)
-        count = g.count[bi, pi]
-        if self._folds_inputs():
-            z = self._folded_states(batch, gathered, last_only=False)
-        else:
-            real = self.fle(pose[mask], force[mask])                 # inputs of real steps only
-            z = self._run_gru(real.new_zeros(*mask.shape, real.shape[-1]).index_put((mask,), real), count)
-        return ParticleSequence(batch_index=bi, particle_index=pi, z=z, pose=pose, force=force,
-                                mask=mask, count=count,
-                                shape=(int(g.count.shape[0]), int(g.count.shape[1])), xy_mm=xy)
+        seq = self.gather_sequence(batch)
+        seq.z = self.states_at(batch, seq)
+        return seq
 
     def _folds_inputs(self) -> bool:
         """The paper's FLE feeds the GRU directly (no subclass changes the inputs or the recurrence)."""

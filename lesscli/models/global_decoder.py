@@ -30,8 +30,9 @@ class GlobalDecoder(nn.Module):
     """
 
     @staticmethod
-    def grid_settings(grid, patch_px: int, stitch: str) -> dict:
-        """Constructor arguments that follow from the training grid (patches and stitching do not apply)."""
+    def grid_settings(grid, patch_px: int, stitch: str, context: int = 0) -> dict:
+        """Constructor arguments that follow from the training grid (patches, stitching and neighbour
+        context do not apply)."""
         return {"shape": [int(v) for v in grid.shape]}
 
     def __init__(self, d_z: int, n_classes: int = 4, dim: int = 2, shape: tuple[int, int, int] = (1, 128, 128),

@@ -9,6 +9,14 @@ uneven overlap counts leave). A pixel that no particle covers keeps logit 0 for 
 ln(C). A particle that saw no step contributes nothing (its patch is masked), so untouched regions stay
 honestly uncertain.
 
+With ``context=k`` (odd, > 0) every particle's patch also reads its neighbours: one k x k convolution
+over the particle grid (states of particles that saw nothing are zeros, with a seen channel beside
+them) adds ``context_width`` features to each state before decoding. A particle's own column stiffness
+mixes the inclusion's chord with its modulus; the profile across its neighbours holds the inclusion's
+width, and so its height. ``context=0`` (the default) is the paper's decoder: each patch from its own
+state only. The receptive field grows by (k - 1) / 2 particle spacings, still local; a grown grid
+(``--grow``) is convolved the same way.
+
 Placement is one ``index_add`` over all particles (no Python loop). On a grid with another spacing
 (e.g. the ``large`` set) patches are resampled to the same physical size first.
 
@@ -33,6 +41,7 @@ PATCH_PX = 32               # in-plane patch side, pixels of the training grid
 DEPTH_PX = 26               # depth of a 3D column, slices of the training grid
 BASE_PX = 4                 # spatial side of the first feature map
 SPACING_RTOL = 1e-6         # grids whose spacings agree this well need no resampling
+CONTEXT_WIDTH = 32          # features the neighbour context adds to each state (context > 0)
 STITCH_MODES = ("sum", "mean")
 
 
@@ -204,21 +213,29 @@ class PatchDecoder(nn.Module):
         patch_spacing_mm: dz, dy, dx of the pixels the patch is made in (the training grid's).
         width: channels of the first feature map.
         stitch: "sum" (the paper) or "mean" of overlapping patch logits.
+        context: side k of the convolution over the particle grid whose features join each state
+            (odd; 0: none, the paper's decoder).
+        context_width: features it adds.
     """
 
     @staticmethod
-    def grid_settings(grid: ImageGrid, patch_px: int, stitch: str) -> dict:
+    def grid_settings(grid: ImageGrid, patch_px: int, stitch: str, context: int = 0) -> dict:
         """Constructor arguments that follow from the training grid (and the image settings)."""
-        return {"patch_px": int(patch_px), "depth_px": int(grid.shape[0]),
-                "patch_spacing_mm": [float(v) for v in grid.spacing_mm], "stitch": stitch}
+        out = {"patch_px": int(patch_px), "depth_px": int(grid.shape[0]),
+               "patch_spacing_mm": [float(v) for v in grid.spacing_mm], "stitch": stitch}
+        return {**out, "context": int(context)} if context else out
 
     def __init__(self, d_z: int, n_classes: int = 4, dim: int = 2, patch_px: int = PATCH_PX,
                  depth_px: int = DEPTH_PX, patch_spacing_mm: tuple[float, float, float] = (0.9, 0.4774, 0.4774),
-                 width: int = 64, stitch: str = "sum") -> None:
+                 width: int = 64, stitch: str = "sum", context: int = 0,
+                 context_width: int = CONTEXT_WIDTH) -> None:
         super().__init__()
         if stitch not in STITCH_MODES:
             raise ValueError(f"stitch must be one of {STITCH_MODES}, got '{stitch}'")
-        self.stitch = stitch
+        if context < 0 or (context and context % 2 == 0) or context_width < 1:
+            raise ValueError(f"context must be 0 or odd and context_width >= 1, got {context}, {context_width}")
+        self.stitch, self.context, self.d_z = stitch, int(context), int(d_z)
+        self.neighbours = nn.Conv2d(d_z + 1, context_width, context, padding=context // 2) if context else None
         n_up = round(math.log2(patch_px / BASE_PX))
         if dim not in (2, 3) or BASE_PX * 2**n_up != patch_px:
             raise ValueError(f"patch decoder needs dim 2 or 3 and patch_px = 4 * 2^k, got {dim}, {patch_px}")
@@ -226,12 +243,28 @@ class PatchDecoder(nn.Module):
         self.patch_px, self.depth_px = patch_px, depth_px if dim == 3 else 1
         self.patch_spacing_mm = tuple(float(s) for s in patch_spacing_mm)
         self.base_depth = math.ceil(self.depth_px / 2**n_up) if dim == 3 else 1
-        self.inp = nn.Linear(d_z, width * self.base_depth * BASE_PX * BASE_PX)
+        d_in = d_z + (context_width if context else 0)
+        self.inp = nn.Linear(d_in, width * self.base_depth * BASE_PX * BASE_PX)
         stride = (2, 2) if dim == 2 else (2, 2, 2)
         self.up = upsampling_stack(dim, width, n_classes, [stride] * n_up)
 
+    def with_context(self, z: Tensor, seen: Tensor) -> Tensor:
+        """(B, P, d_z) states -> (B, P, d_in) decoder inputs: the states, and with ``context`` the
+        neighbour features beside them (the particles must form a full square grid, row-major)."""
+        if self.neighbours is None:
+            return z
+        b, p, _ = z.shape
+        n = math.isqrt(p)
+        if n * n != p:
+            raise ValueError(f"neighbour context needs a square particle grid, got {p} particles")
+        keep = seen.to(z.dtype)[..., None]
+        grid = torch.cat([z * keep, keep], dim=-1).transpose(1, 2).reshape(b, -1, n, n)
+        ctx = F.gelu(self.neighbours(grid)).reshape(b, -1, p).transpose(1, 2)
+        return torch.cat([z, ctx], dim=-1)
+
     def patches(self, z: Tensor) -> Tensor:
-        """(B, P, d_z) -> (B, P, C, Dp, ph, pw) float32 logits (Dp = 1 in 2D)."""
+        """(B, P, d_in) decoder inputs (:meth:`with_context`) -> (B, P, C, Dp, ph, pw) float32 logits
+        (Dp = 1 in 2D)."""
         b, p, _ = z.shape
         h = self.inp(z.reshape(b * p, -1))
         if self.dim == 2:
@@ -252,7 +285,7 @@ class PatchDecoder(nn.Module):
         Returns:
             (B, C, D, H, W) float32 logits; 0 where no seen particle's patch reaches.
         """
-        patches = self.patches(states.z)
+        patches = self.patches(self.with_context(states.z, states.seen))
         return place_patches(patches, states.xy_mm, grid, self.patch_spacing_mm, states.seen, self.stitch)
 
 

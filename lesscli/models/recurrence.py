@@ -114,7 +114,8 @@ def ragged_gru(x: Tensor, count: Tensor, gru: nn.GRU) -> Tensor:
     return ragged_gru_from_gates(gates, count, gru, x.shape[1])
 
 
-def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int, last_only: bool = False) -> Tensor:
+def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int, last_only: bool = False,
+                          at: Tensor | None = None) -> Tensor:
     """:func:`ragged_gru` from the input gates of the real steps.
 
     Args:
@@ -123,13 +124,19 @@ def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int
         gru: the GRU whose recurrent weights are used.
         length: C, slots per row in the output (>= count.max()).
         last_only: return only each row's state after its last real step, (N, H) (zeros where count is 0).
+        at: (N, k) long, return only the states after these slots (each below its row's count), read
+            straight from the packed states: no (N, C, H) tensor is formed.
 
     Returns:
-        (N, C, H) the state after each real step; zeros past each row's count.
+        (N, C, H) the state after each real step; zeros past each row's count. (N, H) with ``last_only``,
+        (N, k, H) with ``at``.
     """
     n, hidden = count.shape[0], gru.hidden_size
-    out = gates.new_zeros(n if last_only else n * length, hidden)
-    shape = (n, hidden) if last_only else (n, length, hidden)
+    if at is not None:
+        out, shape = gates.new_zeros(n * at.shape[1], hidden), (n, at.shape[1], hidden)
+    else:
+        out = gates.new_zeros(n if last_only else n * length, hidden)
+        shape = (n, hidden) if last_only else (n, length, hidden)
     if gates.shape[0] == 0:                 # no real step: still a function of the weights (zero gradients)
         return out.view(shape) + (gates.sum() + sum(w.sum() for w in gru.parameters())) * 0.0
     count = count.to(gates.device)
@@ -144,6 +151,11 @@ def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int
         states = _Recurrence.apply(*args)
     else:
         states = _advance(*args, keep=False)[0]
+    if at is not None:                      # packed position of (row, t): start of step t + the row's rank
+        rank = torch.empty_like(order)
+        rank[order] = torch.arange(n, device=order.device)
+        starts = torch.cumsum(alive[:len(sizes)], 0) - alive[:len(sizes)]
+        return states[starts[at] + rank[:, None]]
     if last_only:
         last = steps == count[rows] - 1
         return out.index_put((rows[last],), states[last])

@@ -10,6 +10,8 @@ the parameters, so gradients are finite (zero).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 from torch import Tensor, nn
 
@@ -47,17 +49,20 @@ def _take(values: Tensor, index: Tensor) -> Tensor:
 
 
 def ssl_loss(seq: ParticleSequence, decoder: nn.Module, generator: torch.Generator | None,
-             k_input: int = K_INPUT, k_query: int = K_QUERY, baseline: bool = False) -> Tensor:
+             k_input: int = K_INPUT, k_query: int = K_QUERY, baseline: bool = False,
+             states_at: Callable[[Tensor], Tensor] | None = None) -> Tensor:
     """Force-prediction MSE averaged over the particles that saw something.
 
     Args:
-        seq: encoder output for the seen particles.
+        seq: encoder output for the seen particles (with states ``z``, or without and ``states_at``).
         decoder: :class:`~lesscli.models.force_decoder.ForceDecoder`.
         generator: random stream for the slot draws.
         k_input: K, states per particle.
         k_query: K', query steps per particle.
         baseline: score the predict-the-mean baseline (prediction 0 in normalised units) on the
             same draws instead of the decoder.
+        states_at: (N, K) input slots -> (N, K, d_z) states after them, used instead of ``seq.z`` (the
+            encoder then runs each row only up to its last drawn slot; none at all for the baseline).
 
     Returns:
         Scalar tensor.
@@ -68,14 +73,16 @@ def ssl_loss(seq: ParticleSequence, decoder: nn.Module, generator: torch.Generat
     if baseline:
         pred = torch.zeros_like(target)[:, None]
     else:
-        pred = decoder(_take(seq.z, in_idx), _take(seq.pose, q_idx))   # (N, K, K', F)
+        z = _take(seq.z, in_idx) if states_at is None else states_at(in_idx)
+        pred = decoder(z, _take(seq.pose, q_idx))                       # (N, K, K', F)
     err = (pred - target[:, None]).pow(2).mean(-1)                      # (N, K, K')
     pair_ok = (in_ok[:, :, None] & q_ok[:, None, :]).to(err.dtype)
     if baseline:
         pair_ok = q_ok[:, None, :].to(err.dtype)
     per_particle = (err * pair_ok).sum((1, 2)) / pair_ok.sum((1, 2)).clamp(min=1.0)
     if per_particle.shape[0] == 0:
-        return err.sum() * 0.0 + seq.z.sum() * 0.0
+        anchor = seq.z.sum() if seq.z is not None else 0.0 if baseline else pred.sum()
+        return err.sum() * 0.0 + anchor * 0.0
     return per_particle.mean()
 
 
@@ -94,5 +101,6 @@ class ForcePredictor(nn.Module):
         self.k_input, self.k_query = int(k_input), int(k_query)
 
     def forward(self, batch, generator: torch.Generator | None = None, baseline: bool = False) -> Tensor:
-        seq = self.encoder.encode_sequence(batch)
-        return ssl_loss(seq, self.decoder, generator, self.k_input, self.k_query, baseline=baseline)
+        seq = self.encoder.gather_sequence(batch)
+        return ssl_loss(seq, self.decoder, generator, self.k_input, self.k_query, baseline=baseline,
+                        states_at=lambda at: self.encoder.states_at(batch, seq, at))

@@ -41,6 +41,7 @@ class ImageModelConfig:
     width: int = 32               # channels of the decoder's first feature map (README: `less image fit`)
     patch_px: int = 32            # patch side in label pixels (4 * 2^k)
     stitch: str = "sum"           # overlapping patch logits: sum (paper) or mean
+    context: int = 0              # k x k convolution over the particle grid before decoding (odd; 0: none)
     finetune: bool = False        # train the representation too
     slice: int = AUTO_SLICE       # 2D label slice; -1 = through the inclusion centre
     select: str = "f1"            # best epoch on --val: inclusion "f1" (ties: loss) or "loss"
@@ -65,6 +66,7 @@ class ImageFitConfig:
 _RULES = [("image.dim", lambda v: v in (2, 3), "2 or 3"), ("image.width", lambda v: v >= 8, ">= 8"),
           ("image.patch_px", lambda v: v >= 4 and (v // 4) & (v // 4 - 1) == 0 and v % 4 == 0, "4 * 2^k"),
           ("image.stitch", lambda v: v in ("sum", "mean"), "sum or mean"),
+          ("image.context", lambda v: v == 0 or (v > 0 and v % 2 == 1), "0 or odd"),
           ("image.select", lambda v: v in ("f1", "loss"), "f1 or loss"), ("loss.lam", lambda v: 0 <= v <= 1, "in [0, 1]"), ("loss.gamma", lambda v: v == 0 or v >= 1, "0 or >= 1"),
           ("loss.alpha_power", lambda v: 0 <= v <= 2, "in [0, 2]"),
           ("image.min_volume_mm3", lambda v: v is None or v >= 0, "unset or >= 0"),
@@ -84,7 +86,8 @@ def decoder_settings(cfg: ImageFitConfig, encoder_name: str, d_z: int, grid) -> 
     """Name and constructor arguments of the decoder for this encoder and grid."""
     name = cfg.image.decoder or DEFAULT_DECODER.get(encoder_name, "patch")
     common = {"d_z": int(d_z), "n_classes": N_CLASSES, "dim": cfg.image.dim, "width": cfg.image.width}
-    extra = lookup(DECODERS, name, "decoder").grid_settings(grid, cfg.image.patch_px, cfg.image.stitch)
+    extra = lookup(DECODERS, name, "decoder").grid_settings(grid, cfg.image.patch_px, cfg.image.stitch,
+                                                                        cfg.image.context)
     return {"name": name, **common, **extra}
 
 

@@ -176,3 +176,38 @@ def test_subpixel_form_refuses_other_transposed_convolutions():
 
     with pytest.raises(ValueError, match="kernel 4, stride 2, padding 1"):
         subpixel_weights(torch.nn.ConvTranspose2d(3, 5, kernel_size=3, stride=2, padding=1))
+
+
+def test_neighbour_context_reads_only_the_particles_within_its_reach():
+    """context=3: a particle's decoder input changes with its 8 grid neighbours' states and with
+    whether they saw anything, never with a particle two spacings away; context=0 reads itself only."""
+    torch.manual_seed(0)
+    n, d = 5, 6
+    xy = torch.stack(torch.meshgrid(torch.arange(n) * 6.0, torch.arange(n) * 6.0, indexing="xy"), -1).reshape(-1, 2)
+    z, seen = torch.randn(1, n * n, d), torch.ones(1, n * n, dtype=torch.bool)
+    dec = PatchDecoder(d_z=d, dim=2, patch_px=8, width=8, context=3).eval()
+    base = dec.with_context(z, seen)
+    assert base.shape == (1, n * n, d + dec.neighbours.out_channels)
+    centre = 2 * n + 2
+    for other, near in [(2 * n + 3, True), (3 * n + 3, True), (2 * n + 4, False), (0, False)]:
+        moved, unseen = z.clone(), seen.clone()
+        moved[0, other] += 1.0
+        unseen[0, other] = False
+        for out in (dec.with_context(moved, seen), dec.with_context(z, unseen)):
+            assert torch.equal(out[0, centre, :d], z[0, centre])
+            assert (out[0, centre] != base[0, centre]).any() == near, other
+    plain = PatchDecoder(d_z=d, dim=2, patch_px=8, width=8)
+    assert plain.with_context(z, seen) is z
+    assert torch.isfinite(dec(_states(z, xy, seen), _grid((1, 40, 40)))).all()
+
+
+@pytest.mark.parametrize("context", [2, -1])
+def test_neighbour_context_must_be_odd(context):
+    with pytest.raises(ValueError, match="context must be 0 or odd"):
+        PatchDecoder(d_z=4, dim=2, patch_px=8, width=8, context=context)
+
+
+def test_neighbour_context_needs_a_square_grid():
+    dec = PatchDecoder(d_z=4, dim=2, patch_px=8, width=8, context=3)
+    with pytest.raises(ValueError, match="square particle grid"):
+        dec.with_context(torch.zeros(1, 6, 4), torch.ones(1, 6, dtype=torch.bool))
