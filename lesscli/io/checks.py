@@ -24,16 +24,19 @@ def require(arrays: dict, key: str, name: str, what: str) -> np.ndarray:
     return arrays[key]
 
 
-def numbers(arr, key: str, name: str, integer: bool = False) -> np.ndarray:
-    """``arr`` as float64 (or int64 with ``integer``) if it holds plain numbers, else DataError.
+def numbers(arr, key: str, name: str, integer: bool = False, dtype=np.float64) -> np.ndarray:
+    """``arr`` as ``dtype`` (float64; int64 with ``integer``) if it holds plain numbers, else DataError.
 
-    Strings, bytes, complex numbers and (for ``integer``) fractional values are refused.
+    Strings, bytes, complex numbers and (for ``integer``) fractional values are refused. An array
+    already of ``dtype`` is returned as it is (no copy); values beyond a narrower float's range
+    become inf (for :func:`finite` to name).
     """
     arr = np.asarray(arr)
     if arr.dtype.kind not in NUMBER_KINDS:
         raise DataError(f"{name}: '{key}' holds {arr.dtype} values, expected numbers")
     if not integer:
-        return arr.astype(np.float64)
+        with np.errstate(over="ignore"):
+            return arr.astype(dtype, copy=False)
     if arr.dtype.kind == "f" and not (np.isfinite(arr).all() and (arr == np.round(arr)).all()):
         raise DataError(f"{name}: '{key}' must hold whole numbers")
     return arr.astype(np.int64)
@@ -46,15 +49,24 @@ def shape(arr: np.ndarray, key: str, name: str, expected: tuple, text: str) -> N
         raise DataError(f"{name}: '{key}' has shape {arr.shape}, expected {text}")
 
 
+FINITE_BLOCK = 1 << 20      # values checked at a time by ``finite`` (bounds its temporary memory)
+
+
 def finite(arr: np.ndarray, key: str, name: str, unit: str = "step", dtype=None) -> None:
-    """Every value finite (also once cast to ``dtype``, e.g. float32); names the first bad ``unit``."""
-    beyond = ""
-    if dtype is not None:
-        with np.errstate(over="ignore"):
-            arr = arr.astype(dtype)
-        beyond = f"; values beyond {np.dtype(dtype).name} range count as inf"
-    flat = arr.reshape(len(arr), int(np.prod(arr.shape[1:]))) if arr.ndim else arr.reshape(1, 1)
-    bad = ~np.isfinite(flat).all(axis=1)
+    """Every value finite (also once cast to ``dtype``, e.g. float32); names the first bad ``unit``.
+
+    Checked a block of rows at a time, so a large array costs no full-size copy or mask."""
+    beyond = "" if dtype is None else f"; values beyond {np.dtype(dtype).name} range count as inf"
+    flat = np.asarray(arr)
+    flat = flat.reshape(len(flat), int(np.prod(flat.shape[1:]))) if flat.ndim else flat.reshape(1, 1)
+    rows = max(1, FINITE_BLOCK // max(1, flat.shape[1]))
+    bad = np.zeros(len(flat), bool)
+    for start in range(0, len(flat), rows):
+        block = flat[start:start + rows]
+        if dtype is not None:
+            with np.errstate(over="ignore"):
+                block = block.astype(dtype, copy=False)
+        bad[start:start + rows] = ~np.isfinite(block).all(axis=1)
     if bad.any():
         raise DataError(f"{name}: '{key}' has NaN or inf at {unit} {int(np.flatnonzero(bad)[0])} "
                         f"({int(bad.sum())} {unit}s affected{beyond})")

@@ -226,8 +226,8 @@ def _labels_from(arrays: dict, name: str) -> list[LabelVolume]:
 
 def _steps(arrays: dict, name: str, meta: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """pose (N, 6), force (N, T, 3) and time_s (N,), checked for type, shape and finite values."""
-    pose = checks.numbers(checks.require(arrays, "pose", name, WHAT), "pose", name)
-    force = checks.numbers(checks.require(arrays, "force", name, WHAT), "force", name)
+    pose = checks.numbers(checks.require(arrays, "pose", name, WHAT), "pose", name, dtype=np.float32)
+    force = checks.numbers(checks.require(arrays, "force", name, WHAT), "force", name, dtype=np.float32)
     checks.shape(pose, "pose", name, (None, 6), "(N, 6)")
     checks.shape(force, "force", name, (None, None, 3), "(N, T, 3)")
     n = pose.shape[0]
@@ -285,7 +285,8 @@ def validate(arrays: dict, name: str) -> ScanSet:
                     " (multiples of 45 degrees)")
     checks.in_range(per_scan["scan_label"], "scan_label", name, -1, len(labels) - 1,
                     f" (-1 = no label, else one of the {len(labels)} label volumes)")
-    return ScanSet(pose.astype(np.float32), force.astype(np.float32), time_s, offsets, traj_scan, scan_insert,
+    return ScanSet(pose.astype(np.float32, copy=False), force.astype(np.float32, copy=False), time_s, offsets,
+                   traj_scan, scan_insert,
                    per_scan["scan_orientation"], per_scan["scan_label"], labels, attrs, meta)
 
 
@@ -378,8 +379,9 @@ def to_arrays(scans: ScanSet) -> dict[str, np.ndarray]:
     """The ``.npz`` arrays of ``scans`` (inverse of ``validate``)."""
     labels = scans.labels
     arrays = {
-        "pose": scans.pose.astype(np.float32), "force": scans.force.astype(np.float32),
-        "time_s": scans.time_s.astype(np.float64), "traj_offsets": scans.traj_offsets.astype(np.int64),
+        "pose": scans.pose.astype(np.float32, copy=False), "force": scans.force.astype(np.float32, copy=False),
+        "time_s": scans.time_s.astype(np.float64, copy=False),
+        "traj_offsets": scans.traj_offsets.astype(np.int64, copy=False),
         "traj_scan": scans.traj_scan.astype(np.int64), "scan_insert": scans.scan_insert.astype(str),
         "scan_orientation": scans.scan_orientation.astype(np.int64), "scan_label": scans.scan_label.astype(np.int64),
         "label_data": np.concatenate([v.data.ravel() for v in labels]) if labels else np.zeros(0, np.uint8),

@@ -101,3 +101,24 @@ def test_directory_of_shards_loads_as_one(tmp_path):
     save_scans(str(tmp_path / "shards" / "0.npz"), random_scanset(seed=1))
     save_scans(str(tmp_path / "shards" / "1.npz"), random_scanset(seed=2))
     assert load_scans(str(tmp_path / "shards")).n_scans == 4
+
+
+def test_saving_and_loading_make_no_full_size_copy_of_the_steps(tmp_path):
+    """Validation casts and checks in place or in blocks: writing and reading a scan set allocate far
+    less than its force array (a full float64 copy, the old cost, would be twice it)."""
+    import tracemalloc
+
+    scans = random_scanset(n_scans=1, traj_per_scan=1)
+    n = 400_000
+    big = type(scans)(pose=np.zeros((n, 6), np.float32), force=np.ones((n, scans.n_taxels, 3), np.float32),
+                      time_s=np.zeros(n), traj_offsets=np.array([0, n], np.int64), traj_scan=np.zeros(1, np.int64),
+                      scan_insert=scans.scan_insert, scan_orientation=scans.scan_orientation,
+                      scan_label=scans.scan_label, labels=scans.labels, meta=scans.meta)
+    path = str(tmp_path / "big.npz")
+    for run in (lambda: save_scans(path, big, compress=False), lambda: load_scans(path)):
+        tracemalloc.start()
+        out = run()
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        allocated_by_result = 0 if out is None else out.pose.nbytes + out.force.nbytes
+        assert peak - allocated_by_result < 0.25 * big.force.nbytes, (peak, big.force.nbytes)
