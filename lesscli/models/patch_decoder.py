@@ -11,11 +11,12 @@ honestly uncertain.
 
 With ``context=k`` (odd, > 0) every particle's patch also reads its neighbours: one k x k convolution
 over the particle grid (states of particles that saw nothing are zeros, with a seen channel beside
-them) adds ``context_width`` features to each state before decoding. A particle's own column stiffness
-mixes the inclusion's chord with its modulus; the profile across its neighbours holds the inclusion's
-width, and so its height. ``context=0`` (the default) is the paper's decoder: each patch from its own
-state only. The receptive field grows by (k - 1) / 2 particle spacings, still local; a grown grid
-(``--grow``) is convolved the same way.
+them) adds ``context_width`` features to each state before decoding, so that a patch could take an
+inclusion's width (and so its height) from the profile across its neighbours rather than from its own
+column stiffness, which mixes the chord with the modulus (on the simulated headline data it gained
+nothing: examples/README.md, "Size: what was tried"). ``context=0`` (the default) is the paper's
+decoder: each patch from its own state only. The receptive field grows by (k - 1) / 2 particle
+spacings, still local; a grown grid (``--grow``) is convolved the same way.
 
 Placement is one ``index_add`` over all particles (no Python loop). On a grid with another spacing
 (e.g. the ``large`` set) patches are resampled to the same physical size first.
@@ -234,7 +235,7 @@ class PatchDecoder(nn.Module):
             raise ValueError(f"stitch must be one of {STITCH_MODES}, got '{stitch}'")
         if context < 0 or (context and context % 2 == 0) or context_width < 1:
             raise ValueError(f"context must be 0 or odd and context_width >= 1, got {context}, {context_width}")
-        self.stitch, self.context, self.d_z = stitch, int(context), int(d_z)
+        self.stitch, self.context = stitch, int(context)
         self.neighbours = nn.Conv2d(d_z + 1, context_width, context, padding=context // 2) if context else None
         n_up = round(math.log2(patch_px / BASE_PX))
         if dim not in (2, 3) or BASE_PX * 2**n_up != patch_px:
