@@ -22,6 +22,7 @@ import logging
 import math
 import os
 import time
+from collections.abc import Callable
 from typing import Literal
 
 Work = Literal["latency", "throughput"]
@@ -124,20 +125,21 @@ def choose_threads(cores: int, load: float, work: Work = "throughput", size: flo
     return share
 
 
-def apply_threads(work: Work = "throughput", size: float = 0, override: int | None = None, jobs: int = 1,
-                  torch_too: bool = True, extra_load: float = 0.0, load: float | None = None) -> int:
+def apply_threads(work: Work = "throughput", size: float | Callable[[], float] = 0, override: int | None = None,
+                  jobs: int = 1, torch_too: bool = True, extra_load: float = 0.0, load: float | None = None) -> int:
     """Choose threads for each of ``jobs`` processes from the machine's free cores, set them here (before
-    the workers fork), and return the count. ``torch_too=False`` leaves torch unimported (numpy work);
+    the workers fork), and return the count. ``size`` may be a function, called only when the choice
+    needs it (not with ``override``); ``torch_too=False`` leaves torch unimported (numpy work);
     ``extra_load`` counts busy processes started too recently for the 1-minute load to show them; ``load``
     is the others' load when the caller has read it already (the machine is read once, and not at all
     with ``override``)."""
     log = logging.getLogger("less")
     if override is not None:
-        n = choose_threads(usable_cores(), 0.0, work, size, override, jobs)
+        n = max(1, override)
         log.info("threads: %d (--threads)", n)
     else:
         load = other_load(extra_load) if load is None else load
-        n = choose_threads(usable_cores(), load, work, size, override, jobs)
+        n = choose_threads(usable_cores(), load, work, size() if callable(size) else size, None, jobs)
         log.info("threads: %d (cores %d, others' load %.2f)", n, usable_cores(), load)
     set_threads(n, torch_too)
     return n

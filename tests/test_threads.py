@@ -17,7 +17,16 @@ from lesscli.cli.bench_stream import load_levels
 from lesscli.cli.main import cli
 from lesscli.infer.stream import StreamingImager
 from lesscli.io.scans import save_scans
-from lesscli.threads import LARGE_WORK, choose_threads, combined_load, free_cores, other_load, runnable_now
+from lesscli.threads import (
+    LARGE_WORK,
+    POOL_ENV_VARS,
+    apply_threads,
+    choose_threads,
+    combined_load,
+    free_cores,
+    other_load,
+    runnable_now,
+)
 
 BIG, SMALL = LARGE_WORK, LARGE_WORK - 1
 
@@ -157,3 +166,23 @@ def test_image_predict_records_the_thread_count(tiny_files, keep_threads):
                                       "-o", str(tmp_path / "p.npz"), "--threads", "3", "--format", "jsonl"])
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout.splitlines()[-1])["threads"] == 3 == torch.get_num_threads()
+
+
+def test_apply_threads_sizes_the_work_only_when_it_chooses(monkeypatch):
+    """--threads fixes the count without reading the machine or sizing the work (a function then is
+    never called); without it the size is asked for once."""
+    for name in POOL_ENV_VARS:                      # restored after the test
+        monkeypatch.setenv(name, os.environ.get(name, ""))
+    before = torch.get_num_threads()
+    calls = []
+
+    def size() -> float:
+        calls.append(1)
+        return 0.0
+
+    try:
+        assert apply_threads("latency", size, override=3) == 3 and calls == []
+        assert torch.get_num_threads() == 3
+        assert apply_threads("latency", size) == 1 and calls == [1]     # small latency work: one thread
+    finally:
+        torch.set_num_threads(before)

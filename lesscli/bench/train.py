@@ -116,7 +116,8 @@ def measure(model: str, size: Size, steps: int, batch: int, repeats: int, device
     seen = net.encoder(data).seen if model == "less" else None
     return {"size": size.name, "model": model, "d_z": size.dim, "particles": net.encoder.n_particles,
             "particles_seen": float(seen.sum(1).float().mean()) if seen is not None else 1.0,
-            "steps": steps, "batch": batch, "k_input": net.k_input, "k_query": net.k_query, "parameters": sum(p.numel() for p in net.parameters()),
+            "steps": steps, "batch": batch, "k_input": net.k_input, "k_query": net.k_query,
+            "parameters": sum(p.numel() for p in net.parameters()),
             "encoder_parameters": sum(p.numel() for p in net.encoder.parameters()),
             "train_step_s": train_s, "forward_s": forward_s, "train_step_cpu_s": train_cpu_s,
             "forward_cpu_s": forward_cpu_s, "device": str(device)}

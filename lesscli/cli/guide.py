@@ -59,7 +59,7 @@ def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margi
     if plot_path and len(chosen) != 1:
         raise click.UsageError(f"--plot draws one scan; {partial} has {scans.n_scans}: pick one with --scan")
     longest = max(np.diff(scans.scan_step_offsets())[chosen], default=1)
-    apply_threads("latency", update_work(imager) * longest if threads is None else 0, threads)   # one full pass
+    apply_threads("latency", lambda: update_work(imager) * longest, threads)   # one full pass over a partial scan
     opts = GuideOptions(k, radius_mm, exclusion_mm, margin_mm, score)
     rows = []
     for s in chosen:

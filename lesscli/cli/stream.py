@@ -56,7 +56,7 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, min_v
 
     dev = resolve_device(device)
     imager, ckpt = load_imager(model, dev)
-    apply_threads("latency", update_work(imager) if threads is None else 0, threads)   # sized only to choose
+    apply_threads("latency", lambda: update_work(imager), threads)
     if monitor_dir:
         os.makedirs(monitor_dir, exist_ok=True)
     emitter = Emitter(emit_every, monitor_dir, *labelling_rule(ckpt["config"]["image"], threshold, min_volume_mm3))

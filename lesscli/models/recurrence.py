@@ -132,13 +132,9 @@ def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int
         (N, k, H) with ``at``.
     """
     n, hidden = count.shape[0], gru.hidden_size
-    if at is not None:
-        out, shape = gates.new_zeros(n * at.shape[1], hidden), (n, at.shape[1], hidden)
-    else:
-        out = gates.new_zeros(n if last_only else n * length, hidden)
-        shape = (n, hidden) if last_only else (n, length, hidden)
+    shape = (n, at.shape[1], hidden) if at is not None else (n, hidden) if last_only else (n, length, hidden)
     if gates.shape[0] == 0:                 # no real step: still a function of the weights (zero gradients)
-        return out.view(shape) + (gates.sum() + sum(w.sum() for w in gru.parameters())) * 0.0
+        return gates.new_zeros(shape) + (gates.sum() + sum(w.sum() for w in gru.parameters())) * 0.0
     count = count.to(gates.device)
     order = torch.argsort(count, descending=True, stable=True)
     alive = torch.bincount(count, minlength=length + 1).flip(0).cumsum(0).flip(0)[1:]   # rows with a step t
@@ -156,6 +152,7 @@ def ragged_gru_from_gates(gates: Tensor, count: Tensor, gru: nn.GRU, length: int
         rank[order] = torch.arange(n, device=order.device)
         starts = torch.cumsum(alive[:len(sizes)], 0) - alive[:len(sizes)]
         return states[starts[at] + rank[:, None]]
+    out = gates.new_zeros(n if last_only else n * length, hidden)
     if last_only:
         last = steps == count[rows] - 1
         return out.index_put((rows[last],), states[last])

@@ -86,8 +86,8 @@ def decoder_settings(cfg: ImageFitConfig, encoder_name: str, d_z: int, grid) -> 
     """Name and constructor arguments of the decoder for this encoder and grid."""
     name = cfg.image.decoder or DEFAULT_DECODER.get(encoder_name, "patch")
     common = {"d_z": int(d_z), "n_classes": N_CLASSES, "dim": cfg.image.dim, "width": cfg.image.width}
-    extra = lookup(DECODERS, name, "decoder").grid_settings(grid, cfg.image.patch_px, cfg.image.stitch,
-                                                                        cfg.image.context)
+    image = cfg.image
+    extra = lookup(DECODERS, name, "decoder").grid_settings(grid, image.patch_px, image.stitch, image.context)
     return {"name": name, **common, **extra}
 
 
