@@ -22,7 +22,14 @@ import numpy as np
 from sklearn.ensemble import GradientBoostingRegressor
 from sklearn.linear_model import RidgeCV
 
-from lesscli.infer.forcemap import GRID_MM, inclusions, scan_touches, signed_distance_mm, stiffness_map, taxel_layout
+from lesscli.infer.forcemap import (
+    GRID_MM,
+    inclusions,
+    scan_touches,
+    signed_distance_mm,
+    stiffness_map,
+    taxel_layout,
+)
 from lesscli.io.scans import load_scans
 
 OFFSETS_MM = np.arange(-10, 11) * 1.0
