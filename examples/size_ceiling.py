@@ -1,15 +1,16 @@
 """How much of an inclusion's size do the touches of a scene hold? A ceiling for any imager.
 
 For every scan with one inclusion, the classical force map (``lesscli.infer.forcemap``: stiffness per
-taxel at each poke's deepest step, flat-fielded, quadratic trend removed) is sampled on a 21 x 21 grid
-at 1 mm around the inclusion's TRUE centre, with its radial profile (raw and divided by its peak, a
-scale-free shape). Regressors fitted on the training scans map these to the volume-equivalent diameter
+taxel at each poke's deepest step, flat-fielded, quadratic trend removed) is sampled on a window of
+cells around the inclusion's TRUE centre (default 21 x 21 at 1 mm), with its radial profile in 1 mm
+rings out to 10 mm (raw and divided by its peak, a scale-free shape). Regressors fitted on the training scans map these to the volume-equivalent diameter
 and are scored on the test scans. Then spheres are drawn at each test inclusion's TRUE 3D centroid with
 (a) its true diameter, (b) the regressed one, (c) the training mean, and (d) the true one moved 1.5 mm
 sideways, and the 3D micro F1 against the label volumes is printed: what an imager that already knew
 where the inclusion is (in-plane and in depth) would score with the size these touches give.
 
     python examples/size_ceiling.py work/accuracy/split/train.npz work/accuracy/single.npz
+    python examples/size_ceiling.py ... --cells 7 --pitch-mm 2.5     # the window of a particle's map
 
 Needs scikit-learn (the test extra).
 """
@@ -32,15 +33,16 @@ from lesscli.infer.forcemap import (
 )
 from lesscli.io.scans import load_scans
 
-OFFSETS_MM = np.arange(-10, 11) * 1.0
-RINGS = 10
+RINGS = 10                      # 1 mm rings of the radial profile
 
 
-def features(path: str, sigma_mm: float) -> tuple[np.ndarray, np.ndarray, list]:
+def features(path: str, sigma_mm: float, offsets_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray, list]:
     """(n, f) map features around each single inclusion's true centre, (n,) diameters, [(scan, label)]."""
     scans = load_scans(path)
     layout = taxel_layout(scans.meta, path)
-    radius = np.hypot(*np.meshgrid(OFFSETS_MM, OFFSETS_MM))
+    radius = np.hypot(*np.meshgrid(offsets_mm, offsets_mm))
+    rings = [(radius >= k) & (radius < k + 1) for k in range(RINGS)]
+    rings = [r for r in rings if r.any()]
     x_rows, diameters, where = [], [], []
     for s in range(scans.n_scans):
         label = scans.labels[scans.scan_label[s]]
@@ -49,13 +51,13 @@ def features(path: str, sigma_mm: float) -> tuple[np.ndarray, np.ndarray, list]:
             continue
         _, cy, cx = centres[0]
         fmap = stiffness_map(scan_touches(scans, s, layout), sigma_mm)
-        gx, gy = np.meshgrid(cx + OFFSETS_MM, cy + OFFSETS_MM)
+        gx, gy = np.meshgrid(cx + offsets_mm, cy + offsets_mm)
         ix = np.round((gx - fmap.origin_xy_mm[0]) / GRID_MM).astype(int)
         iy = np.round((gy - fmap.origin_xy_mm[1]) / GRID_MM).astype(int)
         ok = (ix >= 0) & (iy >= 0) & (ix < fmap.residual.shape[1]) & (iy < fmap.residual.shape[0])
         patch = np.zeros(gx.shape)
         patch[ok] = fmap.residual[iy[ok], ix[ok]] / fmap.spread
-        profile = np.array([patch[(radius >= k) & (radius < k + 1)].mean() for k in range(RINGS)])
+        profile = np.array([patch[r].mean() for r in rings])
         peak = max(profile[:2].max(), 1e-9)
         x_rows.append(np.concatenate([patch.ravel(), profile, profile / peak, [peak, (profile / peak > 0.5).sum()]]))
         diameters.append(diam[0])
@@ -80,9 +82,12 @@ def main() -> None:
     ap.add_argument("train")
     ap.add_argument("test")
     ap.add_argument("--sigma-mm", type=float, default=1.0, help="smoothing of the force map (mm)")
+    ap.add_argument("--cells", type=int, default=21, help="window side in cells (odd)")
+    ap.add_argument("--pitch-mm", type=float, default=1.0, help="window cell pitch (mm)")
     a = ap.parse_args()
-    x_train, d_train, _ = features(a.train, a.sigma_mm)
-    x_test, d_test, where = features(a.test, a.sigma_mm)
+    offsets = (np.arange(a.cells) - (a.cells - 1) / 2) * a.pitch_mm
+    x_train, d_train, _ = features(a.train, a.sigma_mm, offsets)
+    x_test, d_test, where = features(a.test, a.sigma_mm, offsets)
     print(f"{len(d_train)} training and {len(d_test)} test inclusions; test diameter SD {d_test.std():.2f} mm")
     print("| diameter from | R^2 | mean abs error (mm) | 3D micro F1, sphere at the true centroid |")
     print("|---|---|---|---|")
