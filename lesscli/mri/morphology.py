@@ -223,9 +223,10 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     offset = np.array([b.start for b in box]) - 1              # padded crop -> input voxel index
     inc_ids, n_inclusions = ndimage.label(bodies)
     warnings = [] if n_inclusions else ["no inclusion found"]
+    deep = ins & (depth > shell_mm)
     pillar, missing, _side = find_pillars(frac, ins, inc_ids, n_inclusions, spacing, insert_axis(ins, spacing),
-                                          pillar_max_diameter_mm)
-    inclusion = _local_surface(bodies, frac, ins & (depth > shell_mm) & ~pillar, spacing, RIM_VOXELS * voxel_mm)
+                                          pillar_max_diameter_mm, deep)
+    inclusion = _local_surface(bodies, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm)
     inclusion |= _junctions(inclusion, pillar, spacing)
     pillar &= ~inclusion
     for i in missing:

@@ -2,13 +2,19 @@
 
 Nothing here assumes a pillar's diameter, intensity or which end of the insert the base is at. For
 each inclusion, the insert's voxels near the line through its centre along the insert axis are cut
-into slabs one voxel thick, on both sides of the inclusion. Per slab (``fraction``: 0 hydrogel, 1
-silicone):
+into slabs one voxel thick, on both sides of the inclusion, each centred on a plane of voxel centres
+one step further from the inclusion (where the insert axis is an array axis, a slab is one slice;
+boundaries through voxel centres would split each slice between two slabs). Per slab
+(``fraction``: 0 hydrogel, 1 silicone):
 
 - the ring (an annulus around the core) gives the local background: hydrogel between the inclusion
   and the base, silicone once the ring enters the base or the skin. The trace ends there, or where
   the ring leaves the insert (a pillar standing on the insert's outer surface): that is the base
-  surface, placed where the ring crosses half-way;
+  surface, placed where the ring crosses half-way between the hydrogel and the base's own level (the
+  highest ring level in the base away from the insert's outer surface: a base of a few millimetres
+  reads below an inclusion's interior, and half the inclusion's contrast would put the surface a
+  fraction of a slab too deep). Where the first slab already lies in the base, the crossing is found
+  between the inclusion's last slice and that slab;
 - the core's silicone in excess of the ring level, summed over the slab and divided by the contrast
   of the inclusion's interior over that ring level, is the pillar's cross-section (mm^2). A sum is
   unchanged by partial volume and blur, so a pillar 1-2 voxels wide is measured as well as a wide one,
@@ -21,8 +27,15 @@ either side (a ring over the whole column would also take in the skin and the ba
 The base is on the side where the inclusions together show more excess silicone (on the skin side
 there is none). On that side an inclusion has a pillar when the median cross-section exceeds a disc of
 ``MIN_RADIUS_MM`` and ``NOISE_Z`` standard errors of the slab-to-slab scatter. The pillar is then the
-cylinder of the measured area around the straight line fitted to the slab centroids, from the
-inclusion down to the base surface.
+cylinder of the measured area from the inclusion down to the base surface, around the straight line
+fitted to the slab centroids of a second trace (a core fitted to the pillar, so less noise in the
+centroids). Short pillars are measured over few slabs, each as noisy as the next:
+
+- with fewer than ``MIN_LINE_SLABS`` slabs a line is not told apart from noise, and the pillar stands
+  under its inclusion's centre, as the phantoms are built (one pillar under each sphere's centre,
+  :func:`lesscli.phantom.catalogue.hanging`) and as a gap too short to measure already assumes;
+- with fewer than ``MIN_OWN_SLABS`` slabs the cross-section is the median over the slabs of all the
+  scan's pillars (the posts of one insert are cast alike); longer pillars keep their own.
 """
 
 from __future__ import annotations
@@ -44,6 +57,8 @@ GAP_AXIS_MM = 0.75              # the voxels this close to the line decide wheth
 MAD_TO_SIGMA = 1.4826
 MEDIAN_SE = 1.2533              # standard error of a median / (sigma / sqrt(n)) for normal scatter
 SCALE_EPS = 1e-3
+MIN_LINE_SLABS = 3              # fewer slabs do not place a line against noise: the inclusion's axis
+MIN_OWN_SLABS = 4               # fewer slabs take the cross-section pooled over the scan's pillars
 
 
 @dataclass
@@ -89,6 +104,7 @@ class _Column:
     value: np.ndarray               # silicone fraction
     inside: np.ndarray              # in the insert
     free: np.ndarray                # in the insert and in no inclusion
+    deep: np.ndarray                # in the insert, away from its outer surface (partial volume with air)
     other: np.ndarray               # in another inclusion
     start: dict                     # direction sign -> t of the inclusion's surface along it
 
@@ -100,7 +116,7 @@ def _basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(axis, e1)
 
 
-def _column(fraction, insert, inc_ids, label, centre_mm, axis, spacing, reach_mm) -> _Column:
+def _column(fraction, insert, deep, inc_ids, label, centre_mm, axis, spacing, reach_mm) -> _Column:
     grids = [np.arange(n, dtype=np.float32) * np.float32(s) - np.float32(c)
              for n, s, c in zip(fraction.shape, spacing, centre_mm)]
     d = np.meshgrid(*grids, indexing="ij", sparse=True)
@@ -115,7 +131,7 @@ def _column(fraction, insert, inc_ids, label, centre_mm, axis, spacing, reach_mm
     start = {sign: float((sign * t_sel[own]).max()) if own.any() else 0.0 for sign in (1, -1)}
     inside = insert[index]
     return _Column(index, t_sel, np.stack([offsets @ e1, offsets @ e2], axis=1), fraction[index].astype(np.float64),
-                   inside, inside & (ids == 0), (ids != 0) & ~own, start)
+                   inside, inside & (ids == 0), deep[index], (ids != 0) & ~own, start)
 
 
 def _crossing(t: np.ndarray, level: np.ndarray, k: int) -> float:
@@ -134,13 +150,14 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
     """
     half = contrast[0] + HALF * contrast[1]
     st = sign * col.t
-    beyond = st > col.start[sign]
-    slab = np.floor((st - col.start[sign]) / step_mm).astype(np.int64)
+    slab = np.floor((st - col.start[sign]) / step_mm - 0.5).astype(np.int64)    # slab k centred k + 1 steps out
+    beyond = slab >= 0
     rho = np.linalg.norm(col.uv - line[0] - st[:, None] * line[1], axis=1)
     core, ring = rho <= core_mm, (rho > ring_mm[0]) & (rho <= ring_mm[1])
     ts, areas, cents = [], [], []
     levels, cover = [], []
-    for k in range(int(slab[beyond].max()) + 1 if beyond.any() else 0):
+    last = int(slab[beyond].max()) if beyond.any() else -1
+    for k in range(last + 1):
         here = beyond & (slab == k)
         ring_here = here & ring
         ring_free = ring_here & col.free
@@ -158,17 +175,43 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
         areas.append(float(excess.sum()) * voxel_mm3 / step_mm / scale)
         w = np.clip(excess, 0.0, None)
         cents.append((w @ col.uv[sel]) / w.sum() if w.sum() > 0 else np.full(2, np.nan))
-    t_arr = np.asarray(ts)
+    n = len(areas)
     if not ts:
         end = col.start[sign]
     elif levels[-1] > half:
-        end = _crossing(t_arr, (np.asarray(levels) - contrast[0]) / contrast[1], len(ts) - 1)
+        end, n = _base_crossing(col, st, slab, ring, ts, levels, contrast, last)
+        n = min(n, len(areas))
     elif cover[-1] < HALF:
-        end = _crossing(t_arr, 1.0 - np.asarray(cover), len(ts) - 1)
+        end = _crossing(np.asarray(ts), 1.0 - np.asarray(cover), len(ts) - 1)
     else:
-        end = float(t_arr[-1]) + 0.5 * step_mm
-    n = len(areas)
-    return Trace(t_arr[:n], np.asarray(areas), np.asarray(cents).reshape(n, 2), end, np.asarray(levels[:n]))
+        end = ts[-1] + 0.5 * step_mm
+    return Trace(np.asarray(ts[:n]), np.asarray(areas[:n]), np.asarray(cents[:n]).reshape(n, 2), end,
+                 np.asarray(levels[:n]))
+
+
+def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndarray, ts: list, levels: list,
+                   contrast: tuple[float, float], last: int) -> tuple[float, int]:
+    """(base surface t, slabs before it) where the ring levels ``levels`` (of the slabs at ``ts``, the
+    last one in the base) cross half-way between the hydrogel and the base's own level.
+
+    The base's level is the highest median over the ring's voxels away from the insert's outer surface
+    in the slabs from the last one on, as long as the ring has such voxels (else the inclusion's).
+    """
+    base = []
+    for k in range(len(ts) - 1, last + 1):
+        deep = (slab == k) & ring & col.free & col.deep
+        if not deep.any():
+            break
+        base.append(float(np.median(col.value[deep])))
+    scale = max((max(base) if base else contrast[0] + contrast[1]) - contrast[0], SCALE_EPS)
+    norm = (np.asarray(levels) - contrast[0]) / scale
+    j = int(np.argmax(norm > HALF)) if (norm > HALF).any() else len(ts) - 1
+    t, norm = np.asarray(ts[:j + 1]), norm[:j + 1]
+    inclusion_side = (slab == -1) & ring & col.free          # the inclusion's last slice
+    if j == 0 and inclusion_side.any():
+        t = np.array([float(st[inclusion_side].mean()), ts[0]])
+        norm = np.array([(float(np.median(col.value[inclusion_side])) - contrast[0]) / scale, norm[0]])
+    return _crossing(t, norm, len(t) - 1), j
 
 
 def _fit_line(trace: Trace, fallback: np.ndarray) -> np.ndarray:
@@ -221,6 +264,22 @@ def _gap_radius(col: _Column, sign: int, end_mm: float, contrast: tuple[float, f
     return math.sqrt(area / math.pi) if area >= math.pi * MIN_RADIUS_MM ** 2 else None
 
 
+def _pooled_radii(found: dict) -> dict:
+    """label -> (line, radius, end) from label -> (line, slab cross-sections, core radius, end).
+
+    A pillar measured over at least MIN_OWN_SLABS slabs keeps the median of its own cross-sections; a
+    shorter one takes the median over the slabs of all the scan's pillars. The radius never exceeds
+    the core it was measured in.
+    """
+    pooled = np.concatenate([areas for _line, areas, _core, _end in found.values()]) if found else np.zeros(0)
+    out = {}
+    for label, (line, areas, core, end) in found.items():
+        own = areas if len(areas) >= MIN_OWN_SLABS or len(pooled) <= len(areas) else pooled
+        area = float(np.median(own)) if len(own) else 0.0
+        out[label] = (line, min(math.sqrt(max(area, 0.0) / math.pi), core), end)
+    return out
+
+
 def _contrast(fraction: np.ndarray, inc_ids: np.ndarray, label: int, col: _Column, ring_mm,
               spacing) -> tuple[float, float]:
     """(hydrogel level, silicone - hydrogel): the inclusion's interior against the column's ring."""
@@ -251,7 +310,8 @@ def _walked_contrast(both: list[Trace], contrast: tuple[float, float]) -> tuple[
 
 
 def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, n_inclusions: int,
-                 spacing_mm, axis: np.ndarray, max_diameter_mm: float) -> tuple[np.ndarray, list[int], int]:
+                 spacing_mm, axis: np.ndarray, max_diameter_mm: float,
+                 deep: np.ndarray | None = None) -> tuple[np.ndarray, list[int], int]:
     """The pillar under each inclusion, traced towards the base.
 
     Args:
@@ -261,6 +321,8 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         spacing_mm: (3,) voxel size per axis.
         axis: (3,) unit insert axis (array-axis components of mm vectors), either sign.
         max_diameter_mm: thickest pillar (sizes the search around each inclusion's line).
+        deep: bool mask of the insert away from its outer surface (where the base's level is read);
+            None: the insert.
 
     Returns:
         (pillar mask, labels of the inclusions without a pillar, base side: +1 along ``axis``, -1 against).
@@ -283,7 +345,8 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
     centres = np.asarray(ndimage.center_of_mass(inc_ids > 0, inc_ids, labels)).reshape(-1, 3) * spacing
     columns, contrasts, traces = {}, {}, {}
     for label, centre in zip(labels, centres):
-        col = _column(fraction, insert, inc_ids, label, centre, axis, spacing, rings(core0)[1])
+        col = _column(fraction, insert, insert if deep is None else deep, inc_ids, label, centre, axis, spacing,
+                      rings(core0)[1])
         contrast = _contrast(fraction, inc_ids, label, col, rings(core0), spacing)
         for _ in range(2):          # the hydrogel level again, from the slabs walked on either side
             both = [_trace(col, sign, np.zeros((2, 2)), core0, rings(core0), step, voxel_mm3, contrast)
@@ -303,7 +366,9 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         core = min(core0, math.sqrt(first.median_area() / math.pi) + CORE_MARGIN_VOXELS * voxel)
         second = _trace(col, side, line, core, rings(core), step, voxel_mm3, contrasts[label])
         final = _inner(second) if len(second.area_mm2) else first
-        found[label] = (line, min(math.sqrt(max(final.median_area(), 0.0) / math.pi), core), second.end_mm)
+        line = _fit_line(final, line) if len(final.area_mm2) >= MIN_LINE_SLABS else np.zeros((2, 2))
+        found[label] = (line, final.area_mm2, core, second.end_mm)
+    found = _pooled_radii(found)
     for label in short:                 # too close to the base to measure: silicone across the gap, or none
         col, end = columns[label], traces[label, side].end_mm
         radius = _gap_radius(col, side, end, contrasts[label], core0, step, voxel_mm3, found)

@@ -56,13 +56,18 @@ def results() -> dict:
 
 # Rows that miss the acceptance today, with why (strict: a row that starts passing must leave this list).
 SHORT_OF_ACCEPTANCE = {
-    "coarse-1.2mm-4mm-pillar-1mm-tall-16mm-bright": "a 1 mm pillar is under one 1.2 mm slice (pillar Dice 0.05); "
-                                                    "the bright skin's outer surface at 1.2 mm voxels (insert 0.961)",
-    "three-inclusions-anisotropic-bright-base-up": "pillars at 1.2 mm slices: the 14 mm tall one measured 22 % too "
-                                                   "wide under noise (0.78), the 2 mm tall one a slice too long "
-                                                   "(0.77)",
-    "two-inclusions-thick-slices-dark-noisy": "a 3 mm pillar at 1.2 mm slices whose base surface falls on a slice "
-                                              "centre: one slice too many (0.69)",
+    "coarse-1.2mm-4mm-pillar-1mm-tall-16mm-bright": "a 1 mm pillar is under one 1.2 mm slice (not found, pillar Dice "
+                                                    "0.00); the bright skin's outer surface at 1.2 mm voxels (insert "
+                                                    "0.961)",
+    "three-inclusions-anisotropic-bright-base-up": "pillars at 1.2 mm slices: the 14 mm tall one measured 20 % too "
+                                                   "wide in cross-section under noise (0.78)",
+}
+
+# Rows whose pillar is not found (one warning naming the inclusion), with why.
+PILLAR_NOT_FOUND = {
+    "coarse-1.2mm-4mm-pillar-1mm-tall-16mm-bright": "at 1.2 mm voxels the 1 mm gap around the 4 mm post reads as "
+                                                    "silicone: the inclusion found reaches 2.6 mm below the sphere, "
+                                                    "into the base, and no slab lies between them",
 }
 
 
@@ -82,7 +87,10 @@ def test_dice_meets_acceptance(results, name):
 def test_contrast_found_and_no_warnings(results, name):
     vol, seg = results[name]
     assert seg.silicone_brighter == vol.case.silicone_brighter
-    assert seg.warnings == []
+    if name in PILLAR_NOT_FOUND:
+        assert len(seg.warnings) == 1 and "no pillar found under the inclusion" in seg.warnings[0], PILLAR_NOT_FOUND[name]
+    else:
+        assert seg.warnings == []
 
 
 def test_inclusion_thinner_than_the_ball_voxel_for_voxel_is_found():
@@ -95,6 +103,19 @@ def test_inclusion_thinner_than_the_ball_voxel_for_voxel_is_found():
     assert ndimage.label(seg.labels == 3)[1] == 2
     assert seg.warnings == []
     assert all(row["dice_inclusion"] >= 0.9 for row in inclusion_scores(seg.labels, vol))
+
+
+@pytest.mark.parametrize("seed", [507, 521])
+def test_short_pillar_at_thick_slices_in_a_clean_scan(seed):
+    """No noise, 1.16 mm slices: pillars 1.5 mm and 5 mm tall are each found and end at the base.
+
+    The trace's slabs are one slice each here; slabs bounded at voxel centres mixed two slices and read
+    the level next to the base a slice off (or saw no pillar at all)."""
+    vol = generate(Case(seed=seed, spacing_mm=(1.16, 0.83, 0.41), inclusion_mm=(8.2, 11.0, 12.9), pillar_mm=1.94,
+                        pillar_height_mm=(5.1, 1.5, 5.3), base_up=True, silicone_brighter=True, noise=0.0, bias=0.3))
+    seg = segment(vol.image, vol.spacing_mm, where="clean")
+    assert seg.warnings == []
+    assert all(row["dice_pillar"] >= MIN_DICE["pillar"] for row in inclusion_scores(seg.labels, vol))
 
 
 def test_inclusion_without_pillar_is_labelled_with_one_warning():
