@@ -109,6 +109,24 @@ def test_closed_loop_helpers():
     assert means["a"] == [(3, pytest.approx(0.2)), (6, pytest.approx(0.6)), (9, pytest.approx(0.8))]
 
 
+def test_guide_summary_compares_touch_counts_only_when_raster_gains():
+    from lesscli.bench.guide import GuideBench, summary_row
+
+    bench = GuideBench(budget=9, start=3, seeds=1, eval_every=3, batch=1, seed=0)
+    learned = {"guided": [(3, 0.1), (6, 0.6), (9, 0.7)], "guided-inclusion": [(3, 0.1), (6, 0.2), (9, 0.6)],
+               "raster": [(3, 0.1), (6, 0.3), (9, 0.6)], "random": [(3, 0.1), (6, 0.2), (9, 0.3)]}
+    row = summary_row(learned, bench, "m.pt")
+    assert row["raster_final_f1"] == 0.6 and row["guided_touches_to_raster_final"] == 6
+    assert row["guided_saving"] == pytest.approx(1 - 6 / 9) and row["random_touches_to_raster_final"] is None
+    assert row["guided_inclusion_touches_to_raster_final"] == 9 and "note" not in row
+    # a model that images nothing: raster ends where every strategy started, so nothing is compared
+    blind = {s: [(3, 0.002), (6, 0.0), (9, 0.0)] for s in learned}
+    row = summary_row(blind, bench, "m.pt")
+    assert row["guided_touches_to_raster_final"] is None and row["guided_saving"] is None
+    assert row["guided_first_reaches_raster_final"] is None and row["random_touches_to_raster_final"] is None
+    assert "nothing to reach" in row["note"]
+
+
 def test_uncertainty_scores_hand_values():
     from lesscli.infer.guide import UNCERTAINTY
 
