@@ -96,6 +96,17 @@ def test_patches_outside_the_grid_are_dropped():
     assert out.shape == (1, 1, 1, 16, 16)
 
 
+@pytest.mark.parametrize("stitch", ["sum", "mean"])
+def test_placement_gradient_is_the_adjoint_of_the_slice_adds(stitch):
+    """The placement's own backward against finite differences (float64), with overlapping patches,
+    one straddling the edge, one off the grid and one unseen."""
+    grid = _grid((2, 12, 12))
+    xy = torch.tensor([[0.0, 0.0], [1.1, -0.6], [2.9, 2.4], [100.0, 0.0]])
+    seen = torch.tensor([[True, True, True, False]])
+    patches = torch.randn(1, 4, 2, 2, 8, 8, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda p: place_patches(p, xy, grid, SPACING, seen, stitch), (patches,))
+
+
 def test_coarser_grid_keeps_physical_patch_size():
     coarse = (0.9, 2 * SPACING[1], 2 * SPACING[2])
     grid = _grid((1, 40, 40), coarse)
