@@ -135,7 +135,7 @@ def apply_threads(work: Work = "throughput", size: float | Callable[[], float] =
     with ``override``)."""
     log = logging.getLogger("less")
     if override is not None:
-        n = max(1, override)
+        n = choose_threads(usable_cores(), 0.0, work, 0, override, jobs)
         log.info("threads: %d (--threads)", n)
     else:
         load = other_load(extra_load) if load is None else load

@@ -285,8 +285,7 @@ def validate(arrays: dict, name: str) -> ScanSet:
                     " (multiples of 45 degrees)")
     checks.in_range(per_scan["scan_label"], "scan_label", name, -1, len(labels) - 1,
                     f" (-1 = no label, else one of the {len(labels)} label volumes)")
-    return ScanSet(pose.astype(np.float32, copy=False), force.astype(np.float32, copy=False), time_s, offsets,
-                   traj_scan, scan_insert,
+    return ScanSet(pose, force, time_s, offsets, traj_scan, scan_insert,                 # float32 from _steps
                    per_scan["scan_orientation"], per_scan["scan_label"], labels, attrs, meta)
 
 

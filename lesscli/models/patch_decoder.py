@@ -338,26 +338,24 @@ def place_patches(patches: Tensor, xy_mm: Tensor, grid: ImageGrid,
     Returns:
         (B, C, D, H, W) float32 summed logits.
     """
-    b, p = patches.shape[:2]
     h, w = grid.shape[1:]
     patches = resample_patches(patches, target_patch_size(tuple(patches.shape[3:]), patch_spacing_mm, grid))
     ph, pw = patches.shape[-2:]
-    if seen is not None:
-        patches = patches * seen.to(patches.dtype)[:, :, None, None, None, None]
     corners = list(zip(*(t.tolist() for t in padded_corners(xy_mm, grid, ph, pw))))
+    keep = None if seen is None else seen.to(patches.device, patches.dtype)
     padded = (h + 2 * ph, w + 2 * pw)
-    canvas = _Placed.apply(patches, corners, padded)
+    canvas = _Placed.apply(patches, keep, corners, padded)
     if stitch == "mean":
-        keep = torch.ones(b, p, device=patches.device) if seen is None else seen.to(patches.device, patches.dtype)
-        ones = keep[:, :, None, None, None, None].expand(b, p, 1, 1, ph, pw)
-        canvas = canvas / _Placed.apply(ones, corners, padded).clamp_min(1.0)
+        ones = patches.new_ones(1, 1, 1, 1, ph, pw).expand(*patches.shape[:2], 1, 1, ph, pw)
+        canvas = canvas / _Placed.apply(ones, keep, corners, padded).clamp_min(1.0)
     return canvas[..., ph:ph + h, pw:pw + w]
 
 
 class _Placed(torch.autograd.Function):
-    """Patches (B, P, C, D, ph, pw) summed into a zero canvas (B, C, D, *padded) at their top-left
-    ``corners`` [(row, col)] by one slice add per particle; the gradient of a patch is its slice of the
-    canvas's gradient.
+    """Patches (B, P, C, D, ph, pw) times ``keep`` (B, P) (None: all 1) summed into a zero canvas
+    (B, C, D, *padded) at their top-left ``corners`` [(row, col)] by one slice add per particle; the
+    gradient of a patch is its slice of the canvas's gradient times its keep. A particle kept nowhere
+    in the batch costs nothing.
 
     Autograd through the same slice adds keeps every intermediate canvas (seconds per backward at the
     default grid); one ``index_add`` over all pixels strides across the batch, class and depth axes
@@ -365,15 +363,31 @@ class _Placed(torch.autograd.Function):
     """
 
     @staticmethod
-    def forward(ctx, patches: Tensor, corners: list, padded: tuple[int, int]) -> Tensor:
+    def forward(ctx, patches: Tensor, keep: Tensor | None, corners: list, padded: tuple[int, int]) -> Tensor:
         b, _, c, d, ph, pw = patches.shape
         out = patches.new_zeros(b, c, d, *padded)
+        scale = _keep_scales(keep, len(corners))
         for i, (row, col) in enumerate(corners):
-            out[..., row:row + ph, col:col + pw] += patches[:, i]
-        ctx.corners, ctx.size = corners, (ph, pw)
+            if scale[i] is not False:
+                out[..., row:row + ph, col:col + pw] += patches[:, i] if scale[i] is True else patches[:, i] * scale[i]
+        ctx.scale, ctx.corners, ctx.size = scale, corners, (ph, pw)
         return out
 
     @staticmethod
     def backward(ctx, grad: Tensor):
         ph, pw = ctx.size
-        return torch.stack([grad[..., row:row + ph, col:col + pw] for row, col in ctx.corners], dim=1), None, None
+        parts = []
+        for (row, col), scale in zip(ctx.corners, ctx.scale):
+            part = grad[..., row:row + ph, col:col + pw]
+            parts.append(part if scale is True else torch.zeros_like(part) if scale is False else part * scale)
+        return torch.stack(parts, dim=1), None, None, None
+
+
+def _keep_scales(keep: Tensor | None, n: int) -> list:
+    """Per particle: True (kept at weight 1 in every batch row), False (kept nowhere), else the (B, 1, 1,
+    1, 1) weights of its batch rows."""
+    if keep is None:
+        return [True] * n
+    ones, zeros = (keep == 1).all(0).tolist(), (keep == 0).all(0).tolist()
+    return [True if one else False if zero else keep[:, i, None, None, None, None]
+            for i, (one, zero) in enumerate(zip(ones, zeros))]

@@ -84,9 +84,9 @@ def check_config(cfg: ImageFitConfig) -> ImageFitConfig:
 
 def decoder_settings(cfg: ImageFitConfig, encoder_name: str, d_z: int, grid) -> dict:
     """Name and constructor arguments of the decoder for this encoder and grid."""
-    name = cfg.image.decoder or DEFAULT_DECODER.get(encoder_name, "patch")
-    common = {"d_z": int(d_z), "n_classes": N_CLASSES, "dim": cfg.image.dim, "width": cfg.image.width}
     image = cfg.image
+    name = image.decoder or DEFAULT_DECODER.get(encoder_name, "patch")
+    common = {"d_z": int(d_z), "n_classes": N_CLASSES, "dim": image.dim, "width": image.width}
     extra = lookup(DECODERS, name, "decoder").grid_settings(grid, image.patch_px, image.stitch, image.context)
     return {"name": name, **common, **extra}
 
