@@ -93,12 +93,14 @@ class PatchCanvas:
             self.place.append(((..., slice(*rows), slice(*cols)),
                                (..., slice(rows[0] - r, rows[1] - r), slice(cols[0] - c, cols[1] - c)))
                               if on_grid else None)
-        c = decoder.n_classes
-        self.canvas = torch.zeros(c, d, h, w, dtype=torch.float64, device=device)
-        self.cache = torch.zeros(xy_mm.shape[0], c, d, ph, pw, dtype=torch.float32, device=device)
+        c, n = decoder.n_classes, xy_mm.shape[0]
+        # classes innermost in memory (as the decoder makes patches with channels_last): each slice add
+        # runs over whole rows of pw * C values
+        self.canvas = torch.zeros(d, h, w, c, dtype=torch.float64, device=device).permute(3, 0, 1, 2)
+        self.cache = torch.zeros(n, d, ph, pw, c, dtype=torch.float32, device=device).permute(0, 4, 1, 2, 3)
         self.mean_stitch = getattr(decoder, "stitch", "sum") == "mean"
         self.cover = torch.zeros(h, w, dtype=torch.float64, device=device)       # seen patches per pixel
-        self.placed = [False] * xy_mm.shape[0]
+        self.placed = [False] * n
 
     def reset(self) -> None:
         self.canvas.zero_()
@@ -114,7 +116,7 @@ class PatchCanvas:
         if self.decoder.context:
             particles = self.within_context(particles, seen)
             z = self.decoder.with_context(hidden[None], seen[None])[0, particles]
-        new = resample_patches(self.decoder.patches(z[None]), self.size)[0]    # (k, C, D, ph, pw)
+        new = resample_patches(self.decoder.patches(z[None], channels_last=True), self.size)[0]  # (k, C, D, ph, pw)
         for j, p in enumerate(particles.tolist()):
             if self.place[p] is None:
                 continue
@@ -138,7 +140,7 @@ class PatchCanvas:
     def logits(self) -> Tensor:
         """(C, D, H, W) float32 summed logits (0 where no seen particle's patch reaches)."""
         canvas = self.canvas / self.cover.clamp_min(1.0) if self.mean_stitch else self.canvas
-        return canvas.to(torch.float32)
+        return canvas.to(torch.float32, memory_format=torch.contiguous_format)
 
 
 class WholeImage:

@@ -98,7 +98,8 @@ def _phases(x: Tensor, weight: Tensor, bias: Tensor, padding: int) -> Tensor:
 
 def _interleaved(ph: Tensor, windows0: int, channels_last: bool) -> Tensor:
     """Phases (N, w_0, ..., 2, ..., C) -> (N, C, 2 windows0, 2 w_1, ...), one copy of the first windows0
-    into channels-last (the next convolution's) or plain (the canvas's) memory."""
+    into channels-last (the next convolution's, the stream canvas's) or plain (the batch canvas's)
+    memory. The channels-last copy moves runs of 2 x C contiguous values, the plain one single values."""
     dim = (ph.dim() - 2) // 2
     n, windows, c = ph.shape[0], [windows0, *ph.shape[2:1 + dim]], ph.shape[-1]
     spatial = [v for w in windows for v in (w, 2)]
@@ -126,13 +127,14 @@ def _hidden_layer(x: Tensor, conv_t: nn.Module, act: nn.Module, rows: int | None
     return out
 
 
-def _last_layer(x: Tensor, weight: Tensor, bias: Tensor, keep: int | None, padding: int) -> Tensor:
+def _last_layer(x: Tensor, weight: Tensor, bias: Tensor, keep: int | None, padding: int,
+                channels_last: bool = False) -> Tensor:
     """conv_t(x)[:, :, :keep] for x with its zero rows (``padding=0``; rows beyond those the kept
-    outputs read are ignored) or without (1)."""
+    outputs read are ignored) or without (1), in plain or channels-last memory."""
     ph = _phases(x, weight, bias, padding)
     lengths = [w - 1 for w in ph.shape[1:ph.dim() // 2]]                    # input rows, per axis
     rows = 2 * lengths[0] if keep is None else min(keep, 2 * lengths[0])
-    out = _interleaved(ph, min(ph.shape[1], rows // 2 + 1), channels_last=False)
+    out = _interleaved(ph, min(ph.shape[1], rows // 2 + 1), channels_last)
     return out[(slice(None), slice(None), slice(1, 1 + rows)) + tuple(slice(1, -1) for _ in lengths[1:])]
 
 
@@ -169,8 +171,9 @@ def eval_weights(conv_t: nn.Module) -> tuple[Tensor, Tensor]:
     return cached[1], cached[2]
 
 
-def run_eval(stack: nn.Sequential, x: Tensor, keep: int | None = None) -> Tensor:
-    """``stack(x)[:, :, :keep]`` for an :func:`upsampling_stack`, in its faster evaluation form.
+def run_eval(stack: nn.Sequential, x: Tensor, keep: int | None = None, channels_last: bool = False) -> Tensor:
+    """``stack(x)[:, :, :keep]`` for an :func:`upsampling_stack`, in its faster evaluation form (in
+    channels-last memory with ``channels_last``).
 
     The first hidden layer runs as a transposed convolution (its sub-pixel form would compute the
     output rows it crops too: (L + 1)^dim windows for L^dim inputs, nearly twice the work on the 4 x 4
@@ -189,7 +192,7 @@ def run_eval(stack: nn.Sequential, x: Tensor, keep: int | None = None) -> Tensor
             continue
         rows = -(-keep // 2) + 2 if keep is not None and i == len(hidden) - 1 else None
         x, padding = _hidden_layer(x, *block, rows, padding), 0
-    return _last_layer(x, *eval_weights(last), keep, padding)
+    return _last_layer(x, *eval_weights(last), keep, padding, channels_last)
 
 
 def upsampling_stack(dim: int, width: int, n_classes: int, strides: list[tuple[int, ...]]) -> nn.Sequential:
@@ -264,17 +267,26 @@ class PatchDecoder(nn.Module):
         ctx = F.gelu(self.neighbours(grid)).reshape(b, -1, p).transpose(1, 2)
         return torch.cat([z, ctx], dim=-1)
 
-    def patches(self, z: Tensor) -> Tensor:
+    def patches(self, z: Tensor, channels_last: bool = False) -> Tensor:
         """(B, P, d_in) decoder inputs (:meth:`with_context`) -> (B, P, C, Dp, ph, pw) float32 logits
-        (Dp = 1 in 2D)."""
+        (Dp = 1 in 2D).
+
+        Args:
+            channels_last: return them in channels-last memory (classes innermost, the stream
+                canvas's layout; in evaluation mode at no extra cost); the same values.
+        """
         b, p, _ = z.shape
         h = self.inp(z.reshape(b * p, -1))
         if self.dim == 2:
             h = h.view(b * p, self.width, BASE_PX, BASE_PX)
-            out = (self.up(h) if self.training else run_eval(self.up, h))[:, :, None]
+            out = self.up(h) if self.training else run_eval(self.up, h, channels_last=channels_last)
         else:
             h = h.view(b * p, self.width, self.base_depth, BASE_PX, BASE_PX)
-            out = self.up(h)[:, :, :self.depth_px] if self.training else run_eval(self.up, h, self.depth_px)
+            out = self.up(h)[:, :, :self.depth_px] if self.training else \
+                run_eval(self.up, h, self.depth_px, channels_last)
+        if self.training and channels_last:
+            out = _channels_last(out)
+        out = out if self.dim == 3 else out[:, :, None]
         return out.reshape(b, p, *out.shape[1:]).to(torch.float32)
 
     def forward(self, states, grid: ImageGrid) -> Tensor:

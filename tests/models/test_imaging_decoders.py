@@ -162,6 +162,10 @@ def test_evaluation_decodes_like_training(dim, patch_px, width, depth):
         evaluated = dec.eval().patches(z)
     assert evaluated.shape == trained.shape == (2, 3, 4, depth, patch_px, patch_px)
     assert float((evaluated - trained).abs().max()) <= 1e-5
+    for mode in (dec.eval(), dec.train()):                   # the stream canvas's layout: classes innermost
+        with torch.no_grad():
+            last = mode.patches(z, channels_last=True)
+        assert last.stride(2) == 1 and last.stride(-1) == 4 and torch.equal(last, mode.patches(z))
 
 
 def test_evaluation_weights_follow_parameter_updates():
