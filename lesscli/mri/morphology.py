@@ -9,6 +9,9 @@
   keeps apart from those, only round bodies holding the first ball's volume are inclusions.
 - Pillars: traced from each inclusion towards the base along the insert axis
   (:mod:`lesscli.mri.pillar`); an inclusion without one gets a warning.
+- Each inclusion's surface is re-thresholded with its local contrast, at the level where a blurred
+  ball's surface lies (below half-way on a curved surface: the blur spreads a small body's silicone
+  outwards), with the blur and radius fitted to the body's own profile.
 - Everything else (the skin, partial-volume speckle) stays insert.
 
 Openings and dilations use Euclidean distance transforms with the voxel spacing, so balls are round
@@ -33,6 +36,11 @@ MAX_ELONGATION = 1.5            # ... kept where round: largest over smallest pr
 BALL_MARGIN_VOXELS = 0.25       # the opening ball's radius exceeds the thickest pillar's by this
 BOUNDARY_VOXELS = (1.0, 2.5)    # the layer around a body in which its surroundings are measured
 MAX_BOUNDARY_SILICONE = 0.3     # an inclusion lies in the filling; more silicone around: a pillar's foot, a corner
+PROFILE_VOXELS = 2.0            # the blurred-ball profile is fitted to the voxels this close to a body, in voxels
+PROFILE_SHIFT_VOXELS = 1.0      # ... its centre within this of the body's centroid
+PROFILE_RADIUS = (0.5, 1.5)     # ... its radius within these factors of the body's equal-volume radius
+PROFILE_SIGMA_VOXELS = (0.1, 3.0)   # ... its blur within these, in voxels
+PROFILE_CONTRAST = (0.5, 2.0)   # ... its contrast within these factors of the interior's over the filling
 
 
 def crop_box(mask: np.ndarray, pad: int) -> tuple[slice, ...]:
@@ -134,7 +142,8 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
     """Each body's surface at half-way between its own interior level and the filling's level around it.
 
     The opening leaves a body's surface where the global threshold put it, up to the roughness that
-    noise gives; here each inclusion is re-thresholded with its local contrast, within ``reach_mm`` of it.
+    noise gives; here each inclusion is re-thresholded with its local contrast, within ``reach_mm`` of it,
+    at the surface level of a blurred ball fitted to it (:func:`_curved_level`).
     """
     from scipy import ndimage
 
@@ -152,9 +161,57 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
         if not ring.any():
             out[box] |= own
             continue
-        level = 0.5 * (float(np.median(frac[interior])) + float(np.median(frac[ring])))
+        filling = float(np.median(frac[ring]))
+        level = 0.5 * (float(np.median(frac[interior])) + filling)
+        near = (outside <= PROFILE_VOXELS * voxel) & allowed[box]
+        body = own | ((outside <= reach_mm) & allowed[box] & (frac > level))
+        level = _curved_level(frac[near], np.argwhere(near) * spacing, body, spacing, filling, 2 * (level - filling))
         out[box] |= (outside <= reach_mm) & allowed[box] & (frac > level)
     return out
+
+
+def ball_profile(r_mm: np.ndarray, radius_mm: float, sigma_mm: float) -> np.ndarray:
+    """A ball of ``radius_mm`` blurred by an isotropic Gaussian of ``sigma_mm``, at ``r_mm`` from its centre (0-1).
+
+    At the ball's surface this is ``1/2 - sigma / (R sqrt(2 pi))`` for sigma << R: the half-way level of a
+    flat boundary lies inside a curved one, by about ``sigma^2 / R``.
+    """
+    from scipy.special import erf
+
+    r = np.maximum(np.asarray(r_mm, dtype=np.float64), 1e-6 * radius_mm)
+    s = math.sqrt(2.0) * sigma_mm
+    a, b = (radius_mm - r) / s, (radius_mm + r) / s
+    return 0.5 * (erf(a) + erf(b)) - sigma_mm / (r * math.sqrt(2 * math.pi)) * (np.exp(-a * a) - np.exp(-b * b))
+
+
+def _curved_level(values: np.ndarray, points_mm: np.ndarray, body: np.ndarray, spacing: np.ndarray,
+                  filling: float, contrast: float) -> float:
+    """The level of a body's surface: a blurred ball (centre, radius, blur, contrast over ``filling``)
+    fitted by least squares to ``values`` at ``points_mm`` (n, 3), evaluated at its radius.
+
+    A compact body blurred by the scan and the denoising reads below half its contrast at its surface
+    (:func:`ball_profile`), so the half-way level cuts a small inclusion too small; the blur is the
+    scan's own, read from the body's profile. ``body``: its voxels (start of the fit).
+    """
+    from scipy.optimize import least_squares
+
+    voxel = float(spacing.max())
+    centre = np.argwhere(body).mean(axis=0) * spacing
+    radius = (3.0 * float(body.sum()) * float(np.prod(spacing)) / (4 * math.pi)) ** (1 / 3)
+
+    def residuals(p):
+        r = np.linalg.norm(points_mm - p[:3], axis=1)
+        return filling + p[5] * ball_profile(r, p[3], p[4]) - values
+
+    lo = np.r_[centre - PROFILE_SHIFT_VOXELS * voxel, PROFILE_RADIUS[0] * radius, PROFILE_SIGMA_VOXELS[0] * voxel,
+               PROFILE_CONTRAST[0] * contrast]
+    hi = np.r_[centre + PROFILE_SHIFT_VOXELS * voxel, PROFILE_RADIUS[1] * radius, PROFILE_SIGMA_VOXELS[1] * voxel,
+               PROFILE_CONTRAST[1] * contrast]
+    if len(values) < len(lo) or contrast <= 0:
+        return filling + 0.5 * contrast
+    start = np.clip(np.r_[centre, radius, 0.5 * voxel, contrast], lo, hi)
+    fit = least_squares(residuals, start, bounds=(lo, hi)).x
+    return filling + fit[5] * float(ball_profile(np.array([fit[3]]), fit[3], fit[4])[0])
 
 
 def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray) -> np.ndarray:
