@@ -139,7 +139,7 @@ def _in_filling(bodies: np.ndarray, silicone: np.ndarray, insert: np.ndarray, sp
 
 def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray, spacing: np.ndarray,
                    reach_mm: float) -> np.ndarray:
-    """Each body's surface at half-way between its own interior level and the filling's level around it.
+    """Each body's surface between its own interior level and the filling's level around it.
 
     The opening leaves a body's surface where the global threshold put it, up to the roughness that
     noise gives; here each inclusion is re-thresholded with its local contrast, within ``reach_mm`` of it,
