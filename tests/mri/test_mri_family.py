@@ -105,7 +105,6 @@ def test_inclusion_thinner_than_the_ball_voxel_for_voxel_is_found():
     assert all(row["dice_inclusion"] >= 0.9 for row in inclusion_scores(seg.labels, vol))
 
 
-
 @pytest.mark.parametrize("brighter", [False, True])
 @pytest.mark.parametrize("spacing", [(1.15, 1.15, 1.15), (1.2, 1.0, 0.8)])
 def test_small_inclusions_at_coarse_voxels_are_not_cut_small(spacing, brighter):
@@ -118,6 +117,7 @@ def test_small_inclusions_at_coarse_voxels_are_not_cut_small(spacing, brighter):
     seg = segment(vol.image, vol.spacing_mm, where="clean")
     assert seg.warnings == []
     assert all(row["dice_inclusion"] >= 0.95 for row in inclusion_scores(seg.labels, vol))
+
 
 @pytest.mark.parametrize("seed", [507, 521])
 def test_short_pillar_at_thick_slices_in_a_clean_scan(seed):
