@@ -242,8 +242,8 @@ class PatchDecoder(nn.Module):
         self.stitch, self.context = stitch, int(context)
         self.neighbours = nn.Conv2d(d_z + 1, context_width, context, padding=context // 2) if context else None
         n_up = round(math.log2(patch_px / BASE_PX))
-        if dim not in (2, 3) or BASE_PX * 2**n_up != patch_px:
-            raise ValueError(f"patch decoder needs dim 2 or 3 and patch_px = 4 * 2^k, got {dim}, {patch_px}")
+        if dim not in (2, 3) or BASE_PX * 2**n_up != patch_px or n_up < 1:
+            raise ValueError(f"patch decoder needs dim 2 or 3 and patch_px = 4 * 2^k, k >= 1, got {dim}, {patch_px}")
         self.dim, self.n_classes, self.width = dim, n_classes, width
         self.patch_px, self.depth_px = patch_px, depth_px if dim == 3 else 1
         self.patch_spacing_mm = tuple(float(s) for s in patch_spacing_mm)

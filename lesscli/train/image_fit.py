@@ -39,7 +39,7 @@ class ImageModelConfig:
     dim: int = 3                  # 2: image (slice), 3: volume
     decoder: str = ""             # patch | global; "" pairs with the encoder (less -> patch, global -> global)
     width: int = 32               # channels of the decoder's first feature map (README: `less image fit`)
-    patch_px: int = 32            # patch side in label pixels (4 * 2^k)
+    patch_px: int = 32            # patch side in label pixels (4 * 2^k, k >= 1)
     stitch: str = "sum"           # overlapping patch logits: sum (paper) or mean
     context: int = 0              # k x k convolution over the particle grid before decoding (odd; 0: none)
     finetune: bool = False        # train the representation too
@@ -64,7 +64,7 @@ class ImageFitConfig:
 
 
 _RULES = [("image.dim", lambda v: v in (2, 3), "2 or 3"), ("image.width", lambda v: v >= 8, ">= 8"),
-          ("image.patch_px", lambda v: v >= 4 and (v // 4) & (v // 4 - 1) == 0 and v % 4 == 0, "4 * 2^k"),
+          ("image.patch_px", lambda v: v >= 8 and (v // 4) & (v // 4 - 1) == 0 and v % 4 == 0, "8, 16, 32, ..."),
           ("image.stitch", lambda v: v in ("sum", "mean"), "sum or mean"),
           ("image.context", lambda v: v == 0 or (v > 0 and v % 2 == 1), "0 or odd"),
           ("image.select", lambda v: v in ("f1", "loss"), "f1 or loss"), ("loss.lam", lambda v: 0 <= v <= 1, "in [0, 1]"), ("loss.gamma", lambda v: v == 0 or v >= 1, "0 or >= 1"),

@@ -152,9 +152,10 @@ def test_subpixel_form_equals_the_transposed_convolution(dim, keep):
 
 @pytest.mark.parametrize("dim,patch_px,width,depth", [(2, 16, 16, 1), (3, 16, 16, 13), (3, 32, 24, 13),
                                                      (3, 32, 16, 26), (3, 64, 32, 7), (2, 64, 16, 1),
-                                                     (3, 64, 16, 64)])
+                                                     (3, 64, 16, 64), (2, 8, 16, 1), (3, 8, 16, 5)])
 def test_evaluation_decodes_like_training(dim, patch_px, width, depth):
-    """Eval mode runs every layer in sub-pixel form and crops columns early; same patches as training."""
+    """Eval mode runs every layer in sub-pixel form and crops columns early; same patches as training
+    (patch_px 8: the first layer is the last)."""
     dec = PatchDecoder(d_z=6, n_classes=4, dim=dim, patch_px=patch_px, depth_px=depth, width=width)
     z = torch.randn(2, 3, 6, generator=torch.Generator().manual_seed(1))
     with torch.no_grad():
@@ -184,6 +185,11 @@ def test_evaluation_weights_follow_parameter_updates():
         dec.load_state_dict(PatchDecoder(d_z=6, n_classes=4, dim=2, patch_px=16, width=16).state_dict())
         loaded = dec.patches(z)
         assert float((loaded - dec.train().patches(z)).abs().max()) <= 1e-5
+
+
+def test_patch_decoder_needs_one_upsampling_layer():
+    with pytest.raises(ValueError, match="k >= 1"):
+        PatchDecoder(d_z=6, n_classes=4, dim=2, patch_px=4)
 
 
 def test_subpixel_form_refuses_other_transposed_convolutions():

@@ -139,3 +139,18 @@ def test_resume_finetune_and_errors(tmp_path, run_less, sets):
                     *common)
     assert proc.returncode == 1 and b"loss.alpha_power" in proc.stderr and not (tmp_path / "d.pt").exists()
     assert len(proc.stderr.decode().strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("patch_px,ok", [(4, False), (8, True), (12, False), (64, True)])
+def test_image_fit_patch_size_is_8_16_32(patch_px, ok):
+    """A 4-pixel patch would be the first feature map itself (no layer down to the classes)."""
+    from lesscli.errors import LessError
+    from lesscli.train.image_fit import ImageFitConfig, check_config
+
+    cfg = ImageFitConfig()
+    cfg.image.patch_px = patch_px
+    if ok:
+        assert check_config(cfg) is cfg
+    else:
+        with pytest.raises(LessError, match=f"image.patch_px = {patch_px} is invalid"):
+            check_config(cfg)
