@@ -73,8 +73,15 @@ def _percentiles(times_s: list[float]) -> tuple[float, float]:
     return float(np.median(ms)), float(np.percentile(ms, 99))
 
 
-def measure(imager, stats, steps: int, updates: int, full_repeats: int, rng) -> dict:
-    """One table row: incremental and full per-update latency (ms) after ``steps`` samples."""
+def measure(imager, stats, steps: int, updates: int, full_repeats: int, rng, rate_hz: float = 0.0) -> dict:
+    """One table row: incremental and full per-update latency (ms) after ``steps`` samples.
+
+    With ``rate_hz`` the timed samples arrive as from a live sensor, one every 1 / rate_hz seconds
+    (the process sleeps until each is due; after a late update the next starts at once, as from a
+    backlog);
+    ``over_period_share`` is the share of updates that took longer than that period.
+    """
+    import numpy as np
     import torch
 
     from lesscli.data.batching import collate
@@ -84,7 +91,11 @@ def measure(imager, stats, steps: int, updates: int, full_repeats: int, rng) -> 
     stream = StreamingImager(imager, stats)
     stream.prime(pose[:steps], force[:steps])
     inc, inc_cpu, advanced = [], [], 0
+    due = time.perf_counter()
     for i in range(steps, steps + updates):
+        if rate_hz:
+            due = max(due + 1.0 / rate_hz, time.perf_counter())
+            time.sleep(max(due - time.perf_counter(), 0.0))
         c0, t0 = time.process_time(), time.perf_counter()
         advanced += int(stream.push(pose[i], force[i]).numel())
         inc.append(time.perf_counter() - t0)
@@ -111,11 +122,14 @@ def measure(imager, stats, steps: int, updates: int, full_repeats: int, rng) -> 
     inc_med, inc_p99 = _percentiles(inc)
     full_med, full_p99 = _percentiles(full)
     cpu_inc, cpu_full = _percentiles(inc_cpu)[0], _percentiles(full_cpu)[0]
-    return {"bench": "stream", "steps": steps, "incremental_median_ms": inc_med, "incremental_p99_ms": inc_p99,
+    row = {"bench": "stream", "steps": steps, "incremental_median_ms": inc_med, "incremental_p99_ms": inc_p99,
             "full_median_ms": full_med, "full_p99_ms": full_p99, "speedup_median": full_med / inc_med,
             f"deferred_refresh{REFRESH_EVERY}_mean_ms": deferred_ms, "incremental_cpu_median_ms": cpu_inc,
             "full_cpu_median_ms": cpu_full, "speedup_cpu_median": cpu_full / max(cpu_inc, CPU_TICK_S * 1e3),
-            "particles_per_update": advanced / updates, "updates": updates, "full_repeats": full_repeats}
+           "particles_per_update": advanced / updates, "updates": updates, "full_repeats": full_repeats}
+    if rate_hz:
+        row.update(rate_hz=rate_hz, over_period_share=float(np.mean(np.asarray(inc) * rate_hz > 1.0)))
+    return row
 
 
 def stream_models(model_path: str | None, dim: int, widths: list[int | None], seed: int) -> list[tuple]:
@@ -129,7 +143,7 @@ def stream_models(model_path: str | None, dim: int, widths: list[int | None], se
 
 
 def run_stream(models: list[tuple], steps: list[int], loads: list[int], updates: int, full_repeats: int,
-               threads: int | None, seed: int) -> list[dict]:
+               threads: int | None, seed: int, rate_hz: float = 0.0) -> list[dict]:
     """One row per load level, model and prefix length (see :func:`measure`).
 
     Beside ``load`` busy processes the thread count is the one the ``stream`` command would choose
@@ -150,7 +164,7 @@ def run_stream(models: list[tuple], steps: list[int], loads: list[int], updates:
             for imager, stats, name in models:
                 rng = np.random.default_rng(seed)
                 for n in steps:
-                    row = measure(imager, stats, n, updates, full_repeats, rng)
+                    row = measure(imager, stats, n, updates, full_repeats, rng, rate_hz)
                     row.update({"dim": int(imager.grid.shape[0] > 1) + 2,
                                 "width": getattr(imager.decoder, "width", None),
                                 "threads": torch.get_num_threads(), "load": load, "model": name})

@@ -24,10 +24,14 @@ from lesscli.cli.common import comma_list, format_option, seed_option, threads_o
               help="Imaging checkpoint to time instead of the default model.")
 @click.option("--load", "load_text", default="0", show_default=True, metavar="N|LIST",
               help="Busy processes beside the measurement: N (rows for 0 and N) or a list such as 0,1,2.")
+@click.option("--rate", "rate_hz", type=click.FloatRange(0), default=0.0, metavar="HZ",
+              help="Timed samples arrive at this rate, as from a live sensor (the process sleeps between "
+                   "them); 0: back to back.  [default: 0]")
 @threads_option(help="CPU threads for torch and BLAS (default: the stream command's choice).")
 @seed_option()
 @format_option
-def cli(quick, steps_text, updates, full_repeats, dim, width_text, model_path, load_text, threads, seed, fmt) -> None:
+def cli(quick, steps_text, updates, full_repeats, dim, width_text, model_path, load_text, rate_hz, threads, seed,
+        fmt) -> None:
     """Per-update latency (median, p99) of incremental imaging vs full recomputation, as a table."""
     from lesscli.io.records import emit_records
 
@@ -42,7 +46,7 @@ def cli(quick, steps_text, updates, full_repeats, dim, width_text, model_path, l
         raise click.UsageError("--width sizes the default model; a --model checkpoint has its own")
     models = stream_models(model_path, int(dim), widths, seed)
     emit_records(run_stream(models, steps, loads, updates or (20 if quick else 200),
-                            full_repeats or (3 if quick else 10), threads, seed), fmt)
+                            full_repeats or (3 if quick else 10), threads, seed, rate_hz), fmt)
 
 
 def load_levels(text: str) -> list[int]:

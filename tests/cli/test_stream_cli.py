@@ -95,8 +95,11 @@ def test_bench_stream_tiny_run_and_bad_input(run_less):
         assert 0 < r["incremental_median_ms"] <= r["incremental_p99_ms"]
         assert r["full_median_ms"] > 0 and r["speedup_median"] == r["full_median_ms"] / r["incremental_median_ms"]
         assert r["deferred_refresh10_mean_ms"] > 0 and r["particles_per_update"] > 0
+    assert all("rate_hz" not in r for r in rows)              # back to back unless --rate
     bad = run_less("bench", "stream", "--steps", "0,5")
     assert bad.returncode == 2 and ">= 1" in bad.stderr.decode()
+    slower = run_less("bench", "stream", "--rate", "-5", "--steps", "5")
+    assert slower.returncode == 2 and "--rate" in slower.stderr.decode()
     narrow = run_less("bench", "stream", "--width", "4", "--steps", "5")
     assert narrow.returncode == 2 and ">= 8" in narrow.stderr.decode()
     both = run_less("bench", "stream", "--width", "16", "--model", "m.pt", "--steps", "5")
@@ -138,3 +141,19 @@ def test_stream_and_guide_label_with_the_models_rule(files, run_less, tmp_path):
     ckpt = {"config": config, "norm_stats": stats}
     assert not (guide_scan(imager, ckpt, scans, 0, opts).labels == 3).any()
     assert (guide_scan(imager, ckpt, scans, 0, opts, min_volume_mm3=0.0).labels == 3).sum() == kept[0]
+
+
+def test_bench_stream_paced_samples_arrive_at_the_rate():
+    """--rate: each timed sample waits for its due time, so the timed loop lasts at least (n - 1) / rate
+    (a lower bound: a slower machine only lengthens it); the row reports the share over the period."""
+    import time
+
+    import numpy as np
+
+    from lesscli.bench.stream import default_imager, measure
+
+    imager, stats = default_imager(2, 0, width=8)
+    t0 = time.perf_counter()
+    row = measure(imager, stats, 20, 6, 1, np.random.default_rng(0), rate_hz=25.0)
+    assert time.perf_counter() - t0 >= 5 / 25.0
+    assert row["rate_hz"] == 25.0 and 0.0 <= row["over_period_share"] <= 1.0 and row["updates"] == 6
