@@ -7,10 +7,11 @@ is timed. The baseline, measured in the same run, is what a non-incremental syst
 sample: the whole model on the whole prefix (encoder over all L + 1 steps and every particle's patch).
 Wall-clock and process CPU time are both reported: on a shared machine the CPU time is the better
 estimate of what an unloaded machine would show. A further column times deferred decoding: samples
-only advance GRU states and the image is refreshed every ``REFRESH_EVERY`` samples (mean cost per sample, refreshes included). With ``--load`` the
-whole measurement repeats beside N busy processes, one row per load level; the thread count is the one
-the ``stream`` command would choose with them running (unless ``--threads`` fixes it). With ``--rate``
-the timed samples arrive at a live sensor's pace instead of back to back (see :func:`measure`).
+only advance GRU states and the image is refreshed every ``REFRESH_EVERY`` samples (mean cost per
+sample, refreshes included). With ``--load`` the whole measurement repeats beside N busy processes,
+one row per load level; the thread count is the one the ``stream`` command would choose with them
+running (unless ``--threads`` fixes it). With ``--rate`` the timed samples arrive at a live sensor's
+pace instead of back to back (see :func:`measure`).
 """
 
 from __future__ import annotations
