@@ -21,6 +21,7 @@ in millimetres whatever the voxel shape.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -143,31 +144,73 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
 
     The opening leaves a body's surface where the global threshold put it, up to the roughness that
     noise gives; here each inclusion is re-thresholded with its local contrast, within ``reach_mm`` of it,
-    at the surface level of a blurred ball fitted to it (:func:`_curved_level`).
+    at the surface level of a blurred ball fitted to it (:func:`fitted_ball`).
     """
     from scipy import ndimage
 
     comps, _n = ndimage.label(bodies)
     out = np.zeros(bodies.shape, dtype=bool)
+    for i, sl in enumerate(ndimage.find_objects(comps), start=1):
+        fit = fitted_ball(comps == i, fraction, allowed, spacing, sl, reach_mm)
+        if fit is None:
+            out |= comps == i
+            continue
+        box, near_body, level = fit.box, fit.near, fit.level
+        out[box] |= near_body & (fraction[box] > level)
+    return out
+
+
+@dataclass
+class Ball:
+    """A blurred ball fitted to a body: ``centre_mm`` (array-axis mm), ``radius_mm``, ``sigma_mm`` (blur),
+    ``contrast`` over ``filling`` (fraction units); ``level`` the surface level; ``box`` and ``near`` the
+    region (within the rim of the body) where the surface is re-thresholded."""
+
+    centre_mm: np.ndarray
+    radius_mm: float
+    sigma_mm: float
+    contrast: float
+    filling: float
+    level: float
+    box: tuple
+    near: np.ndarray
+
+    def excess(self, points_mm: np.ndarray) -> np.ndarray:
+        """The ball's blurred silicone over the filling at ``points_mm`` (n, 3)."""
+        r = np.linalg.norm(points_mm - self.centre_mm, axis=1)
+        return self.contrast * ball_profile(r, self.radius_mm, self.sigma_mm)
+
+
+def fitted_ball(own_full: np.ndarray, fraction: np.ndarray, allowed: np.ndarray, spacing: np.ndarray,
+                sl: tuple, reach_mm: float) -> Ball | None:
+    """The blurred ball of one body (``own_full``, bounding slices ``sl``) fitted in ``allowed`` voxels
+    (:func:`_fit_ball`); None where no filling surrounds it."""
+    from scipy import ndimage
+
     voxel = float(spacing.max())
     pad = int(np.ceil(LEVEL_VOXELS[1] * voxel / float(spacing.min()))) + 1
-    for i, sl in enumerate(ndimage.find_objects(comps), start=1):
-        box = tuple(slice(max(a.start - pad, 0), a.stop + pad) for a in sl)
-        own, frac = comps[box] == i, fraction[box]
-        outside = ndimage.distance_transform_edt(~own, sampling=spacing)
-        inside = ndimage.distance_transform_edt(own, sampling=spacing)
-        interior = own & (inside > voxel) if (own & (inside > voxel)).any() else own
-        ring = allowed[box] & (outside > LEVEL_VOXELS[0] * voxel) & (outside <= LEVEL_VOXELS[1] * voxel)
-        if not ring.any():
-            out[box] |= own
-            continue
-        filling = float(np.median(frac[ring]))
-        level = 0.5 * (float(np.median(frac[interior])) + filling)
-        near = (outside <= PROFILE_VOXELS * voxel) & allowed[box]
-        body = own | ((outside <= reach_mm) & allowed[box] & (frac > level))
-        level = _curved_level(frac[near], np.argwhere(near) * spacing, body, spacing, filling, 2 * (level - filling))
-        out[box] |= (outside <= reach_mm) & allowed[box] & (frac > level)
-    return out
+    box = tuple(slice(max(a.start - pad, 0), a.stop + pad) for a in sl)
+    own, frac = own_full[box], fraction[box]
+    outside = ndimage.distance_transform_edt(~own, sampling=spacing)
+    inside = ndimage.distance_transform_edt(own, sampling=spacing)
+    interior = own & (inside > voxel) if (own & (inside > voxel)).any() else own
+    ring = allowed[box] & (outside > LEVEL_VOXELS[0] * voxel) & (outside <= LEVEL_VOXELS[1] * voxel)
+    if not ring.any():
+        return None
+    filling = float(np.median(frac[ring]))
+    level = 0.5 * (float(np.median(frac[interior])) + filling)
+    near = (outside <= PROFILE_VOXELS * voxel) & allowed[box]
+    body = own | ((outside <= reach_mm) & allowed[box] & (frac > level))
+    origin = np.array([b.start for b in box], dtype=np.float64) * spacing
+    params = _fit_ball(frac[near], np.argwhere(near) * spacing, body, spacing, filling, 2 * (level - filling))
+    if params is None:
+        centre, radius, sigma, contrast = origin + np.argwhere(own).mean(axis=0) * spacing, 0.0, 0.0, 0.0
+        level = filling + 0.5 * 2 * (level - filling)
+    else:
+        centre, radius, sigma, contrast = origin + params[:3], params[3], params[4], params[5]
+        level = filling + contrast * float(ball_profile(np.array([radius]), radius, sigma)[0])
+    return Ball(centre, float(radius), float(sigma), float(contrast), filling, level, box,
+                (outside <= reach_mm) & allowed[box])
 
 
 def ball_profile(r_mm: np.ndarray, radius_mm: float, sigma_mm: float) -> np.ndarray:
@@ -184,10 +227,10 @@ def ball_profile(r_mm: np.ndarray, radius_mm: float, sigma_mm: float) -> np.ndar
     return 0.5 * (erf(a) + erf(b)) - sigma_mm / (r * math.sqrt(2 * math.pi)) * (np.exp(-a * a) - np.exp(-b * b))
 
 
-def _curved_level(values: np.ndarray, points_mm: np.ndarray, body: np.ndarray, spacing: np.ndarray,
-                  filling: float, contrast: float) -> float:
-    """The level of a body's surface: a blurred ball (centre, radius, blur, contrast over ``filling``)
-    fitted by least squares to ``values`` at ``points_mm`` (n, 3), evaluated at its radius.
+def _fit_ball(values: np.ndarray, points_mm: np.ndarray, body: np.ndarray, spacing: np.ndarray,
+              filling: float, contrast: float) -> np.ndarray | None:
+    """(centre (3), radius, blur, contrast over ``filling``) of a blurred ball fitted by least squares to
+    ``values`` at ``points_mm`` (n, 3); None where too few values or no contrast.
 
     A compact body blurred by the scan and the denoising reads below half its contrast at its surface
     (:func:`ball_profile`), so the half-way level cuts a small inclusion too small; the blur is the
@@ -208,10 +251,9 @@ def _curved_level(values: np.ndarray, points_mm: np.ndarray, body: np.ndarray, s
     hi = np.r_[centre + PROFILE_SHIFT_VOXELS * voxel, PROFILE_RADIUS[1] * radius, PROFILE_SIGMA_VOXELS[1] * voxel,
                PROFILE_CONTRAST[1] * contrast]
     if len(values) < len(lo) or contrast <= 0:
-        return filling + 0.5 * contrast
+        return None
     start = np.clip(np.r_[centre, radius, 0.5 * voxel, contrast], lo, hi)
-    fit = least_squares(residuals, start, bounds=(lo, hi)).x
-    return filling + fit[5] * float(ball_profile(np.array([fit[3]]), fit[3], fit[4])[0])
+    return least_squares(residuals, start, bounds=(lo, hi)).x
 
 
 def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray) -> np.ndarray:

@@ -11,14 +11,21 @@ boundaries through voxel centres would split each slice between two slabs). Per 
   and the base, silicone once the ring enters the base or the skin. The trace ends there, or where
   the ring leaves the insert (a pillar standing on the insert's outer surface): that is the base
   surface, placed where the ring crosses half-way between the hydrogel and the base's own level (the
-  highest ring level in the base away from the insert's outer surface: a base of a few millimetres
-  reads below an inclusion's interior, and half the inclusion's contrast would put the surface a
-  fraction of a slab too deep). Where the first slab already lies in the base, the crossing is found
-  between the inclusion's last slice and that slab;
+  ring level in the base away from the insert's outer surface: a base of a few millimetres reads below
+  an inclusion's interior, and half the inclusion's contrast would put the surface a fraction of a slab
+  too deep). That level is the mean over the base's slabs past the first (which straddles the surface);
+  the highest of them, which noise biases upwards, placed the surface up to a tenth of a millimetre
+  too deep. With fewer than ``BASE_PLATEAU_SLABS`` slabs in the base it is the highest. Where the
+  first slab already lies in the base, the crossing is found between the inclusion's last slice and
+  that slab;
 - the core's silicone in excess of the ring level, summed over the slab and divided by the contrast
   of the inclusion's interior over that ring level, is the pillar's cross-section (mm^2). A sum is
   unchanged by partial volume and blur, so a pillar 1-2 voxels wide is measured as well as a wide one,
-  and no intensity threshold is involved;
+  and no intensity threshold is involved. Next to an inclusion the blur also spreads the sphere's own
+  silicone beyond its surface, most of it along the line under its centre, where the pillar stands:
+  in the pillar's trace, the inclusion's blurred ball (centre, radius, blur and contrast fitted to its
+  profile away from the pillar's column, :func:`lesscli.mri.morphology.fitted_ball`) is taken out of
+  every voxel first (under a small inclusion the cap reached a slab or two beyond its surface);
 - the weighted centroid of the excess locates the pillar in the slab.
 
 The hydrogel level that places the half-way crossing is the median ring level of the slabs walked on
@@ -59,6 +66,7 @@ MEDIAN_SE = 1.2533              # standard error of a median / (sigma / sqrt(n))
 SCALE_EPS = 1e-3
 MIN_LINE_SLABS = 3              # fewer slabs do not place a line against noise: the inclusion's axis
 MIN_OWN_SLABS = 4               # fewer slabs take the cross-section pooled over the scan's pillars
+BASE_PLATEAU_SLABS = 3          # from this many slabs in the base, its level is their mean past the first
 
 
 @dataclass
@@ -106,6 +114,7 @@ class _Column:
     free: np.ndarray                # in the insert and in no inclusion
     deep: np.ndarray                # in the insert, away from its outer surface (partial volume with air)
     other: np.ndarray               # in another inclusion
+    points: np.ndarray              # (n, 3) array-axis mm
     start: dict                     # direction sign -> t of the inclusion's surface along it
 
 
@@ -131,7 +140,7 @@ def _column(fraction, insert, deep, inc_ids, label, centre_mm, axis, spacing, re
     start = {sign: float((sign * t_sel[own]).max()) if own.any() else 0.0 for sign in (1, -1)}
     inside = insert[index]
     return _Column(index, t_sel, np.stack([offsets @ e1, offsets @ e2], axis=1), fraction[index].astype(np.float64),
-                   inside, inside & (ids == 0), deep[index], (ids != 0) & ~own, start)
+                   inside, inside & (ids == 0), deep[index], (ids != 0) & ~own, offsets + np.asarray(centre_mm), start)
 
 
 def _crossing(t: np.ndarray, level: np.ndarray, k: int) -> float:
@@ -143,11 +152,14 @@ def _crossing(t: np.ndarray, level: np.ndarray, k: int) -> float:
 
 
 def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: tuple[float, float],
-           step_mm: float, voxel_mm3: float, contrast: tuple[float, float]) -> Trace:
+           step_mm: float, voxel_mm3: float, contrast: tuple[float, float], ball=None) -> Trace:
     """Slab profile beyond the inclusion on side ``sign``, around ``line`` = (offset (2,), slope (2,)).
 
-    ``contrast`` = (local hydrogel level, local silicone - hydrogel) of the fraction image.
+    ``contrast`` = (local hydrogel level, local silicone - hydrogel) of the fraction image. ``ball``: the
+    inclusion's fitted blurred ball (:class:`lesscli.mri.morphology.Ball`), whose silicone is taken out
+    of every slab first; None leaves the slabs as read.
     """
+    value = col.value if ball is None else col.value - ball.excess(col.points)
     half = contrast[0] + HALF * contrast[1]
     st = sign * col.t
     slab = np.floor((st - col.start[sign]) / step_mm - 0.5).astype(np.int64)    # slab k centred k + 1 steps out
@@ -163,14 +175,14 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
         ring_free = ring_here & col.free
         if not ring_here.any() or not ring_free.any():
             break
-        level = float(np.median(col.value[ring_free]))
+        level = float(np.median(value[ring_free]))
         cover.append(float(col.inside[ring_here].mean()))
         levels.append(level)
         ts.append(float(st[here].mean()))
         if level > half or cover[-1] < HALF:
             break
         sel = here & core & col.free
-        excess = col.value[sel] - level
+        excess = value[sel] - level
         scale = max(contrast[0] + contrast[1] - level, SCALE_EPS)     # silicone over this slab's hydrogel
         areas.append(float(excess.sum()) * voxel_mm3 / step_mm / scale)
         w = np.clip(excess, 0.0, None)
@@ -194,8 +206,9 @@ def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndar
     """(base surface t, slabs before it) where the ring levels ``levels`` (of the slabs at ``ts``, the
     last one in the base) cross half-way between the hydrogel and the base's own level.
 
-    The base's level is the highest median over the ring's voxels away from the insert's outer surface
-    in the slabs from the last one on, as long as the ring has such voxels (else the inclusion's).
+    The base's level is read from the medians over the ring's voxels away from the insert's outer surface
+    in the slabs from the last one on, as long as the ring has such voxels: their mean past the first
+    (from BASE_PLATEAU_SLABS slabs on), else the highest, else the inclusion's.
     """
     base = []
     for k in range(len(ts) - 1, last + 1):
@@ -203,7 +216,11 @@ def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndar
         if not deep.any():
             break
         base.append(float(np.median(col.value[deep])))
-    scale = max((max(base) if base else contrast[0] + contrast[1]) - contrast[0], SCALE_EPS)
+    if len(base) >= BASE_PLATEAU_SLABS:
+        plateau = float(np.mean(base[1:]))
+    else:
+        plateau = max(base) if base else contrast[0] + contrast[1]
+    scale = max(plateau - contrast[0], SCALE_EPS)
     norm = (np.asarray(levels) - contrast[0]) / scale
     j = int(np.argmax(norm > HALF)) if (norm > HALF).any() else len(ts) - 1
     t, norm = np.asarray(ts[:j + 1]), norm[:j + 1]
@@ -212,6 +229,22 @@ def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndar
         t = np.array([float(st[inclusion_side].mean()), ts[0]])
         norm = np.array([(float(np.median(col.value[inclusion_side])) - contrast[0]) / scale, norm[0]])
     return _crossing(t, norm, len(t) - 1), j
+
+
+def _ball(fraction, allowed, inc_ids, label, col: _Column, side: int, core_mm: float, spacing):
+    """The inclusion's blurred ball, fitted away from other inclusions and from the column on the base side."""
+    from scipy import ndimage
+
+    from lesscli.mri.morphology import RIM_VOXELS, fitted_ball
+
+    sl = ndimage.find_objects(inc_ids, max_label=label)[label - 1]
+    rho = np.linalg.norm(col.uv, axis=1)
+    shut = np.zeros(inc_ids.shape, dtype=bool)
+    cut = (rho <= core_mm) & (side * col.t > col.start[side])
+    shut[tuple(i[cut] for i in col.index)] = True
+    ok = allowed & ~shut & ((inc_ids == 0) | (inc_ids == label))
+    fit = fitted_ball(inc_ids == label, fraction, ok, spacing, sl, RIM_VOXELS * float(spacing.max()))
+    return fit if fit is not None and fit.radius_mm > 0 else None
 
 
 def _fit_line(trace: Trace, fallback: np.ndarray) -> np.ndarray:
@@ -364,7 +397,8 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
             continue
         col, line = columns[label], _fit_line(first, np.zeros((2, 2)))
         core = min(core0, math.sqrt(first.median_area() / math.pi) + CORE_MARGIN_VOXELS * voxel)
-        second = _trace(col, side, line, core, rings(core), step, voxel_mm3, contrasts[label])
+        ball = _ball(fraction, insert if deep is None else deep, inc_ids, label, col, side, core0, spacing)
+        second = _trace(col, side, line, core, rings(core), step, voxel_mm3, contrasts[label], ball)
         final = _inner(second) if len(second.area_mm2) else first
         line = _fit_line(final, line) if len(final.area_mm2) >= MIN_LINE_SLABS else np.zeros((2, 2))
         found[label] = (line, final.area_mm2, core, second.end_mm)
