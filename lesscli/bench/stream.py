@@ -80,8 +80,7 @@ def measure(imager, stats, steps: int, updates: int, full_repeats: int, rng, rat
 
     With ``rate_hz`` the timed samples arrive as from a live sensor, one every 1 / rate_hz seconds
     (the process sleeps until each is due; after a late update the next starts at once, as from a
-    backlog);
-    ``over_period_share`` is the share of updates that took longer than that period.
+    backlog), and ``over_period_share`` is the share of updates that took longer than that period.
     """
     import numpy as np
     import torch
@@ -125,9 +124,9 @@ def measure(imager, stats, steps: int, updates: int, full_repeats: int, rng, rat
     full_med, full_p99 = _percentiles(full)
     cpu_inc, cpu_full = _percentiles(inc_cpu)[0], _percentiles(full_cpu)[0]
     row = {"bench": "stream", "steps": steps, "incremental_median_ms": inc_med, "incremental_p99_ms": inc_p99,
-            "full_median_ms": full_med, "full_p99_ms": full_p99, "speedup_median": full_med / inc_med,
-            f"deferred_refresh{REFRESH_EVERY}_mean_ms": deferred_ms, "incremental_cpu_median_ms": cpu_inc,
-            "full_cpu_median_ms": cpu_full, "speedup_cpu_median": cpu_full / max(cpu_inc, CPU_TICK_S * 1e3),
+           "full_median_ms": full_med, "full_p99_ms": full_p99, "speedup_median": full_med / inc_med,
+           f"deferred_refresh{REFRESH_EVERY}_mean_ms": deferred_ms, "incremental_cpu_median_ms": cpu_inc,
+           "full_cpu_median_ms": cpu_full, "speedup_cpu_median": cpu_full / max(cpu_inc, CPU_TICK_S * 1e3),
            "particles_per_update": advanced / updates, "updates": updates, "full_repeats": full_repeats}
     if rate_hz:
         row.update(rate_hz=rate_hz, over_period_share=float(np.mean(np.asarray(inc) * rate_hz > 1.0)))
