@@ -155,8 +155,7 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
         if fit is None:
             out |= comps == i
             continue
-        box, near_body, level = fit.box, fit.near, fit.level
-        out[box] |= near_body & (fraction[box] > level)
+        out[fit.box] |= fit.near & (fraction[fit.box] > fit.level)
     return out
 
 
@@ -203,9 +202,8 @@ def fitted_ball(own_full: np.ndarray, fraction: np.ndarray, allowed: np.ndarray,
     body = own | ((outside <= reach_mm) & allowed[box] & (frac > level))
     origin = np.array([b.start for b in box], dtype=np.float64) * spacing
     params = _fit_ball(frac[near], np.argwhere(near) * spacing, body, spacing, filling, 2 * (level - filling))
-    if params is None:
+    if params is None:                               # no fit: the half-way level stands
         centre, radius, sigma, contrast = origin + np.argwhere(own).mean(axis=0) * spacing, 0.0, 0.0, 0.0
-        level = filling + 0.5 * 2 * (level - filling)
     else:
         centre, radius, sigma, contrast = origin + params[:3], params[3], params[4], params[5]
         level = filling + contrast * float(ball_profile(np.array([radius]), radius, sigma)[0])
