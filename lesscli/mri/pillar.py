@@ -32,9 +32,13 @@ The hydrogel level that places the half-way crossing is the median ring level of
 either side (a ring over the whole column would also take in the skin and the base).
 
 The base is on the side where the inclusions together show more excess silicone (on the skin side
-there is none). On that side an inclusion has a pillar when the median cross-section exceeds a disc of
-``MIN_RADIUS_MM`` and ``NOISE_Z`` standard errors of the slab-to-slab scatter. The pillar is then the
-cylinder of the measured area from the inclusion down to the base surface, around the straight line
+there is none): the significant posts' cross-sections decide, else the short gaps to the base that hold
+silicone, else every trace's median cross-section (:func:`_base_side`). An inclusion found reaching
+past its fitted blurred ball towards the base holds pillar there (under a pillar a slice or two tall
+the opening keeps the pillar's slice); those voxels are the trace's from then on. On that side an
+inclusion has a pillar when the median cross-section exceeds a disc of ``MIN_RADIUS_MM`` and
+``NOISE_Z`` standard errors of the slab-to-slab scatter. The pillar is then the cylinder of the
+measured area from the inclusion down to the base surface, around the straight line
 fitted to the slab centroids of a second trace (a core fitted to the pillar, so less noise in the
 centroids). Short pillars are measured over few slabs, each as noisy as the next:
 
@@ -48,7 +52,7 @@ centroids). Short pillars are measured over few slabs, each as noisy as the next
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -275,13 +279,11 @@ def _short_gap(trace: Trace, col: _Column, sign: int, step_mm: float) -> bool:
     return trace.end_mm - col.start[sign] <= SHORT_GAP_SLABS * step_mm
 
 
-def _gap_radius(col: _Column, sign: int, end_mm: float, contrast: tuple[float, float], core_mm: float,
-                step_mm: float, voxel_mm3: float, found: dict) -> float | None:
-    """Radius of the post across a short gap between an inclusion and the base, or None (no post).
-
-    Along the line the gap holds silicone (the inclusion seen reaching the base counts) or not; the
-    radius is the median of the scan's measured pillars, else the area of the core's silicone in the gap.
-    """
+def _gap_area(col: _Column, sign: int, end_mm: float, contrast: tuple[float, float], core_mm: float,
+              step_mm: float, voxel_mm3: float) -> float | None:
+    """Cross-section (mm^2) of the core's silicone across a short gap between an inclusion and the
+    base, or None where the gap holds no post: along the line it is hydrogel (the inclusion seen
+    reaching the base counts as silicone)."""
     st = sign * col.t
     gap = col.free & (st > col.start[sign]) & (st <= end_mm)
     rho = np.linalg.norm(col.uv, axis=1)
@@ -289,12 +291,55 @@ def _gap_radius(col: _Column, sign: int, end_mm: float, contrast: tuple[float, f
     half = contrast[0] + HALF * contrast[1]
     if axis_voxels.any() and float(np.median(col.value[axis_voxels])) <= half:
         return None
+    length = max(end_mm - col.start[sign], step_mm)
+    return float((col.value[gap & (rho <= core_mm)] > half).sum()) * voxel_mm3 / length
+
+
+def _gap_radius(col: _Column, sign: int, end_mm: float, contrast: tuple[float, float], core_mm: float,
+                step_mm: float, voxel_mm3: float, found: dict) -> float | None:
+    """Radius of the post across a short gap between an inclusion and the base, or None (no post):
+    the median of the scan's measured pillars, else that of the core's silicone in the gap."""
+    area = _gap_area(col, sign, end_mm, contrast, core_mm, step_mm, voxel_mm3)
+    if area is None:
+        return None
     if found:
         return float(np.median([r for _line, r, _end in found.values()]))
-    in_core = gap & (rho <= core_mm)
-    length = max(end_mm - col.start[sign], step_mm)
-    area = float((col.value[in_core] > half).sum()) * voxel_mm3 / length
     return math.sqrt(area / math.pi) if area >= math.pi * MIN_RADIUS_MM ** 2 else None
+
+
+def _past_ball(col: _Column, sign: int, ball, centre_mm: np.ndarray, axis: np.ndarray) -> _Column:
+    """``col`` with the inclusion's own voxels beyond its fitted ball's surface on side ``sign`` freed
+    and its start moved to that surface. Under a pillar a slice or two tall the body can hold the
+    pillar's slice, and the gap between it and the base then holds no voxel to measure the post in."""
+    surface = sign * float((ball.centre_mm - centre_mm) @ axis) + ball.radius_mm
+    if surface >= col.start[sign]:
+        return col
+    own = col.inside & ~col.free & ~col.other
+    past = own & (sign * col.t > surface)
+    return replace(col, free=col.free | past, start={**col.start, sign: surface})
+
+
+def _base_side(traces: dict, columns: dict, contrasts: dict, labels: list[int], core_mm: float, step_mm: float,
+               voxel_mm3: float) -> int:
+    """+1 or -1: the side of the inclusions where the base lies, from the excess silicone beyond them.
+
+    In order, the first that decides: the significant posts' median cross-sections summed per side; the
+    number of inclusions whose base is within a short gap that holds silicone (a pillar shorter than two
+    slabs leaves no slab to measure, and the other side's noise would decide); the median
+    cross-sections of every trace summed per side.
+    """
+    inner = {key: _inner(trace) for key, trace in traces.items()}
+    strong = sum(sign * inner[k, sign].median_area() for k in labels for sign in (1, -1)
+                 if inner[k, sign].significant())
+    gaps = sum(sign for k in labels for sign in (1, -1)
+               if _short_gap(traces[k, sign], columns[k], sign, step_mm)
+               and _gap_area(columns[k], sign, traces[k, sign].end_mm, contrasts[k], core_mm, step_mm,
+                             voxel_mm3) is not None)
+    weak = sum(sign * inner[k, sign].median_area() for k in labels for sign in (1, -1))
+    for evidence in (strong, gaps, weak):
+        if evidence:
+            return 1 if evidence > 0 else -1
+    return 1
 
 
 def _pooled_radii(found: dict) -> dict:
@@ -387,8 +432,18 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
             contrast = _walked_contrast(both, contrast)
         columns[label], contrasts[label] = col, contrast
         traces[label, 1], traces[label, -1] = both
-    side = 1 if sum(_inner(traces[k, 1]).median_area() - _inner(traces[k, -1]).median_area()
-                    for k in labels) >= 0 else -1
+    side = _base_side(traces, columns, contrasts, labels, core0, step, voxel_mm3)
+    balls = {}
+    for label, centre in zip(labels, centres):
+        ball = balls[label] = _ball(fraction, insert if deep is None else deep, inc_ids, label, columns[label],
+                                    side, core0, spacing)
+        col = columns[label]
+        if ball is not None and _short_gap(traces[label, side], col, side, step):
+            col = _past_ball(col, side, ball, centre, axis)
+        if col is not columns[label]:
+            columns[label] = col
+            traces[label, side] = _trace(col, side, np.zeros((2, 2)), core0, rings(core0), step, voxel_mm3,
+                                         contrasts[label])
     found, short, missing = {}, [], []
     for label in labels:
         first = _inner(traces[label, side])
@@ -397,8 +452,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
             continue
         col, line = columns[label], _fit_line(first, np.zeros((2, 2)))
         core = min(core0, math.sqrt(first.median_area() / math.pi) + CORE_MARGIN_VOXELS * voxel)
-        ball = _ball(fraction, insert if deep is None else deep, inc_ids, label, col, side, core0, spacing)
-        second = _trace(col, side, line, core, rings(core), step, voxel_mm3, contrasts[label], ball)
+        second = _trace(col, side, line, core, rings(core), step, voxel_mm3, contrasts[label], balls[label])
         final = _inner(second) if len(second.area_mm2) else first
         line = _fit_line(final, line) if len(final.area_mm2) >= MIN_LINE_SLABS else np.zeros((2, 2))
         found[label] = (line, final.area_mm2, core, second.end_mm)
