@@ -6,6 +6,8 @@ segmentation is tested on volumes it was not developed with:
 - an octagonal insert (``width_mm`` across flats, ``height_mm`` tall) with a silicone skin on top and
   on the sides and a thicker silicone base, filled with hydrogel; 1-3 spherical inclusions, each on a
   cylindrical pillar standing on the base (``pillar_height_mm`` from the base to the sphere's bottom);
+  ``inclusion_aspect`` other than 1 stretches each inclusion along the phantom's x into a spheroid
+  (diameter ``inclusion_mm`` across, ``aspect`` times that along x: an inclusion that is not a ball);
 - posed with the base down or up along array axis 0 and an arbitrary rotation about it, shifted;
 - partial volume from the signed distance: a voxel's fill is a linear ramp over its width measured
   along the surface normal (the box projected on the normal), then a slight Gaussian blur;
@@ -47,6 +49,7 @@ class Case:
     width_mm: float = 62.0
     skin_mm: float = 2.5
     base_mm: float = 3.0
+    inclusion_aspect: float = 1.0
 
 
 @dataclass
@@ -79,11 +82,12 @@ def _layout(case: Case, rng: np.random.Generator) -> tuple[np.ndarray, float]:
     need = float(np.max(case.base_mm + heights + 2 * radii)) + MIN_GAP_MM + case.skin_mm
     height = max(28.0, need) + float(rng.uniform(0.0, 4.0))
     apothem = 0.5 * case.width_mm - case.skin_mm
+    wide = radii * max(1.0, case.inclusion_aspect)             # in-plane reach (a spheroid's long axis)
     for _ in range(PLACEMENT_TRIES):
         xy = rng.uniform(-apothem, apothem, (len(radii), 2))
-        inside = _octagon_sd(xy[:, 0], xy[:, 1], apothem) <= -(radii + MIN_GAP_MM)
+        inside = _octagon_sd(xy[:, 0], xy[:, 1], apothem) <= -(wide + MIN_GAP_MM)
         dist = np.linalg.norm(xy[:, None] - xy[None], axis=2) + np.eye(len(radii)) * 1e9
-        if inside.all() and (dist >= radii[:, None] + radii[None] + MIN_GAP_MM).all():
+        if inside.all() and (dist >= wide[:, None] + wide[None] + MIN_GAP_MM).all():
             z = case.base_mm + heights + radii
             return np.column_stack([xy, z]), height
     raise ValueError(f"case {case}: could not place the inclusions")
@@ -113,6 +117,17 @@ def _bias(points: list[np.ndarray], amplitude: float, rng: np.random.Generator) 
     return np.exp(amplitude * g / max(float(np.abs(g).max()), 1e-6))
 
 
+def _spheroid_sd(dx, dy, dz, radius: float, aspect: float):
+    """Signed distance (mm) to a ball of ``radius``, or to its spheroid stretched ``aspect`` times along x
+    (the level-set value over its gradient: exact on the surface, first order near it)."""
+    if aspect == 1.0:
+        return np.sqrt(dx * dx + dy * dy + dz * dz) - radius
+    u = dx / aspect
+    q = np.sqrt(u * u + dy * dy + dz * dz)
+    grad = np.sqrt((u / aspect) ** 2 + dy * dy + dz * dz) / np.maximum(q, 1e-9)
+    return (q - radius) / np.maximum(grad, 1e-9)
+
+
 def generate(case: Case) -> Volume:
     """Generate the scan and truth of ``case`` (deterministic in ``case.seed``)."""
     from scipy import ndimage
@@ -135,7 +150,7 @@ def generate(case: Case) -> Volume:
     body = np.maximum(_octagon_sd(x, y, 0.5 * case.width_mm), _slab_sd(z, 0.0, height))
     cavity = np.maximum(_octagon_sd(x, y, 0.5 * case.width_mm - case.skin_mm),
                         _slab_sd(z, case.base_mm, height - case.skin_mm))
-    spheres = [np.sqrt((x - cx) ** 2 + (y - cy) ** 2 + (z - cz) ** 2) - r
+    spheres = [_spheroid_sd(x - cx, y - cy, z - cz, r, case.inclusion_aspect)
                for (cx, cy, cz), r in zip(centres, 0.5 * np.asarray(case.inclusion_mm))]
     pillars = [np.maximum(np.sqrt((x - cx) ** 2 + (y - cy) ** 2) - 0.5 * case.pillar_mm,
                           _slab_sd(z, case.base_mm - 1.0, cz)) for cx, cy, cz in centres] if case.pillar_mm > 0 else []

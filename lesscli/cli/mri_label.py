@@ -110,6 +110,9 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
               help="Thickest silicone skin (labelled insert).")
 @click.option("--smooth-mm", type=click.FloatRange(min=0.0), default=None,
               help="Gaussian denoising sigma (default 0.6 x the finest voxel size).")
+@click.option("--inclusion-shape", type=click.Choice(["auto", "image", "ball"]), default="auto", show_default=True,
+              help="Each inclusion as its fitted blurred ball (ball), as the scan's own surface (image), or the "
+                   "ball where it fits the scan within its noise, else the surface (auto).")
 @click.option("--grid", type=click.Choice(["scan", "phantom"]), default="scan", show_default=True,
               help="scan: labels on the input grid with its affine; phantom: the toolkit grid in the phantom frame.")
 @click.option("--grid-shape", default="26,128,128", show_default=True, help="D,H,W of the phantom grid.")
@@ -134,8 +137,9 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
               help="With --synth: peak |log| of the multiplicative bias field.")
 @seed_option()
 @format_option
-def cli(scan, output, spacing, pillar_max_diameter_mm, skin_max_thickness_mm, smooth_mm, grid, grid_shape,
-        grid_spacing_mm, orientations, report, qc, strict, synth, truth_out, contrast, noise, bias, seed, fmt) -> None:
+def cli(scan, output, spacing, pillar_max_diameter_mm, skin_max_thickness_mm, smooth_mm, inclusion_shape, grid,
+        grid_shape, grid_spacing_mm, orientations, report, qc, strict, synth, truth_out, contrast, noise, bias, seed,
+        fmt) -> None:
     """Label an MRI scan (NIfTI, DICOM folder, or .npy/.npz with --spacing-mm) into 0 background,
     1 insert (hydrogel and skin), 2 pillar, 3 inclusion; either tissue may be the brighter one.
 
@@ -162,6 +166,6 @@ def cli(scan, output, spacing, pillar_max_diameter_mm, skin_max_thickness_mm, sm
         raise click.BadParameter(f"'{output}': expected {', '.join(allowed)}", param_hint="-o")
     if qc and not qc.endswith(".png"):
         raise click.BadParameter(f"'{qc}': expected a .png file", param_hint="--plot")
-    params = SegmentParams(pillar_max_diameter_mm, skin_max_thickness_mm, smooth_mm)
+    params = SegmentParams(pillar_max_diameter_mm, skin_max_thickness_mm, smooth_mm, inclusion_shape=inclusion_shape)
     _label(scan, output, spacing, params, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict,
            fmt)

@@ -42,6 +42,8 @@ PROFILE_SHIFT_VOXELS = 1.0      # ... its centre within this of the body's centr
 PROFILE_RADIUS = (0.5, 1.5)     # ... its radius within these factors of the body's equal-volume radius
 PROFILE_SIGMA_VOXELS = (0.1, 3.0)   # ... its blur within these, in voxels
 PROFILE_CONTRAST = (0.5, 2.0)   # ... its contrast within these factors of the interior's over the filling
+MAD_TO_SIGMA = 1.4826
+BALL_MISFIT = 1.25              # an inclusion whose blurred ball fits its voxels this close to the noise is that ball
 
 
 def crop_box(mask: np.ndarray, pad: int) -> tuple[slice, ...]:
@@ -139,12 +141,16 @@ def _in_filling(bodies: np.ndarray, silicone: np.ndarray, insert: np.ndarray, sp
 
 
 def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray, spacing: np.ndarray,
-                   reach_mm: float) -> np.ndarray:
+                   reach_mm: float, shape: str = "auto") -> np.ndarray:
     """Each body's surface between its own interior level and the filling's level around it.
 
     The opening leaves a body's surface where the global threshold put it, up to the roughness that
     noise gives; here each inclusion is re-thresholded with its local contrast, within ``reach_mm`` of it,
-    at the surface level of a blurred ball fitted to it (:func:`fitted_ball`).
+    at the surface level of a blurred ball fitted to it (:func:`fitted_ball`). ``shape``: "image" keeps
+    that surface; "ball" takes the fitted ball's voxels instead; "auto" takes the ball where it fits the
+    voxels near the body as well as the scan's noise allows (:attr:`Ball.misfit` at most
+    ``BALL_MISFIT``: the noise, not the shape, is then what separates them) and the image's surface
+    elsewhere (a body that is not a ball fits worse).
     """
     from scipy import ndimage
 
@@ -155,7 +161,10 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
         if fit is None:
             out |= comps == i
             continue
-        out[fit.box] |= fit.near & (fraction[fit.box] > fit.level)
+        if shape == "ball" or (shape == "auto" and fit.misfit <= BALL_MISFIT):
+            out[fit.box] |= fit.near & fit.inside()
+        else:
+            out[fit.box] |= fit.near & (fraction[fit.box] > fit.level)
     return out
 
 
@@ -163,7 +172,9 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
 class Ball:
     """A blurred ball fitted to a body: ``centre_mm`` (array-axis mm), ``radius_mm``, ``sigma_mm`` (blur),
     ``contrast`` over ``filling`` (fraction units); ``level`` the surface level; ``box`` and ``near`` the
-    region (within the rim of the body) where the surface is re-thresholded."""
+    region (within the rim of the body) where the surface is re-thresholded, on a grid of ``spacing_mm``;
+    ``misfit`` the root-mean-square residual of the fit over the scan's noise (the robust spread of the
+    filling around it): about 1 where a ball is all the voxels show, inf where no fit was made."""
 
     centre_mm: np.ndarray
     radius_mm: float
@@ -173,6 +184,15 @@ class Ball:
     level: float
     box: tuple
     near: np.ndarray
+    spacing_mm: np.ndarray
+    misfit: float = math.inf
+
+    def inside(self) -> np.ndarray:
+        """(``near``'s shape) bool: the voxels of ``box`` whose centres lie in the ball."""
+        origin = np.array([b.start for b in self.box], dtype=np.float64) * self.spacing_mm
+        axes = [(np.arange(n) * s + o - c) ** 2
+                for n, s, o, c in zip(self.near.shape, self.spacing_mm, origin, self.centre_mm)]
+        return axes[0][:, None, None] + axes[1][None, :, None] + axes[2][None, None, :] <= self.radius_mm ** 2
 
     def excess(self, points_mm: np.ndarray) -> np.ndarray:
         """The ball's blurred silicone over the filling at ``points_mm`` (n, 3)."""
@@ -201,14 +221,19 @@ def fitted_ball(own_full: np.ndarray, fraction: np.ndarray, allowed: np.ndarray,
     near = (outside <= PROFILE_VOXELS * voxel) & allowed[box]
     body = own | ((outside <= reach_mm) & allowed[box] & (frac > level))
     origin = np.array([b.start for b in box], dtype=np.float64) * spacing
-    params = _fit_ball(frac[near], np.argwhere(near) * spacing, body, spacing, filling, 2 * (level - filling))
+    points = np.argwhere(near) * spacing
+    params = _fit_ball(frac[near], points, body, spacing, filling, 2 * (level - filling))
+    misfit = math.inf
     if params is None:                               # no fit: the half-way level stands
         centre, radius, sigma, contrast = origin + np.argwhere(own).mean(axis=0) * spacing, 0.0, 0.0, 0.0
     else:
         centre, radius, sigma, contrast = origin + params[:3], params[3], params[4], params[5]
         level = filling + contrast * float(ball_profile(np.array([radius]), radius, sigma)[0])
+        model = filling + contrast * ball_profile(np.linalg.norm(points - params[:3], axis=1), radius, sigma)
+        noise = MAD_TO_SIGMA * float(np.median(np.abs(frac[ring] - filling)))
+        misfit = float(np.sqrt(np.mean((frac[near] - model) ** 2))) / max(noise, 1e-9)
     return Ball(centre, float(radius), float(sigma), float(contrast), filling, level, box,
-                (outside <= reach_mm) & allowed[box])
+                (outside <= reach_mm) & allowed[box], spacing, misfit)
 
 
 def ball_profile(r_mm: np.ndarray, radius_mm: float, sigma_mm: float) -> np.ndarray:
@@ -281,8 +306,8 @@ def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray) -> n
 
 
 def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_max_diameter_mm: float,
-                   skin_max_thickness_mm: float,
-                   fraction: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
+                   skin_max_thickness_mm: float, fraction: np.ndarray | None = None,
+                   inclusion_shape: str = "auto") -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Pillar and inclusion masks from the silicone mask of an insert.
 
     Args:
@@ -293,6 +318,7 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
         skin_max_thickness_mm: thickest skin.
         fraction: float image of the silicone fraction (0 hydrogel, 1 silicone) for tracing pillars;
             None uses the silicone mask itself.
+        inclusion_shape: "auto", "image" or "ball" (:func:`_local_surface`).
 
     Returns:
         (pillar mask, inclusion mask, warnings), masks of the input's shape.
@@ -323,7 +349,7 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     deep = ins & (depth > shell_mm)
     pillar, missing, _side = find_pillars(frac, ins, inc_ids, n_inclusions, spacing, insert_axis(ins, spacing),
                                           pillar_max_diameter_mm, deep)
-    inclusion = _local_surface(bodies, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm)
+    inclusion = _local_surface(bodies, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm, inclusion_shape)
     inclusion |= _junctions(inclusion, pillar, spacing)
     pillar &= ~inclusion
     for i in missing:

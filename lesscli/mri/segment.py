@@ -51,12 +51,15 @@ class SegmentParams:
         skin_max_thickness_mm: thickest skin; the ball is also thicker than this.
         smooth_mm: Gaussian sigma of the denoising; None = 0.6 x the finest voxel size.
         bias_degree: polynomial degree of the log bias field (0 = no correction).
+        inclusion_shape: "auto" (an inclusion is its fitted ball where that fits within the noise, else
+            the image's surface), "image" or "ball" (always).
     """
 
     pillar_max_diameter_mm: float = 4.5
     skin_max_thickness_mm: float = 3.0
     smooth_mm: float | None = None
     bias_degree: int = 3
+    inclusion_shape: str = "auto"
 
 
 @dataclass
@@ -237,7 +240,7 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     sil_level, gel_level = (bright, dark) if silicone_brighter else (dark, bright)
     fraction = (corrected - np.float32(gel_level)) / np.float32(sil_level - gel_level)
     pillar, inclusion, more = split_silicone(silicone, insert, spacing, params.pillar_max_diameter_mm,
-                                             params.skin_max_thickness_mm, fraction)
+                                             params.skin_max_thickness_mm, fraction, params.inclusion_shape)
     labels = np.full(arr.shape, BACKGROUND, dtype=np.uint8)
     labels[insert] = INSERT
     labels[pillar] = PILLAR

@@ -89,6 +89,20 @@ def test_numpy_scan_with_spacing(run_less, tmp_path):
     assert dice(labels.data > 0, synth.labels.data > 0) > 0.97
 
 
+def test_inclusion_shape_option(run_less, synth_files, tmp_path):
+    """--inclusion-shape image / ball choose the inclusion's surface; both overlap the truth's inclusion."""
+    truth = load_nifti_labels(str(synth_files / "truth.nii.gz")).data == INCLUSION
+    out = {}
+    for shape in ("image", "ball"):
+        run_less("mri-label", synth_files / "scan.nii.gz", "-o", f"{shape}.nii.gz", "--inclusion-shape", shape,
+                 check=True)
+        out[shape] = load_nifti_labels(str(tmp_path / f"{shape}.nii.gz")).data == INCLUSION
+        assert dice(out[shape], truth) > 0.93
+    assert (out["image"] != out["ball"]).any()
+    proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", "x.nii.gz", "--inclusion-shape", "cube")
+    assert proc.returncode == 2 and not (tmp_path / "x.nii.gz").exists()
+
+
 def _bad_arrays(tmp_path) -> dict:
     rng = np.random.default_rng(0)
     noise = np.abs(rng.normal(0, 1, (48, 48, 48)) + 1j * rng.normal(0, 1, (48, 48, 48)))
