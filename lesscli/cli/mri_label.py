@@ -97,7 +97,7 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
         rep.save_qc(qc, seg.corrected, seg.labels, seg.spacing_mm, title=f"{scan_path}: blue insert, orange outline "
                     "pillar, red inclusion")
     if report:
-        emit_records(rows + rep.warning_rows(seg.warnings), fmt)
+        emit_records(rows + rep.shape_rows(seg.inclusion_shapes, scan.affine) + rep.warning_rows(seg.warnings), fmt)
 
 
 @click.command("mri-label")

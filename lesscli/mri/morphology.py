@@ -151,21 +151,30 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
     voxels near the body as well as the scan's noise allows (:attr:`Ball.misfit` at most
     ``BALL_MISFIT``: the noise, not the shape, is then what separates them) and the image's surface
     elsewhere (a body that is not a ball fits worse).
+
+    Returns:
+        (inclusion mask, one dict per body: ``shape`` "ball" or "image", ``centre_index`` (the fitted
+        ball's centre, else the body's centroid, in voxel indices), ``ball_diameter_mm`` and
+        ``ball_misfit`` (None where no ball was fitted)).
     """
     from scipy import ndimage
 
     comps, _n = ndimage.label(bodies)
     out = np.zeros(bodies.shape, dtype=bool)
+    shapes = []
     for i, sl in enumerate(ndimage.find_objects(comps), start=1):
         fit = fitted_ball(comps == i, fraction, allowed, spacing, sl, reach_mm)
         if fit is None:
             out |= comps == i
+            shapes.append({"shape": "image", "centre_index": list(ndimage.center_of_mass(comps == i)),
+                           "ball_diameter_mm": None, "ball_misfit": None})
             continue
-        if shape == "ball" or (shape == "auto" and fit.misfit <= BALL_MISFIT):
-            out[fit.box] |= fit.near & fit.inside()
-        else:
-            out[fit.box] |= fit.near & (fraction[fit.box] > fit.level)
-    return out
+        ball = fit.radius_mm > 0 and (shape == "ball" or (shape == "auto" and fit.misfit <= BALL_MISFIT))
+        out[fit.box] |= fit.near & (fit.inside() if ball else fraction[fit.box] > fit.level)
+        shapes.append({"shape": "ball" if ball else "image", "centre_index": list(fit.centre_mm / spacing),
+                       "ball_diameter_mm": 2 * fit.radius_mm if fit.radius_mm > 0 else None,
+                       "ball_misfit": fit.misfit if math.isfinite(fit.misfit) else None})
+    return out, shapes
 
 
 @dataclass
@@ -307,7 +316,7 @@ def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray) -> n
 
 def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_max_diameter_mm: float,
                    skin_max_thickness_mm: float, fraction: np.ndarray | None = None,
-                   inclusion_shape: str = "auto") -> tuple[np.ndarray, np.ndarray, list[str]]:
+                   inclusion_shape: str = "auto") -> tuple[np.ndarray, np.ndarray, list[str], list[dict]]:
     """Pillar and inclusion masks from the silicone mask of an insert.
 
     Args:
@@ -321,7 +330,8 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
         inclusion_shape: "auto", "image" or "ball" (:func:`_local_surface`).
 
     Returns:
-        (pillar mask, inclusion mask, warnings), masks of the input's shape.
+        (pillar mask, inclusion mask, warnings, one dict per inclusion on how its surface was drawn
+        (:func:`_local_surface`; centres in the input's voxel indices)), masks of the input's shape.
     """
     from scipy import ndimage
 
@@ -329,7 +339,7 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     pillar_full = np.zeros(insert.shape, dtype=bool)
     inclusion_full = np.zeros(insert.shape, dtype=bool)
     if not silicone.any():
-        return pillar_full, inclusion_full, ["no inclusion found (no silicone inside the insert)"]
+        return pillar_full, inclusion_full, ["no inclusion found (no silicone inside the insert)"], []
     box = crop_box(insert, 2)
     # one voxel of padding: the distance transforms must see air beyond a scan's border too
     sil, ins = np.pad(silicone[box], 1), np.pad(insert[box], 1)
@@ -349,7 +359,7 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     deep = ins & (depth > shell_mm)
     pillar, missing, _side = find_pillars(frac, ins, inc_ids, n_inclusions, spacing, insert_axis(ins, spacing),
                                           pillar_max_diameter_mm, deep)
-    inclusion = _local_surface(bodies, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm, inclusion_shape)
+    inclusion, shapes = _local_surface(bodies, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm, inclusion_shape)
     inclusion |= _junctions(inclusion, pillar, spacing)
     pillar &= ~inclusion
     for i in missing:
@@ -357,4 +367,6 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
         warnings.append(f"pillar not connected: no pillar found under the inclusion near voxel {centre}")
     inner = (slice(1, -1),) * 3
     pillar_full[box], inclusion_full[box] = pillar[inner], inclusion[inner]
-    return pillar_full, inclusion_full, warnings
+    for row in shapes:
+        row["centre_index"] = [float(c + o) for c, o in zip(row["centre_index"], offset)]
+    return pillar_full, inclusion_full, warnings, shapes

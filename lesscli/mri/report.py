@@ -54,6 +54,16 @@ def inclusion_rows(labels: np.ndarray, affine: np.ndarray) -> list[dict]:
     return rows
 
 
+def shape_rows(shapes: list[dict], affine: np.ndarray) -> list[dict]:
+    """One row per inclusion on how its surface was drawn (``mri-label --inclusion-shape``): its fitted
+    ball's or body's centre (world x, y, z mm of the scan's affine), the ball's diameter and misfit."""
+    from lesscli.mri.frame import voxel_to_world
+
+    return [{"row": "inclusion_shape", "shape": s["shape"],
+             "centre_mm": [round(float(v), 3) for v in voxel_to_world(np.asarray([s["centre_index"]]), affine)[0]],
+             "ball_diameter_mm": s["ball_diameter_mm"], "ball_misfit": s["ball_misfit"]} for s in shapes]
+
+
 def frame_row(frame) -> dict:
     """The found phantom frame as a record."""
     return {"row": "frame", "rotation_deg": frame.rotation_deg, "width_mm": frame.width_mm,

@@ -75,6 +75,8 @@ class Segmentation:
         corrected: (same shape) float32 bias-corrected, normalised, smoothed image (for QC).
         silicone: (same shape) bool, all silicone inside the insert (skin, pillars, inclusions).
         warnings: human-readable problems found.
+        inclusion_shapes: per inclusion, how its surface was drawn (``shape`` "ball" or "image",
+            ``centre_index``, ``ball_diameter_mm``, ``ball_misfit``; see ``SegmentParams.inclusion_shape``).
     """
 
     labels: np.ndarray
@@ -85,6 +87,7 @@ class Segmentation:
     corrected: np.ndarray
     silicone: np.ndarray
     warnings: list[str] = field(default_factory=list)
+    inclusion_shapes: list[dict] = field(default_factory=list)
 
 
 def validate(image: np.ndarray, where: str) -> np.ndarray:
@@ -239,7 +242,7 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     silicone = bright_mask if silicone_brighter else insert & ~bright_mask
     sil_level, gel_level = (bright, dark) if silicone_brighter else (dark, bright)
     fraction = (corrected - np.float32(gel_level)) / np.float32(sil_level - gel_level)
-    pillar, inclusion, more = split_silicone(silicone, insert, spacing, params.pillar_max_diameter_mm,
+    pillar, inclusion, more, shapes = split_silicone(silicone, insert, spacing, params.pillar_max_diameter_mm,
                                              params.skin_max_thickness_mm, fraction, params.inclusion_shape)
     labels = np.full(arr.shape, BACKGROUND, dtype=np.uint8)
     labels[insert] = INSERT
@@ -247,4 +250,4 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     labels[inclusion] = INCLUSION
     levels = {"air": air, "silicone": sil_level, "hydrogel": gel_level}
     return Segmentation(labels, spacing, silicone_brighter, levels, (t_air, t_tissue), corrected.astype(np.float32),
-                        silicone, warnings + more)
+                        silicone, warnings + more, shapes)

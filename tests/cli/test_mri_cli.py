@@ -50,6 +50,10 @@ def test_synth_label_metrics_roundtrip(run_less, synth_files, tmp_path):
     assert contrast["silicone_brighter"] is True and contrast["silicone"] > contrast["hydrogel"]
     inclusions = [r for r in rows if r["row"] == "inclusion"]
     assert len(inclusions) == 1 and abs(inclusions[0]["diameter_mm"] - 12.0) < 1.0
+    shape = [r for r in rows if r["row"] == "inclusion_shape"]
+    assert len(shape) == 1 and shape[0]["shape"] in ("ball", "image")
+    assert abs(shape[0]["ball_diameter_mm"] - 12.0) < 1.0 and 0.0 < shape[0]["ball_misfit"] < 10.0
+    assert np.linalg.norm(np.subtract(shape[0]["centre_mm"], inclusions[0]["centroid_mm"])) < 1.0
     assert not [r for r in rows if r["row"] == "warning"]
     assert (tmp_path / "qc.png").stat().st_size > 1000
     out, ref = nib.load(tmp_path / "labels.nii.gz"), nib.load(scan)
