@@ -20,6 +20,7 @@ Pipeline (:func:`segment`):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,9 +38,10 @@ HIST_SAMPLES = 400_000          # voxels used for histograms and fits
 SAMPLE_SEED = 0                 # fixed subsampling: the segmentation is deterministic
 SURFACE_BAND_VOXELS = 1.5       # the outer surface is re-decided this close to it
 SURFACE_LAYER_VOXELS = 1.0      # the tissue level is read in a layer from this deep (past the partial volume)
-SURFACE_LAYER_MM = 1.0          # ... this thick
+SURFACE_LAYER_MM = 1.0          # ... this thick (at least one largest voxel)
 SURFACE_SIGMA_MM = 3.0          # ... averaged along the surface over this
 SURFACE_MIN_WEIGHT = 0.01       # band voxels with no layer nearby keep the global decision
+RICE_BISECTIONS = 40            # inverting the Rice mean for a tissue's signal
 
 
 @dataclass(frozen=True)
@@ -156,15 +158,46 @@ def _topology(tissue: np.ndarray, spacing: np.ndarray, where: str) -> tuple[np.n
     return ndimage.binary_fill_holes(insert), warnings
 
 
+def rician_mean(signal: float, sigma: float) -> float:
+    """Mean magnitude of ``signal`` in complex Gaussian noise of ``sigma`` per channel (the Rice
+    distribution of an MRI magnitude image): sigma sqrt(pi/2) at no signal, about sqrt(signal^2 +
+    sigma^2) well above the noise."""
+    from scipy.special import i0e, i1e
+
+    if sigma <= 0:
+        return abs(signal)
+    nu = signal * signal / (2 * sigma * sigma)
+    return sigma * math.sqrt(math.pi / 2) * ((1 + nu) * float(i0e(nu / 2)) + nu * float(i1e(nu / 2)))
+
+
+def half_level(air: float, tissue: float) -> float:
+    """The magnitude a voxel half air and half ``tissue`` reads on average, from the two levels read.
+
+    In a magnitude image air reads the noise alone (its mean: sigma sqrt(pi/2)) and a tissue its signal
+    lifted by the noise, so the mean of the two levels lies above that of a half-filled voxel, by up to
+    a tenth of the contrast at the noise of a fast scan (the surface of a dark skin drawn up to a slice
+    inside). The noise comes from the air's level, the tissue's signal from inverting the Rice mean.
+    """
+    sigma = max(air, 0.0) / math.sqrt(math.pi / 2)
+    if tissue <= rician_mean(0.0, sigma):
+        return 0.5 * (air + tissue)
+    lo, hi = 0.0, tissue
+    for _ in range(RICE_BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if rician_mean(mid, sigma) < tissue else (lo, mid)
+    return rician_mean(0.25 * (lo + hi), sigma)
+
+
 def _surface(corrected: np.ndarray, insert: np.ndarray, levels: tuple[float, float, float],
              spacing: np.ndarray) -> np.ndarray:
     """The insert's outer surface at half-way between the air and the tissue just inside it, locally.
 
     The global air threshold sits half-way to the darker tissue; where the surface is the brighter one
     (a silicone skin brighter than the filling), that is well below the partial-volume midpoint and the
-    insert would grow. Within SURFACE_BAND_VOXELS of the surface each voxel is compared with half-way
-    between the air and the tissue of the layer beneath (its level averaged over SURFACE_SIGMA_MM and
-    snapped to the nearer of the two tissue levels, so that partial volume does not blur the choice).
+    insert would grow. Within SURFACE_BAND_VOXELS of the surface each voxel is compared with what a
+    voxel half air and half the tissue of the layer beneath reads (:func:`half_level`; the layer's level
+    averaged over SURFACE_SIGMA_MM and snapped to the nearer of the two tissue levels, so that partial
+    volume does not blur the choice).
 
     Args:
         levels: (air, dark tissue, bright tissue) levels of ``corrected``.
@@ -180,13 +213,15 @@ def _surface(corrected: np.ndarray, insert: np.ndarray, levels: tuple[float, flo
     inside = ndimage.distance_transform_edt(ins, sampling=spacing)
     outside = ndimage.distance_transform_edt(~ins, sampling=spacing)
     band_mm = SURFACE_BAND_VOXELS * voxel
-    layer = ins & (inside > SURFACE_LAYER_VOXELS * voxel) & (inside <= SURFACE_LAYER_VOXELS * voxel + SURFACE_LAYER_MM)
+    depth = SURFACE_LAYER_VOXELS * voxel           # the layer is at least a voxel thick: slices must not fall past it
+    layer = ins & (inside > depth) & (inside <= depth + max(SURFACE_LAYER_MM, voxel))
     sigma = SURFACE_SIGMA_MM / spacing
     weight = ndimage.gaussian_filter(layer.astype(np.float32), sigma)
     level = ndimage.gaussian_filter(np.where(layer, img, 0.0).astype(np.float32), sigma) / np.maximum(weight, 1e-6)
     band = ((ins & (inside <= band_mm)) | (~ins & (outside <= band_mm))) & (weight > SURFACE_MIN_WEIGHT)
-    tissue = np.where(np.abs(level - dark) <= np.abs(level - bright), dark, bright)
-    refined = np.where(band, img > 0.5 * (air + tissue), ins)
+    threshold = np.where(np.abs(level - dark) <= np.abs(level - bright), half_level(air, dark),
+                         half_level(air, bright))
+    refined = np.where(band, img > threshold, ins)
     out = insert.copy()
     out[box] = ndimage.binary_fill_holes(refined)
     return out

@@ -149,3 +149,20 @@ def test_container_walls_are_background_and_cut_insert_warns():
     seg_cut = segment(cut, synth.labels.spacing_mm)
     assert any("touches the border" in w for w in seg_cut.warnings)
     assert dice(seg_cut.labels == INCLUSION, synth.labels.data[:, :, 12:-12] == INCLUSION) > 0.9
+
+
+def test_rician_mean_matches_sampled_magnitudes_and_half_level_inverts_it():
+    """The Rice mean against sampled magnitudes, from noise alone to far above it; half_level is the
+    mean magnitude of half the tissue's signal, recovered from the two levels a scan shows."""
+    from lesscli.mri.segment import half_level, rician_mean
+
+    rng = np.random.default_rng(3)
+    sigma = 0.09
+    for signal in (0.0, 0.05, 0.2, 0.5, 2.0):
+        sampled = np.abs(signal + rng.normal(0, sigma, 400_000) + 1j * rng.normal(0, sigma, 400_000)).mean()
+        assert abs(rician_mean(signal, sigma) - sampled) < 1e-3
+    air, tissue = rician_mean(0.0, sigma), rician_mean(0.46, sigma)
+    assert abs(half_level(air, tissue) - rician_mean(0.23, sigma)) < 1e-9
+    assert half_level(air, tissue) < 0.5 * (air + tissue) - 0.04        # the plain midpoint sits too high
+    assert half_level(0.0, 0.5) == pytest.approx(0.25)                  # no noise: the plain midpoint
+    assert half_level(0.1, 0.05) == pytest.approx(0.075)                # no tissue above the noise: as before
