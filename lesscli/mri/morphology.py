@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lesscli.mri.pillar import find_pillars
+from lesscli.mri.pillar import MAD_TO_SIGMA, find_pillars
 
 SHELL_VOXELS = 1.5              # shell thickness along the insert surface, in (largest) voxels
 RIM_VOXELS = 1.0                # an inclusion's surface moves at most this far from the opening, in (largest) voxels
@@ -42,7 +42,6 @@ PROFILE_SHIFT_VOXELS = 1.0      # ... its centre within this of the body's centr
 PROFILE_RADIUS = (0.5, 1.5)     # ... its radius within these factors of the body's equal-volume radius
 PROFILE_SIGMA_VOXELS = (0.1, 3.0)   # ... its blur within these, in voxels
 PROFILE_CONTRAST = (0.5, 2.0)   # ... its contrast within these factors of the interior's over the filling
-MAD_TO_SIGMA = 1.4826
 BALL_MISFIT = 1.25              # an inclusion whose blurred ball fits its voxels this close to the noise is that ball
 
 

@@ -27,12 +27,12 @@ import numpy as np
 
 from lesscli.errors import DataError
 from lesscli.io.labels import BACKGROUND, INCLUSION, INSERT, PILLAR
+from lesscli.mri.pillar import MAD_TO_SIGMA
 
 NORM_PERCENTILE = 99.5
 MIN_SHAPE = 8                   # voxels per axis
 MIN_INSERT_MM3 = 1000.0         # smaller objects are not an insert
 MIN_CONTRAST = 4.0              # (insert median - air median) / air spread (robust sigma)
-MAD_TO_SIGMA = 1.4826
 SPREAD_EPS = 1e-6
 HIST_SAMPLES = 400_000          # voxels used for histograms and fits
 SAMPLE_SEED = 0                 # fixed subsampling: the segmentation is deterministic
