@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
 
-from mri_family import draw_case, generate, inclusion_scores, pillar_voxels_wide, scores  # noqa: E402
+from mri_family import draw_case, generate, inclusion_scores, pillar_voxels_wide, scores
 
 MIN_PILLAR_VOXELS = 2.0
 ACCEPT = {"insert": 0.97, "inclusion": 0.93, "pillar": 0.80}
@@ -90,11 +90,10 @@ def table(rows: list[dict]) -> str:
     """Markdown: per band, n, and min / median Dice of insert, inclusion and pillar (>= 2 voxels wide)."""
     cases = [r for r in rows if r["row"] == "case"]
     incs = [r for r in rows if r["row"] == "inclusion"]
-    lines = ["| parameter | band | volumes | inclusions | insert min / median | inclusion min / median "
-             "| pillar (>= 2 voxels) min / median |", "|---|---|---|---|---|---|---|"]
+    lines = [("| parameter | band | volumes | inclusions | insert min / median | inclusion min / median "
+              "| pillar (>= 2 voxels) min / median |"), "|---|---|---|---|---|---|---|"]
     for title, key, bands in BANDS:
         for band in bands:
-            cs = [r for r in cases if key in r and _in(r[key], band)]
             inc = [r for r in incs if _in(r[key], band)]
             pil = [r["dice_pillar"] for r in inc if r["pillar_voxels"] >= MIN_PILLAR_VOXELS]
             label = band if isinstance(band, str) else (f"{band[0]:g}" if band[0] == band[1]
