@@ -20,16 +20,17 @@ INCLUSION = 3
 GATES = (0.0, 0.6, 0.7, 0.8, 0.9)      # 0: every region
 
 
-def _balls(pred: np.ndarray, spacing: np.ndarray, gate: float) -> np.ndarray:
+def _regions(pred: np.ndarray, spacing: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """Each inclusion region, the ball of its volume at its centroid, and the share of it inside that ball."""
     regions, n = ndimage.label(pred)
     centres_mm = np.indices(pred.shape).reshape(3, -1).T * spacing
-    out = np.zeros(pred.shape, dtype=bool)
+    out = []
     for i in range(1, n + 1):
         region = regions == i
         centre = np.asarray(ndimage.center_of_mass(region)) * spacing
         radius = (3 * region.sum() * np.prod(spacing) / (4 * np.pi)) ** (1 / 3)
         ball = (np.linalg.norm(centres_mm - centre, axis=1) <= radius).reshape(pred.shape)
-        out |= ball if (region & ball).sum() >= gate * region.sum() else region
+        out.append((region, ball, (region & ball).sum() / region.sum()))
     return out
 
 
@@ -42,8 +43,13 @@ def micro_f1(path: str) -> dict:
         pred = d["label_data"][offset:offset + size].reshape(shape[1:]) == INCLUSION
         truth = d["truth_data"][offset:offset + size].reshape(shape[1:]) == INCLUSION
         offset += size
+        regions = _regions(pred, spacing)
         for rule in counts:
-            p = pred if rule == "as predicted" else _balls(pred, spacing, rule)
+            p = pred
+            if rule != "as predicted":
+                p = np.zeros(pred.shape, dtype=bool)
+                for region, ball, inside in regions:
+                    p |= ball if inside >= rule else region
             counts[rule] += [(p & truth).sum(), (p & ~truth).sum(), (~p & truth).sum()]
     return {rule: 2 * tp / max(2 * tp + fp + fn, 1) for rule, (tp, fp, fn) in counts.items()}
 

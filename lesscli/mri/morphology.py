@@ -162,10 +162,11 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
     out = np.zeros(bodies.shape, dtype=bool)
     shapes = []
     for i, sl in enumerate(ndimage.find_objects(comps), start=1):
-        fit = fitted_ball(comps == i, fraction, allowed, spacing, sl, reach_mm)
+        own = comps == i
+        fit = fitted_ball(own, fraction, allowed, spacing, sl, reach_mm)
         if fit is None:
-            out |= comps == i
-            shapes.append({"shape": "image", "centre_index": list(ndimage.center_of_mass(comps == i)),
+            out |= own
+            shapes.append({"shape": "image", "centre_index": list(ndimage.center_of_mass(own)),
                            "ball_diameter_mm": None, "ball_misfit": None})
             continue
         ball = fit.radius_mm > 0 and (shape == "ball" or (shape == "auto" and fit.misfit <= BALL_MISFIT))
