@@ -40,7 +40,10 @@ inclusion has a pillar when the median cross-section exceeds a disc of ``MIN_RAD
 ``NOISE_Z`` standard errors of the slab-to-slab scatter. The pillar is then the cylinder of the
 measured area from the inclusion down to the base surface, around the straight line
 fitted to the slab centroids of a second trace (a core fitted to the pillar, so less noise in the
-centroids). Short pillars are measured over few slabs, each as noisy as the next:
+centroids). That line and radius start a least-squares fit of a straight cylinder blurred like the
+inclusion (:func:`disc_profile`) to the second trace's voxels, which gives the pillar drawn: a post
+two voxels wide shows a few noisy voxels per slab, whose weighted centroids placed it up to half a
+voxel off, and at that width half a voxel decides about a third of its voxels. Short pillars are measured over few slabs, each as noisy as the next:
 
 - with fewer than ``MIN_LINE_SLABS`` slabs a line is not told apart from noise, and the pillar stands
   under its inclusion's centre, as the phantoms are built (one pillar under each sphere's centre,
@@ -358,6 +361,46 @@ def _pooled_radii(found: dict) -> dict:
     return out
 
 
+def disc_profile(rho_mm: np.ndarray, radius_mm: float, sigma_mm: float) -> np.ndarray:
+    """A disc of ``radius_mm`` blurred by an isotropic Gaussian of ``sigma_mm``, at ``rho_mm`` from its centre (0-1):
+    the chance that a 2D normal around that point lands in the disc (a noncentral chi-square with 2 degrees)."""
+    from scipy.special import chndtr
+
+    s2 = max(sigma_mm, 1e-6) ** 2
+    return chndtr(radius_mm * radius_mm / s2, 2.0, rho_mm * rho_mm / s2)
+
+
+def _fit_cylinder(col: _Column, sign: int, trace: Trace, line: np.ndarray, radius: float, core_mm: float,
+                  step_mm: float, contrast: tuple[float, float], ball) -> tuple[np.ndarray, float]:
+    """(line, radius) of the straight blurred cylinder fitted by least squares to the core's silicone in
+    ``trace``'s slabs, each over its ring level and in units of the inclusion's contrast over it, from
+    ``line`` and ``radius``. The blur is the inclusion's (``ball``, the scan's own; half a slab without
+    one), whose silicone is taken out first."""
+    from scipy.optimize import least_squares
+
+    value = col.value if ball is None else col.value - ball.excess(col.points)
+    st = sign * col.t
+    lo_t, hi_t = trace.t_mm[0] - 0.5 * step_mm, trace.t_mm[-1] + 0.5 * step_mm
+    rho0 = np.linalg.norm(col.uv - line[0] - st[:, None] * line[1], axis=1)
+    sel = col.free & (st >= lo_t) & (st < hi_t) & (rho0 <= core_mm)
+    if sel.sum() < 8:
+        return line, radius
+    bg = np.interp(st[sel], trace.t_mm, trace.ring)
+    scale = np.maximum(contrast[0] + contrast[1] - bg, SCALE_EPS)
+    excess, uv, t = (value[sel] - bg) / scale, col.uv[sel], st[sel]
+    sigma = ball.sigma_mm if ball is not None else 0.5 * step_mm
+
+    def residuals(p):
+        rho = np.linalg.norm(uv - p[:2] - t[:, None] * p[2:4], axis=1)
+        return disc_profile(rho, p[4], sigma) - excess
+
+    x0 = np.r_[line[0], line[1], radius]
+    lo = np.r_[line[0] - core_mm, -MAX_TILT, -MAX_TILT, 0.25 * radius]
+    hi = np.r_[line[0] + core_mm, MAX_TILT, MAX_TILT, core_mm]
+    x = least_squares(residuals, np.clip(x0, lo + 1e-9, hi - 1e-9), bounds=(lo, hi)).x
+    return np.stack([x[:2], x[2:4]]), float(x[4])
+
+
 def _contrast(fraction: np.ndarray, inc_ids: np.ndarray, label: int, col: _Column, ring_mm,
               spacing) -> tuple[float, float]:
     """(hydrogel level, silicone - hydrogel): the inclusion's interior against the column's ring."""
@@ -444,7 +487,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
             columns[label] = col
             traces[label, side] = _trace(col, side, np.zeros((2, 2)), core0, rings(core0), step, voxel_mm3,
                                          contrasts[label])
-    found, short, missing = {}, [], []
+    found, finals, short, missing = {}, {}, [], []
     for label in labels:
         first = _inner(traces[label, side])
         if not first.significant():
@@ -455,8 +498,15 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         second = _trace(col, side, line, core, rings(core), step, voxel_mm3, contrasts[label], balls[label])
         final = _inner(second) if len(second.area_mm2) else first
         line = _fit_line(final, line) if len(final.area_mm2) >= MIN_LINE_SLABS else np.zeros((2, 2))
-        found[label] = (line, final.area_mm2, core, second.end_mm)
+        found[label], finals[label] = (line, final.area_mm2, core, second.end_mm), final
+    cores = {label: core for label, (_line, _areas, core, _end) in found.items()}
     found = _pooled_radii(found)
+    for label, final in finals.items():     # line and radius refined together: one blurred cylinder
+        if len(final.area_mm2) >= MIN_LINE_SLABS:
+            line, radius, end = found[label]
+            line, fitted = _fit_cylinder(columns[label], side, final, line, radius, cores[label], step,
+                                         contrasts[label], balls[label])
+            found[label] = (line, fitted if len(final.area_mm2) >= MIN_OWN_SLABS else radius, end)
     for label in short:                 # too close to the base to measure: silicone across the gap, or none
         col, end = columns[label], traces[label, side].end_mm
         radius = _gap_radius(col, side, end, contrasts[label], core0, step, voxel_mm3, found)

@@ -58,8 +58,6 @@ def results() -> dict:
 SHORT_OF_ACCEPTANCE = {
     "coarse-1.2mm-4mm-pillar-1mm-tall-16mm-bright": "a 1 mm pillar is under one 1.2 mm slice: found, but at pillar "
                                                     "Dice 0.40",
-    "three-inclusions-anisotropic-bright-base-up": "pillars at 1.2 mm slices: the 14 mm tall one measured 20 % too "
-                                                   "wide in cross-section under noise (0.78)",
 }
 
 # Rows whose pillar is not found (one warning naming the inclusion), with why.

@@ -166,3 +166,54 @@ def test_rician_mean_matches_sampled_magnitudes_and_half_level_inverts_it():
     assert half_level(air, tissue) < 0.5 * (air + tissue) - 0.04        # the plain midpoint sits too high
     assert half_level(0.0, 0.5) == pytest.approx(0.25)                  # no noise: the plain midpoint
     assert half_level(0.1, 0.05) == pytest.approx(0.075)                # no tissue above the noise: as before
+
+
+def test_disc_profile_keeps_the_area_and_matches_a_blurred_drawn_disc():
+    """The blurred disc integrates to its area and equals a disc drawn at 1/20 mm and blurred."""
+    from scipy import ndimage
+
+    from lesscli.mri.pillar import disc_profile
+
+    rho = np.linspace(0.0, 8.0, 4001)
+    for radius, sigma in [(0.8, 0.8), (1.5, 0.4), (3.0, 1.0)]:
+        area = np.trapezoid(disc_profile(rho, radius, sigma) * 2 * np.pi * rho, rho)
+        assert area == pytest.approx(np.pi * radius ** 2, rel=1e-3)
+        h = 0.05
+        y, x = np.mgrid[-160:161, -160:161] * h
+        drawn = ndimage.gaussian_filter((x * x + y * y <= radius ** 2).astype(float), sigma / h)
+        assert np.allclose(disc_profile(x[160, 160:], radius, sigma), drawn[160, 160:], atol=0.01)
+    assert disc_profile(np.array([0.0, 0.99, 1.01, 3.0]), 1.0, 1e-4).tolist() == [1.0, 1.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize("shift_voxels", [(0.0, 0.0), (0.3, -0.2), (0.5, 0.5), (-0.45, 0.1)])
+def test_two_voxel_pillar_placed_to_a_fraction_of_a_voxel(shift_voxels):
+    """A 2-voxel post (2 mm at 0.8 mm voxels, 1 mm tall slices) anywhere within a voxel: pillar Dice >= 0.85.
+
+    The scan is made here by averaging 5 x 5 x 5 sub-voxels of each voxel (true partial volume), a
+    Gaussian blur of 0.6 voxel and noise of 4 % of the contrast; the truth classifies voxel centres.
+    """
+    from scipy import ndimage
+
+    spacing, sub = np.array([1.0, 0.8, 0.8]), 5
+    shape = (30, 60, 60)                                     # wider than tall, like the phantoms
+    fine = [(np.arange(n * sub) + 0.5) / sub * s - 0.5 * s for n, s in zip(shape, spacing)]
+    z, y, x = np.meshgrid(*fine, indexing="ij", sparse=True)
+    cy, cx = 24.0 + shift_voxels[0] * spacing[1], 24.0 + shift_voxels[1] * spacing[2]
+
+    def solid(z, y, x):
+        base, skin = z <= 4.0, z >= 26.0
+        ball = (z - 16.0) ** 2 + (y - cy) ** 2 + (x - cx) ** 2 <= 5.0 ** 2
+        post = ((y - cy) ** 2 + (x - cx) ** 2 <= 1.0 ** 2) & (z <= 16.0)
+        return base | skin | ball | post, post & ~ball & ~base
+
+    fine_solid, _ = solid(z, y, x)
+    fraction = fine_solid.reshape(shape[0], sub, shape[1], sub, shape[2], sub).mean(axis=(1, 3, 5))
+    fraction = ndimage.gaussian_filter(fraction, 0.6) + np.random.default_rng(7).normal(0.0, 0.1, shape)
+    centres = np.meshgrid(*(np.arange(n) * s for n, s in zip(shape, spacing)), indexing="ij", sparse=True)
+    _, post = solid(*centres)
+    insert = np.zeros(shape, bool)
+    insert[1:-1, 2:-2, 2:-2] = True
+    pillar, _inclusion, warnings, _shapes = split_silicone((fraction > 0.5) & insert, insert, spacing, 4.5, 3.0,
+                                                          fraction=np.where(insert, fraction, 0.0))
+    assert warnings == []
+    assert dice(pillar, post & insert) >= 0.85, dice(pillar, post & insert)
