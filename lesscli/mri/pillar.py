@@ -43,13 +43,17 @@ fitted to the slab centroids of a second trace (a core fitted to the pillar, so 
 centroids). That line and radius start a least-squares fit of a straight cylinder blurred like the
 inclusion (:func:`disc_profile`) to the second trace's voxels, which gives the pillar drawn: a post
 two voxels wide shows a few noisy voxels per slab, whose weighted centroids placed it up to half a
-voxel off, and at that width half a voxel decides about a third of its voxels. Short pillars are measured over few slabs, each as noisy as the next:
+voxel off, and at that width half a voxel decides about a third of its voxels. Short pillars are
+measured over few slabs, each as noisy as the next:
 
 - with fewer than ``MIN_LINE_SLABS`` slabs a line is not told apart from noise, and the pillar stands
   under its inclusion's centre, as the phantoms are built (one pillar under each sphere's centre,
   :func:`lesscli.phantom.catalogue.hanging`) and as a gap too short to measure already assumes;
 - with fewer than ``MIN_OWN_SLABS`` slabs the cross-section is the median over the slabs of all the
-  scan's pillars (the posts of one insert are cast alike); longer pillars keep their own.
+  scan's pillars (the posts of one insert are cast alike); longer pillars keep their own. Where the
+  scan has no other pillar's slabs (a lone inclusion, or every post short), the radius is fitted to
+  the post's whole silicone (:func:`_post_radius`): the blur carries much of a post a slab or two tall
+  into the inclusion's and the base's slabs.
 """
 
 from __future__ import annotations
@@ -298,6 +302,43 @@ def _gap_area(col: _Column, sign: int, end_mm: float, contrast: tuple[float, flo
     return float((col.value[gap & (rho <= core_mm)] > half).sum()) * voxel_mm3 / length
 
 
+def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, contrast: tuple[float, float],
+                 core_mm: float, ring_mm: tuple[float, float], step_mm: float, voxel_mm3: float) -> float:
+    """Radius of a short post, from ``start_mm`` (the inclusion's surface) to ``end_mm`` (the base's), fitted
+    by least squares to all its silicone: the core's excess over each slab's ring level (the inclusion's
+    blurred ball taken out first, in units of the inclusion's contrast) from the blur's reach (two sigmas
+    of the ball's blur) inside the inclusion to as far past the base surface, against a cylinder under the
+    inclusion's centre blurred like the inclusion (:func:`disc_profile` across, a normal's integral along).
+    The blur carries much of a post a slab or two tall into the inclusion's and the base's slabs, so its
+    own slabs read it too thin; the start is the radius of the whole excess over the gap's length."""
+    from scipy.optimize import least_squares
+    from scipy.special import ndtr
+
+    value = col.value if ball is None else col.value - ball.excess(col.points)
+    st = sign * col.t
+    slab = np.floor((st - start_mm) / step_mm).astype(np.int64)
+    rho = np.linalg.norm(col.uv, axis=1)
+    core, ring = rho <= core_mm, (rho > ring_mm[0]) & (rho <= ring_mm[1])
+    sigma = ball.sigma_mm if ball is not None else 0.5 * step_mm
+    reach = math.ceil(2.0 * sigma / step_mm)
+    excess, at = [], []
+    for k in range(-reach, math.ceil((end_mm - start_mm) / step_mm) + reach):
+        background = (slab == k) & ring & col.free
+        if background.any():
+            here = np.flatnonzero((slab == k) & core & col.inside & ~col.other)
+            excess.append((value[here] - np.median(value[background])) / contrast[1])
+            at.append(here)
+    if not excess:
+        return 0.0
+    excess, at = np.concatenate(excess), np.concatenate(at)
+    axial = ndtr((st[at] - start_mm) / sigma) - ndtr((st[at] - end_mm) / sigma)
+    whole = float(excess.sum()) * voxel_mm3 / max(end_mm - start_mm, step_mm)
+    start = min(math.sqrt(max(whole, 0.0) / math.pi), core_mm)
+    fit = least_squares(lambda p: disc_profile(rho[at], p[0], sigma) * axial - excess, [max(start, 0.1 * core_mm)],
+                        bounds=([0.05 * core_mm], [core_mm]))
+    return float(fit.x[0])
+
+
 def _gap_radius(col: _Column, sign: int, end_mm: float, contrast: tuple[float, float], core_mm: float,
                 step_mm: float, voxel_mm3: float, found: dict) -> float | None:
     """Radius of the post across a short gap between an inclusion and the base, or None (no post):
@@ -345,19 +386,23 @@ def _base_side(traces: dict, columns: dict, contrasts: dict, labels: list[int], 
     return 1
 
 
-def _pooled_radii(found: dict) -> dict:
+def _pooled_radii(found: dict, short_radius) -> dict:
     """label -> (line, radius, end) from label -> (line, slab cross-sections, core radius, end).
 
     A pillar measured over at least MIN_OWN_SLABS slabs keeps the median of its own cross-sections; a
-    shorter one takes the median over the slabs of all the scan's pillars. The radius never exceeds
+    shorter one takes the median over the slabs of all the scan's pillars, else (no other pillar's slabs)
+    its radius fitted to all its silicone (``short_radius(label)``, :func:`_post_radius`). The radius never exceeds
     the core it was measured in.
     """
     pooled = np.concatenate([areas for _line, areas, _core, _end in found.values()]) if found else np.zeros(0)
     out = {}
     for label, (line, areas, core, end) in found.items():
-        own = areas if len(areas) >= MIN_OWN_SLABS or len(pooled) <= len(areas) else pooled
-        area = float(np.median(own)) if len(own) else 0.0
-        out[label] = (line, min(math.sqrt(max(area, 0.0) / math.pi), core), end)
+        if len(areas) >= MIN_OWN_SLABS or len(pooled) > len(areas):
+            own = areas if len(areas) >= MIN_OWN_SLABS else pooled
+            radius = math.sqrt(max(float(np.median(own)), 0.0) / math.pi)
+        else:
+            radius = short_radius(label)
+        out[label] = (line, min(radius, core), end)
     return out
 
 
@@ -500,7 +545,16 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         line = _fit_line(final, line) if len(final.area_mm2) >= MIN_LINE_SLABS else np.zeros((2, 2))
         found[label], finals[label] = (line, final.area_mm2, core, second.end_mm), final
     cores = {label: core for label, (_line, _areas, core, _end) in found.items()}
-    found = _pooled_radii(found)
+    surfaces = {label: columns[label].start[side] if ball is None
+                else side * float((ball.centre_mm - centre) @ axis) + ball.radius_mm
+                for (label, ball), centre in zip(balls.items(), centres)}
+
+    def short_radius(label):
+        _line, _areas, core, end = found[label]
+        return _post_radius(columns[label], side, surfaces[label], end, balls[label], contrasts[label], core,
+                            rings(core), step, voxel_mm3)
+
+    found = _pooled_radii(found, short_radius)
     for label, final in finals.items():     # line and radius refined together: one blurred cylinder
         if len(final.area_mm2) >= MIN_LINE_SLABS:
             line, radius, end = found[label]
