@@ -59,6 +59,7 @@ measured over few slabs, each as noisy as the next:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -386,13 +387,13 @@ def _base_side(traces: dict, columns: dict, contrasts: dict, labels: list[int], 
     return 1
 
 
-def _pooled_radii(found: dict, short_radius) -> dict:
+def _pooled_radii(found: dict, short_radius: Callable[[int, float, float], float]) -> dict:
     """label -> (line, radius, end) from label -> (line, slab cross-sections, core radius, end).
 
     A pillar measured over at least MIN_OWN_SLABS slabs keeps the median of its own cross-sections; a
     shorter one takes the median over the slabs of all the scan's pillars, else (no other pillar's slabs)
-    its radius fitted to all its silicone (``short_radius(label)``, :func:`_post_radius`). The radius never exceeds
-    the core it was measured in.
+    its radius fitted to all its silicone (``short_radius(label, core, end)``, :func:`_post_radius`). The
+    radius never exceeds the core it was measured in.
     """
     pooled = np.concatenate([areas for _line, areas, _core, _end in found.values()]) if found else np.zeros(0)
     out = {}
@@ -401,7 +402,7 @@ def _pooled_radii(found: dict, short_radius) -> dict:
             own = areas if len(areas) >= MIN_OWN_SLABS else pooled
             radius = math.sqrt(max(float(np.median(own)), 0.0) / math.pi)
         else:
-            radius = short_radius(label)
+            radius = short_radius(label, core, end)
         out[label] = (line, min(radius, core), end)
     return out
 
@@ -545,14 +546,13 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         line = _fit_line(final, line) if len(final.area_mm2) >= MIN_LINE_SLABS else np.zeros((2, 2))
         found[label], finals[label] = (line, final.area_mm2, core, second.end_mm), final
     cores = {label: core for label, (_line, _areas, core, _end) in found.items()}
-    surfaces = {label: columns[label].start[side] if ball is None
-                else side * float((ball.centre_mm - centre) @ axis) + ball.radius_mm
-                for (label, ball), centre in zip(balls.items(), centres)}
 
-    def short_radius(label):
-        _line, _areas, core, end = found[label]
-        return _post_radius(columns[label], side, surfaces[label], end, balls[label], contrasts[label], core,
-                            rings(core), step, voxel_mm3)
+    def short_radius(label, core, end):
+        ball = balls[label]                 # from the inclusion's fitted surface under its centre
+        start = (columns[label].start[side] if ball is None
+                 else side * float((ball.centre_mm - centres[label - 1]) @ axis) + ball.radius_mm)
+        return _post_radius(columns[label], side, start, end, ball, contrasts[label], core, rings(core), step,
+                            voxel_mm3)
 
     found = _pooled_radii(found, short_radius)
     for label, final in finals.items():     # line and radius refined together: one blurred cylinder
