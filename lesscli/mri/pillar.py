@@ -155,6 +155,17 @@ def _column(fraction, insert, deep, inc_ids, label, centre_mm, axis, spacing, re
                    inside, inside & (ids == 0), deep[index], (ids != 0) & ~own, offsets + np.asarray(centre_mm), start)
 
 
+def _clear_of_ball(col: _Column, ball) -> np.ndarray:
+    """The column's values with the inclusion's blurred ball (:class:`lesscli.mri.morphology.Ball`) taken
+    out; None leaves them as read."""
+    return col.value if ball is None else col.value - ball.excess(col.points)
+
+
+def _blur_mm(ball, step_mm: float) -> float:
+    """The scan's blur: the inclusion's fitted ball's, else half a slab."""
+    return ball.sigma_mm if ball is not None else 0.5 * step_mm
+
+
 def _crossing(t: np.ndarray, level: np.ndarray, k: int) -> float:
     """Where ``level`` crosses HALF between slab k-1 and slab k (linear), else slab k's centre."""
     if k == 0 or level[k] == level[k - 1]:
@@ -171,7 +182,7 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
     inclusion's fitted blurred ball (:class:`lesscli.mri.morphology.Ball`), whose silicone is taken out
     of every slab first; None leaves the slabs as read.
     """
-    value = col.value if ball is None else col.value - ball.excess(col.points)
+    value = _clear_of_ball(col, ball)
     half = contrast[0] + HALF * contrast[1]
     st = sign * col.t
     slab = np.floor((st - col.start[sign]) / step_mm - 0.5).astype(np.int64)    # slab k centred k + 1 steps out
@@ -315,12 +326,12 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
     from scipy.optimize import least_squares
     from scipy.special import ndtr
 
-    value = col.value if ball is None else col.value - ball.excess(col.points)
+    value = _clear_of_ball(col, ball)
     st = sign * col.t
     slab = np.floor((st - start_mm) / step_mm).astype(np.int64)
     rho = np.linalg.norm(col.uv, axis=1)
     core, ring = rho <= core_mm, (rho > ring_mm[0]) & (rho <= ring_mm[1])
-    sigma = ball.sigma_mm if ball is not None else 0.5 * step_mm
+    sigma = _blur_mm(ball, step_mm)
     reach = math.ceil(2.0 * sigma / step_mm)
     excess, at = [], []
     for k in range(-reach, math.ceil((end_mm - start_mm) / step_mm) + reach):
@@ -424,7 +435,7 @@ def _fit_cylinder(col: _Column, sign: int, trace: Trace, line: np.ndarray, radiu
     one), whose silicone is taken out first."""
     from scipy.optimize import least_squares
 
-    value = col.value if ball is None else col.value - ball.excess(col.points)
+    value = _clear_of_ball(col, ball)
     st = sign * col.t
     lo_t, hi_t = trace.t_mm[0] - 0.5 * step_mm, trace.t_mm[-1] + 0.5 * step_mm
     rho0 = np.linalg.norm(col.uv - line[0] - st[:, None] * line[1], axis=1)
@@ -434,7 +445,7 @@ def _fit_cylinder(col: _Column, sign: int, trace: Trace, line: np.ndarray, radiu
     bg = np.interp(st[sel], trace.t_mm, trace.ring)
     scale = np.maximum(contrast[0] + contrast[1] - bg, SCALE_EPS)
     excess, uv, t = (value[sel] - bg) / scale, col.uv[sel], st[sel]
-    sigma = ball.sigma_mm if ball is not None else 0.5 * step_mm
+    sigma = _blur_mm(ball, step_mm)
 
     def residuals(p):
         rho = np.linalg.norm(uv - p[:2] - t[:, None] * p[2:4], axis=1)
