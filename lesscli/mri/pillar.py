@@ -161,6 +161,11 @@ def _clear_of_ball(col: _Column, ball) -> np.ndarray:
     return col.value if ball is None else col.value - ball.excess(col.points)
 
 
+def _ball_surface(ball, centre_mm: np.ndarray, axis: np.ndarray, sign: int) -> float:
+    """Where the inclusion's fitted ball ends on side ``sign``, in mm along ``axis`` from ``centre_mm``."""
+    return sign * float((ball.centre_mm - centre_mm) @ axis) + ball.radius_mm
+
+
 def _blur_mm(ball, step_mm: float) -> float:
     """The scan's blur: the inclusion's fitted ball's, else half a slab."""
     return ball.sigma_mm if ball is not None else 0.5 * step_mm
@@ -367,7 +372,7 @@ def _past_ball(col: _Column, sign: int, ball, centre_mm: np.ndarray, axis: np.nd
     """``col`` with the inclusion's own voxels beyond its fitted ball's surface on side ``sign`` freed
     and its start moved to that surface. Under a pillar a slice or two tall the body can hold the
     pillar's slice, and the gap between it and the base then holds no voxel to measure the post in."""
-    surface = sign * float((ball.centre_mm - centre_mm) @ axis) + ball.radius_mm
+    surface = _ball_surface(ball, centre_mm, axis, sign)
     if surface >= col.start[sign]:
         return col
     own = col.inside & ~col.free & ~col.other
@@ -560,8 +565,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
 
     def short_radius(label, core, end):
         ball = balls[label]                 # from the inclusion's fitted surface under its centre
-        start = (columns[label].start[side] if ball is None
-                 else side * float((ball.centre_mm - centres[label - 1]) @ axis) + ball.radius_mm)
+        start = columns[label].start[side] if ball is None else _ball_surface(ball, centres[label - 1], axis, side)
         return _post_radius(columns[label], side, start, end, ball, contrasts[label], core, rings(core), step,
                             voxel_mm3)
 
