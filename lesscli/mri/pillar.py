@@ -40,10 +40,13 @@ inclusion has a pillar when the median cross-section exceeds a disc of ``MIN_RAD
 ``NOISE_Z`` standard errors of the slab-to-slab scatter. The pillar is then the cylinder of the
 measured area from the inclusion down to the base surface, around the straight line
 fitted to the slab centroids of a second trace (a core fitted to the pillar, so less noise in the
-centroids). That line and radius start a least-squares fit of a straight cylinder blurred like the
-inclusion (:func:`disc_profile`) to the second trace's voxels, which gives the pillar drawn: a post
+centroids). That line and radius start a least-squares fit of a straight blurred cylinder
+(:func:`disc_profile`) to the second trace's voxels, which gives the pillar drawn: a post
 two voxels wide shows a few noisy voxels per slab, whose weighted centroids placed it up to half a
-voxel off, and at that width half a voxel decides about a third of its voxels. Short pillars are
+voxel off, and at that width half a voxel decides about a third of its voxels. The cylinder's blur is
+fitted with it (:func:`fit_blurred_cylinder`), from the inclusion's: the blur across a post is the
+scan's across the insert axis, which a ball's one blur, averaged over all directions, misreads where
+the slices are thicker or thinner than the in-plane voxels (and with it the radius). Short pillars are
 measured over few slabs, each as noisy as the next:
 
 - with fewer than ``MIN_LINE_SLABS`` slabs a line is not told apart from noise, and the pillar stands
@@ -79,6 +82,7 @@ SCALE_EPS = 1e-3
 MIN_LINE_SLABS = 3              # fewer slabs do not place a line against noise: the inclusion's axis
 MIN_OWN_SLABS = 4               # fewer slabs take the cross-section pooled over the scan's pillars
 BASE_PLATEAU_SLABS = 3          # from this many slabs in the base, its level is their mean past the first
+BLUR_RANGE = (0.5, 2.0)         # a post's fitted blur, in units of the inclusion's it starts from
 
 
 @dataclass
@@ -432,14 +436,33 @@ def disc_profile(rho_mm: np.ndarray, radius_mm: float, sigma_mm: float) -> np.nd
     return chndtr(radius_mm * radius_mm / s2, 2.0, rho_mm * rho_mm / s2)
 
 
-def _fit_cylinder(col: _Column, sign: int, trace: Trace, line: np.ndarray, radius: float, core_mm: float,
-                  step_mm: float, contrast: tuple[float, float], ball) -> tuple[np.ndarray, float]:
-    """(line, radius) of the straight blurred cylinder fitted by least squares to the core's silicone in
-    ``trace``'s slabs, each over its ring level and in units of the inclusion's contrast over it, from
-    ``line`` and ``radius``. The blur is the inclusion's (``ball``, the scan's own; half a slab without
-    one), whose silicone is taken out first."""
+def fit_blurred_cylinder(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line: np.ndarray, radius: float,
+                         sigma: float, core_mm: float) -> tuple[np.ndarray, float, float]:
+    """(line, radius, blur) of the straight cylinder under an isotropic Gaussian blur across it
+    (:func:`disc_profile`) fitted by least squares to ``excess`` (silicone fraction over the local
+    hydrogel, 0-1) at lateral positions ``uv`` (n, 2) and heights ``t`` (n,), mm; ``line`` = (offset (2,),
+    slope (2,)) and ``radius`` start the fit, which keeps the line within ``core_mm`` of its start and
+    tilted by at most MAX_TILT, and the radius under ``core_mm``. The blur starts at ``sigma`` and stays
+    within BLUR_RANGE times it."""
     from scipy.optimize import least_squares
 
+    def residuals(p):
+        rho = np.linalg.norm(uv - p[:2] - t[:, None] * p[2:4], axis=1)
+        return disc_profile(rho, p[4], p[5]) - excess
+
+    x0 = np.r_[line[0], line[1], radius, sigma]
+    lo = np.r_[line[0] - core_mm, -MAX_TILT, -MAX_TILT, 0.25 * radius, BLUR_RANGE[0] * sigma]
+    hi = np.r_[line[0] + core_mm, MAX_TILT, MAX_TILT, core_mm, BLUR_RANGE[1] * sigma]
+    x = least_squares(residuals, np.clip(x0, lo + 1e-9, hi - 1e-9), bounds=(lo, hi)).x
+    return np.stack([x[:2], x[2:4]]), float(x[4]), float(x[5])
+
+
+def _fit_cylinder(col: _Column, sign: int, trace: Trace, line: np.ndarray, radius: float, core_mm: float,
+                  step_mm: float, contrast: tuple[float, float], ball) -> tuple[np.ndarray, float]:
+    """(line, radius) of :func:`fit_blurred_cylinder` on the core's silicone in ``trace``'s slabs, each
+    over its ring level and in units of the inclusion's contrast over it, from ``line`` and ``radius``
+    and the inclusion's blur (``ball``, the scan's own; half a slab without one), whose silicone is
+    taken out first."""
     value = _clear_of_ball(col, ball)
     st = sign * col.t
     lo_t, hi_t = trace.t_mm[0] - 0.5 * step_mm, trace.t_mm[-1] + 0.5 * step_mm
@@ -449,18 +472,10 @@ def _fit_cylinder(col: _Column, sign: int, trace: Trace, line: np.ndarray, radiu
         return line, radius
     bg = np.interp(st[sel], trace.t_mm, trace.ring)
     scale = np.maximum(contrast[0] + contrast[1] - bg, SCALE_EPS)
-    excess, uv, t = (value[sel] - bg) / scale, col.uv[sel], st[sel]
-    sigma = _blur_mm(ball, step_mm)
-
-    def residuals(p):
-        rho = np.linalg.norm(uv - p[:2] - t[:, None] * p[2:4], axis=1)
-        return disc_profile(rho, p[4], sigma) - excess
-
-    x0 = np.r_[line[0], line[1], radius]
-    lo = np.r_[line[0] - core_mm, -MAX_TILT, -MAX_TILT, 0.25 * radius]
-    hi = np.r_[line[0] + core_mm, MAX_TILT, MAX_TILT, core_mm]
-    x = least_squares(residuals, np.clip(x0, lo + 1e-9, hi - 1e-9), bounds=(lo, hi)).x
-    return np.stack([x[:2], x[2:4]]), float(x[4])
+    excess = (value[sel] - bg) / scale
+    line, radius, _blur = fit_blurred_cylinder(col.uv[sel], st[sel], excess, line, radius,
+                                               _blur_mm(ball, step_mm), core_mm)
+    return line, radius
 
 
 def _contrast(fraction: np.ndarray, inc_ids: np.ndarray, label: int, col: _Column, ring_mm,
@@ -570,7 +585,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
                             voxel_mm3)
 
     found = _pooled_radii(found, short_radius)
-    for label, final in finals.items():     # line and radius refined together: one blurred cylinder
+    for label, final in finals.items():     # line, radius and blur refined together: one blurred cylinder
         if len(final.area_mm2) >= MIN_LINE_SLABS:
             line, radius, end = found[label]
             line, fitted = _fit_cylinder(columns[label], side, final, line, radius, cores[label], step,
