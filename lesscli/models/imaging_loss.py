@@ -16,7 +16,10 @@ Numerical rules this implementation adds to the published formulation:
   paper's inverse frequency, 0.5 its square root, 0 uniform weights; with eta rescaling the focal term,
   only these relative weights matter, and p = 1 makes background errors nearly free). An absent class gets alpha 0 (it has no true voxels, so its focal
   term is 0 anyway) and cannot blow up the normalisation and collapse the other weights.
-* Sums run over the whole batch (batch and spatial axes together), like alpha.
+* Sums run over the whole batch (batch and spatial axes together), like alpha. ``dice_per="scan"``
+  computes the Dice score of each label image/volume of the batch apart and averages them (scans and
+  classes alike): a small inclusion's over-marking then counts as much as a large one's, where the
+  batch sum lets the largest inclusion of the batch outweigh it. The focal term is unchanged.
 * Empty-class rule: a class absent from both the truth and the argmax prediction of the batch (a
   class is predicted at a voxel where its probability equals the voxel's maximum) has a
   Dice score of exactly 1 (the eps/eps limit of the formula at an empty prediction) and no gradient.
@@ -36,6 +39,7 @@ ETA_DELTA = 1e-8    # delta in eta = Dice / (Focal + delta) (paper value)
 LAMBDA = 0.5        # weight of the Dice term
 GAMMA = 2.0         # focal focusing parameter
 ALPHA_POWER = 1.0   # alpha_c ~ frequency_c^-ALPHA_POWER (1: inverse class frequency, the paper)
+DICE_PER = ("batch", "scan")   # Dice summed over the whole batch (the paper), or per scan and averaged
 
 
 @dataclass
@@ -74,24 +78,31 @@ def class_weights(y: torch.Tensor, power: float = ALPHA_POWER) -> torch.Tensor:
     return inv / inv.sum().clamp_min(torch.finfo(torch.float32).tiny)
 
 
-def dice_loss(probs: torch.Tensor, y: torch.Tensor, eps: float = DICE_EPS) -> torch.Tensor:
+def dice_loss(probs: torch.Tensor, y: torch.Tensor, eps: float = DICE_EPS, per: str = "batch") -> torch.Tensor:
     """Soft multi-class Dice loss with the empty-class rule of the module docstring.
 
     Args:
         probs: (B, C, *S) float32 class probabilities.
         y: (B, C, *S) float32 one-hot truth.
         eps: smoothing constant in numerator and denominator.
+        per: ``"batch"``: sums over the batch and spatial axes together; ``"scan"``: one score per
+            scan and class (the empty-class rule applied per scan), averaged.
 
     Returns:
-        0-d float32: 1 - mean over C classes of the Dice score.
+        0-d float32: 1 - mean over C classes (and scans) of the Dice score.
     """
-    n_classes = probs.shape[1]
-    p = probs.transpose(0, 1).reshape(n_classes, -1)
-    t = y.transpose(0, 1).reshape(n_classes, -1)
-    inter, p_sum, t_sum = (p * t).sum(dim=1), p.sum(dim=1), t.sum(dim=1)
+    if per not in DICE_PER:
+        raise ValueError(f"per must be one of {DICE_PER}, got {per!r}")
+    n_scans, n_classes = probs.shape[:2]
+    if per == "batch":
+        p = probs.transpose(0, 1).reshape(1, n_classes, -1)
+        t = y.transpose(0, 1).reshape(1, n_classes, -1)
+    else:
+        p, t = probs.reshape(n_scans, n_classes, -1), y.reshape(n_scans, n_classes, -1)
+    inter, p_sum, t_sum = (p * t).sum(dim=2), p.sum(dim=2), t.sum(dim=2)
     score = (2.0 * inter + eps) / (p_sum + t_sum + eps)
     pd = p.detach()
-    predicted = (pd >= pd.amax(dim=0, keepdim=True)).any(dim=1)    # class is the (tied) argmax somewhere
+    predicted = (pd >= pd.amax(dim=1, keepdim=True)).any(dim=2)    # class is the (tied) argmax somewhere
     empty = (t_sum == 0) & ~predicted
     score = torch.where(empty, torch.ones_like(score), score)
     return 1.0 - score.mean()
@@ -123,7 +134,8 @@ def focal_loss(log_probs: torch.Tensor, y: torch.Tensor, alpha: torch.Tensor, ga
 
 
 def imaging_loss(logits: torch.Tensor, target: torch.Tensor, lam: float = LAMBDA, gamma: float = GAMMA,
-                 eps: float = DICE_EPS, delta: float = ETA_DELTA, alpha_power: float = ALPHA_POWER) -> ImagingLoss:
+                 eps: float = DICE_EPS, delta: float = ETA_DELTA, alpha_power: float = ALPHA_POWER,
+                 dice_per: str = "batch") -> ImagingLoss:
     """lambda Dice + (1 - lambda) eta Focal for a batch of label images or volumes.
 
     Args:
@@ -134,6 +146,7 @@ def imaging_loss(logits: torch.Tensor, target: torch.Tensor, lam: float = LAMBDA
         eps: Dice smoothing constant.
         delta: eta's denominator guard.
         alpha_power: exponent p of the class weights alpha_c ~ frequency_c^-p.
+        dice_per: ``"batch"`` (the paper) or ``"scan"``: see :func:`dice_loss`.
 
     Returns:
         ImagingLoss with the total (differentiable) and its detached terms.
@@ -146,7 +159,7 @@ def imaging_loss(logits: torch.Tensor, target: torch.Tensor, lam: float = LAMBDA
     probs = log_probs.exp()
     y = _one_hot(target, logits.shape[1])
     alpha = class_weights(y, alpha_power)
-    dice = dice_loss(probs, y, eps)
+    dice = dice_loss(probs, y, eps, dice_per)
     focal = focal_loss(log_probs, y, alpha, gamma)
     eta = dice.detach() / (focal.detach() + delta)
     total = lam * dice + (1.0 - lam) * eta * focal

@@ -23,7 +23,7 @@ from lesscli.io.checkpoint import load_checkpoint, save_checkpoint
 from lesscli.io.labels import INCLUSION, N_CLASSES
 from lesscli.io.scans import ScanSet
 from lesscli.models.imager import DECODERS, DEFAULT_DECODER, Imager, grid_to_dict
-from lesscli.models.imaging_loss import ALPHA_POWER, GAMMA, LAMBDA, imaging_loss
+from lesscli.models.imaging_loss import ALPHA_POWER, DICE_PER, GAMMA, LAMBDA, imaging_loss
 from lesscli.models.registry import build_decoder, load_representation, lookup
 from lesscli.train import distributed
 from lesscli.train.config import LoopConfig, check_rules, to_dict
@@ -54,6 +54,7 @@ class LossConfig:
     lam: float = LAMBDA
     gamma: float = GAMMA
     alpha_power: float = ALPHA_POWER   # class weights ~ frequency^-p: 1 inverse (paper), 0.5 sqrt, 0 uniform
+    dice_per: str = "batch"            # Dice over the whole batch (paper) or per scan, averaged
 
 
 @dataclass
@@ -69,6 +70,7 @@ _RULES = [("image.dim", lambda v: v in (2, 3), "2 or 3"), ("image.width", lambda
           ("image.context", lambda v: v == 0 or (v > 0 and v % 2 == 1), "0 or odd"),
           ("image.select", lambda v: v in ("f1", "loss"), "f1 or loss"), ("loss.lam", lambda v: 0 <= v <= 1, "in [0, 1]"), ("loss.gamma", lambda v: v == 0 or v >= 1, "0 or >= 1"),
           ("loss.alpha_power", lambda v: 0 <= v <= 2, "in [0, 2]"),
+          ("loss.dice_per", lambda v: v in DICE_PER, " or ".join(DICE_PER)),
           ("image.min_volume_mm3", lambda v: v is None or v >= 0, "unset or >= 0"),
           ("train.epochs", lambda v: v >= 1, ">= 1"), ("train.batch_size", lambda v: v >= 1, ">= 1"),
           ("train.lr", lambda v: v > 0, "> 0")]
@@ -92,7 +94,8 @@ def decoder_settings(cfg: ImageFitConfig, encoder_name: str, d_z: int, grid) -> 
 
 
 def _loss(logits: torch.Tensor, target: torch.Tensor, cfg: LossConfig) -> torch.Tensor:
-    return imaging_loss(logits, target, lam=cfg.lam, gamma=cfg.gamma, alpha_power=cfg.alpha_power).total
+    return imaging_loss(logits, target, lam=cfg.lam, gamma=cfg.gamma, alpha_power=cfg.alpha_power,
+                        dice_per=cfg.dice_per).total
 
 
 def image_loss_fn(cfg: LossConfig):
@@ -139,27 +142,46 @@ def inclusion_f1(model: torch.nn.Module, dataset, batch_size: int, device: torch
     return {"inclusion_f1": out["inclusion_f1"], "no_inclusion_f1": 0.0 if out["true_inclusion"] else float("nan")}
 
 
-# Labelling rules tried on the validation set; the best micro inclusion F1 is kept (ties: the first,
-# i.e. the lowest threshold, then the smallest minimum volume). None: argmax; 0 mm^3: no region rule.
+# Labelling rules tried on the validation set. The best micro inclusion F1 wins; rules within
+# LABEL_F1_TOLERANCE of it (below the F1's scatter between validation draws) are told apart by their
+# sizing: the smallest mean diameter error (ties: the lowest threshold, then the largest minimum
+# volume, since regions the validation scans cannot tell apart are specks, not inclusions).
+# None: argmax; 0 mm^3: no region rule.
 THRESHOLD_CHOICES = (None, 0.5, 0.6, 0.7, 0.8, 0.9)
 MIN_VOLUME_CHOICES_MM3 = (0.0, 50.0, 100.0, 150.0)
+LABEL_F1_TOLERANCE = 0.01
+
+
+def _diameter_or_zero(mask: np.ndarray, spacing_mm) -> float:
+    """Inclusion diameter (:func:`lesscli.metrics.diameter_mm`, mm) of a 2D/3D mask; 0 when empty, so
+    that a missed inclusion costs its true diameter and a false one its own."""
+    from lesscli.metrics import diameter_mm
+
+    d = diameter_mm(mask.reshape((-1, *mask.shape[-2:])), np.asarray(spacing_mm, float))
+    return 0.0 if d is None else d
 
 
 def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: torch.device, spacing_mm,
                      collate_fn: Callable = collate_images, thresholds=THRESHOLD_CHOICES,
-                     volumes=MIN_VOLUME_CHOICES_MM3) -> tuple[float | None, float, dict]:
-    """The inclusion threshold and minimum inclusion volume with the best micro F1 over ``dataset``.
+                     volumes=MIN_VOLUME_CHOICES_MM3, tolerance: float = LABEL_F1_TOLERANCE
+                     ) -> tuple[float | None, float, dict, dict]:
+    """The inclusion threshold and minimum inclusion volume that label ``dataset`` best.
 
     Every pair of ``thresholds`` x ``volumes`` labels the validation volumes with
-    :func:`~lesscli.io.predictions.labels_from_probs`, the rule ``less image predict`` applies.
+    :func:`~lesscli.io.predictions.labels_from_probs`, the rule ``less image predict`` applies. The
+    pair with the best micro F1 wins, unless others within ``tolerance`` of it size the inclusions
+    better: then the one of those with the smallest mean diameter error over the scans (an empty
+    mask has diameter 0) does; ties go to the lowest threshold, then the largest minimum volume.
 
     Returns:
-        (threshold, min_volume_mm3, {str(threshold): {str(min_volume_mm3): F1}}).
+        (threshold, min_volume_mm3, {str(threshold): {str(min_volume_mm3): F1}}, the same table of the
+        mean diameter error in mm).
     """
     from lesscli.io.predictions import labels_from_probs
 
     choices = [(th, float(mv)) for th in thresholds for mv in volumes]
     counts = np.zeros((len(choices), 3), dtype=np.int64)                       # tp, fp, fn
+    diameter_errors: list[list[float]] = [[] for _ in choices]
     loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, collate_fn=collate_fn)
     model = model.to(device).eval()
     with torch.no_grad():
@@ -168,13 +190,21 @@ def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: t
             probs = torch.softmax(model(batch.inputs).float(), dim=1).cpu().numpy()
             for p, target in zip(probs, batch.target.cpu().numpy()):
                 true = target == INCLUSION
+                true_diameter = _diameter_or_zero(true, spacing_mm)
                 for i, (th, mv) in enumerate(choices):
                     pred = labels_from_probs(p, th, mv, spacing_mm) == INCLUSION
                     counts[i] += ((pred & true).sum(), (pred & ~true).sum(), (~pred & true).sum())
+                    diameter_errors[i].append(abs(_diameter_or_zero(pred, spacing_mm) - true_diameter))
     scores = [_f1(*map(int, c)) for c in counts]
-    best = max(range(len(scores)), key=lambda i: (scores[i] if scores[i] == scores[i] else -1.0, -i))
-    table = {str(th): {f"{mv:g}": f for (t, mv), f in zip(choices, scores) if t == th} for th in thresholds}
-    return (*choices[best], table)
+    sizing = [float(np.mean(e)) if e else float("nan") for e in diameter_errors]
+    ranked = [-1.0 if np.isnan(f) else f for f in scores]
+    near = [i for i, f in enumerate(ranked) if f >= max(ranked) - tolerance]
+    order = {c: (thresholds.index(c[0]), -list(volumes).index(c[1])) for c in choices}
+    best = min(near, key=lambda i: (float("inf") if np.isnan(sizing[i]) else sizing[i], order[choices[i]]))
+
+    def table(values):
+        return {str(th): {f"{mv:g}": v for (t, mv), v in zip(choices, values) if t == th} for th in thresholds}
+    return (*choices[best], table(scores), table(sizing))
 
 
 @dataclass
@@ -245,12 +275,13 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
                         inclusion_f1(model, val_set, cfg.train.batch_size, env.device, cfg.loss, collate).items()})
         image = cfg.image
         if by_f1 and None in (image.threshold, image.min_volume_mm3) and env.is_main:
-            threshold, min_volume, scores = choose_labelling(
+            threshold, min_volume, scores, sizing = choose_labelling(
                 model, val_set, cfg.train.batch_size, env.device, grid.spacing_mm, collate,
                 THRESHOLD_CHOICES if image.threshold is None else (image.threshold,),
                 MIN_VOLUME_CHOICES_MM3 if image.min_volume_mm3 is None else (image.min_volume_mm3,))
             store_labelling(output, threshold, min_volume)
-            summary.update({"threshold": threshold, "min_volume_mm3": min_volume, "val_f1_by_labelling": scores})
+            summary.update({"threshold": threshold, "min_volume_mm3": min_volume, "val_f1_by_labelling": scores,
+                            "val_diameter_error_mm_by_labelling": sizing})
     summary["seconds"] = round(time.perf_counter() - t0, 2)
     return summary
 

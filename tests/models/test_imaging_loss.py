@@ -96,6 +96,47 @@ def test_class_absent_from_truth_but_predicted_is_charged():
     assert dice_loss(probs, y).item() == pytest.approx(1 - ((s0 + s1 + s2) / 3).item(), rel=1e-6)
 
 
+def test_dice_per_scan_weighs_a_small_inclusion_like_a_large_one():
+    # scan 0: a 1-voxel inclusion drawn over 4 voxels; scan 1: a 12-voxel inclusion drawn exactly (2 classes)
+    target = torch.zeros(2, 16, dtype=torch.long)
+    target[0, 0] = 1
+    target[1, :12] = 1
+    probs = torch.zeros(2, 2, 16)
+    probs[:, 1] = target.float()
+    probs[0, 1, :4] = 1.0
+    probs[:, 0] = 1.0 - probs[:, 1]
+    y = torch.nn.functional.one_hot(target, 2).movedim(-1, 1).float()
+
+    def score(inter, p_sum, t_sum):
+        return (2 * inter + DICE_EPS) / (p_sum + t_sum + DICE_EPS)
+
+    per_scan = [score(12, 12, 15), score(1, 4, 1), score(4, 4, 4), score(12, 12, 12)]   # (scan, class)
+    batch = [score(16, 16, 19), score(13, 16, 13)]
+    assert dice_loss(probs, y, per="scan").item() == pytest.approx(1 - sum(per_scan) / 4, rel=1e-6)
+    assert dice_loss(probs, y).item() == pytest.approx(1 - sum(batch) / 2, rel=1e-6)
+    assert dice_loss(probs, y, per="scan").item() > 1.5 * dice_loss(probs, y).item()   # 0.178 vs 0.095
+    with pytest.raises(ValueError, match="per must be"):
+        dice_loss(probs, y, per="voxel")
+
+
+def test_dice_per_scan_applies_the_empty_class_rule_per_scan():
+    # class 1 absent from scan 0's truth and argmax (score 1 there), present in scan 1
+    logits = torch.tensor([[[3.0, -3.0], [3.0, -3.0]], [[-3.0, 3.0], [3.0, -3.0]]]).transpose(1, 2)  # (2, C=2, S=2)
+    target = torch.tensor([[0, 0], [1, 0]])
+    probs = torch.softmax(logits, 1)
+    y = torch.nn.functional.one_hot(target, 2).movedim(-1, 1).float()
+    p = probs
+    s00 = (2 * p[0, 0].sum() + DICE_EPS) / (p[0, 0].sum() + 2 + DICE_EPS)
+    s10 = (2 * p[1, 0, 1] + DICE_EPS) / (p[1, 0].sum() + 1 + DICE_EPS)
+    s11 = (2 * p[1, 1, 0] + DICE_EPS) / (p[1, 1].sum() + 1 + DICE_EPS)
+    expected = 1 - (s00 + 1.0 + s10 + s11) / 4
+    assert dice_loss(probs, y, per="scan").item() == pytest.approx(expected.item(), rel=1e-6)
+    logits = logits.clone().requires_grad_(True)
+    out = imaging_loss(logits, target, dice_per="scan")
+    out.total.backward()
+    assert torch.isfinite(out.total) and torch.isfinite(logits.grad).all()
+
+
 def _grad_of(logits, target):
     logits = logits.clone().requires_grad_(True)
     out = imaging_loss(logits, target)
@@ -174,6 +215,10 @@ def test_monai_cross_check_float64():
     ours_dice = dice_loss(probs, y)
     theirs_dice = monai_losses.DiceLoss(batch=True, smooth_nr=DICE_EPS, smooth_dr=DICE_EPS)(probs, y)
     assert ours_dice.item() == pytest.approx(theirs_dice.item(), rel=1e-9)
+    target[1, 0, 0, :4] = torch.arange(4)     # per scan too
+    y = torch.nn.functional.one_hot(target, 4).movedim(-1, 1).double()
+    theirs_scan = monai_losses.DiceLoss(batch=False, smooth_nr=DICE_EPS, smooth_dr=DICE_EPS)(probs, y)
+    assert dice_loss(probs, y, per="scan").item() == pytest.approx(theirs_scan.item(), rel=1e-9)
     alpha = class_weights(y)
     ours_focal = focal_loss(torch.log_softmax(logits, 1), y, alpha, gamma=2.0)
     theirs = monai_losses.FocalLoss(gamma=2.0, weight=alpha, use_softmax=True, reduction="none")(logits, y)

@@ -141,16 +141,19 @@ def test_resume_finetune_and_errors(tmp_path, run_less, sets):
     assert len(proc.stderr.decode().strip().splitlines()) == 1
 
 
-@pytest.mark.parametrize("patch_px,ok", [(4, False), (8, True), (12, False), (64, True)])
-def test_image_fit_patch_size_is_8_16_32(patch_px, ok):
-    """A 4-pixel patch would be the first feature map itself (no layer down to the classes)."""
+@pytest.mark.parametrize("key,value,ok", [
+    ("image.patch_px", 4, False), ("image.patch_px", 8, True), ("image.patch_px", 12, False),
+    ("image.patch_px", 64, True),           # a 4-pixel patch would be the first feature map itself
+    ("loss.dice_per", "batch", True), ("loss.dice_per", "scan", True), ("loss.dice_per", "voxel", False)])
+def test_image_fit_settings_are_checked(key, value, ok):
     from lesscli.errors import LessError
     from lesscli.train.image_fit import ImageFitConfig, check_config
 
     cfg = ImageFitConfig()
-    cfg.image.patch_px = patch_px
+    section, name = key.split(".")
+    setattr(getattr(cfg, section), name, value)
     if ok:
         assert check_config(cfg) is cfg
     else:
-        with pytest.raises(LessError, match=f"image.patch_px = {patch_px} is invalid"):
+        with pytest.raises(LessError, match=f"{key} = {value!r} is invalid: must be "):
             check_config(cfg)
