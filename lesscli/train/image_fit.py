@@ -199,8 +199,9 @@ def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: t
     sizing = [float(np.mean(e)) if e else float("nan") for e in diameter_errors]
     ranked = [-1.0 if np.isnan(f) else f for f in scores]
     near = [i for i, f in enumerate(ranked) if f >= max(ranked) - tolerance]
-    order = {c: (thresholds.index(c[0]), -list(volumes).index(c[1])) for c in choices}
-    best = min(near, key=lambda i: (float("inf") if np.isnan(sizing[i]) else sizing[i], order[choices[i]]))
+    n_volumes = len(choices) // len(thresholds)                                 # choices: threshold-major
+    best = min(near, key=lambda i: (float("inf") if np.isnan(sizing[i]) else sizing[i],
+                                    i // n_volumes, -(i % n_volumes)))
 
     def table(values):
         return {str(th): {f"{mv:g}": v for (t, mv), v in zip(choices, values) if t == th} for th in thresholds}
