@@ -127,8 +127,12 @@ def threads_option(help: str = "CPU threads for torch and BLAS (default: chosen 
 
 
 def labelling_options(func):
-    """``--threshold`` and ``--min-volume-mm3``: the labelling rule of every command that labels images
-    (``image predict``, ``stream``, ``guide``); both default to the model's (see infer.predict.labelling_rule)."""
+    """``--threshold``, ``--min-volume-mm3`` and ``--smooth-mm``: the labelling rule of every command that
+    labels images (``image predict``, ``stream``, ``guide``); each defaults to the model's (see
+    infer.predict.labelling_rule)."""
+    func = click.option("--smooth-mm", "smooth_mm", type=click.FloatRange(min=0), default=None,
+                        help="Label from probabilities smoothed across each slice by a Gaussian of this standard "
+                             "deviation (mm; 0: none). Default: the model's, chosen on --val by image fit; else 0.")(func)
     func = click.option("--min-volume-mm3", "min_volume_mm3", type=click.FloatRange(min=0), default=None,
                         help="Drop inclusion regions smaller than this volume (mm^3; 0: keep all). Default: the "
                              "model's, chosen on --val by image fit; else 0.")(func)

@@ -30,7 +30,7 @@ from lesscli.cli.common import checked_output, device_option, format_option, lab
 @threads_option()
 @format_option
 def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margin_mm, width_mm, score, threshold,
-        min_volume_mm3, device, threads, fmt) -> None:
+        min_volume_mm3, smooth_mm, device, threads, fmt) -> None:
     """Suggest the next K touches (x, y mm) for each scan of the partial scan set PARTIAL.
 
     The partial scan is imaged with MODEL; touches go where the most entropy lies within a touch's
@@ -63,7 +63,7 @@ def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margi
     opts = GuideOptions(k, radius_mm, exclusion_mm, margin_mm, score)
     rows = []
     for s in chosen:
-        g = guide_scan(imager, ckpt, scans, s, opts, width_mm, threshold, min_volume_mm3)
+        g = guide_scan(imager, ckpt, scans, s, opts, width_mm, threshold, min_volume_mm3, smooth_mm)
         rows += [{"scan": s, "insert": str(scans.scan_insert[s]), "steps": len(g.touches_xy_mm), **r} for r in g.rows]
         if plot_path:
             _plot(plot_path, g, str(scans.scan_insert[s]))

@@ -107,7 +107,7 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
 @device_option()
 @threads_option()
 @format_option
-def predict_cmd(model, data, output, threshold, min_volume_mm3, steps, every, grow, slice_index, nifti_dir,
+def predict_cmd(model, data, output, threshold, min_volume_mm3, smooth_mm, steps, every, grow, slice_index, nifti_dir,
                 batch_size, device, threads, fmt) -> None:
     """Predict label images of every scan in DATA with an imaging checkpoint MODEL.
 
@@ -132,7 +132,7 @@ def predict_cmd(model, data, output, threshold, min_volume_mm3, steps, every, gr
 
     t0 = time.perf_counter()
     n_threads = apply_threads("throughput", override=threads)     # whole scans in batches
-    opts = PredictOptions(threshold, steps, every, grow, batch_size, slice_index, min_volume_mm3)
+    opts = PredictOptions(threshold, steps, every, grow, batch_size, slice_index, min_volume_mm3, smooth_mm)
     preds, ckpt, scans = predict_file(model, data, opts, resolve_device(device), progress=progress)
     preds.meta.update({"imager": model, "set": data,
                        "history": append_history({"history": [

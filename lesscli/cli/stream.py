@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import TYPE_CHECKING
 
 import click
 
@@ -14,6 +15,9 @@ from lesscli.cli.common import (
     renamed_option,
     threads_option,
 )
+
+if TYPE_CHECKING:
+    from lesscli.io.predictions import Labelling
 
 EMIT_DEFAULT = 10
 LATENCY_PERCENTILES = (50, 90, 99)
@@ -34,7 +38,7 @@ LATENCY_PERCENTILES = (50, 90, 99)
 @click.option("--defer", is_flag=True, help="Re-decode patches only when a record is written (same images, faster).")
 @device_option()
 @threads_option()
-def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, min_volume_mm3, defer, device,
+def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, min_volume_mm3, smooth_mm, defer, device,
         threads) -> None:
     """Image SOURCE incrementally with the imaging checkpoint MODEL.
 
@@ -59,7 +63,8 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, min_v
     apply_threads("latency", lambda: update_work(imager), threads)
     if monitor_dir:
         os.makedirs(monitor_dir, exist_ok=True)
-    emitter = Emitter(emit_every, monitor_dir, *labelling_rule(ckpt["config"]["image"], threshold, min_volume_mm3))
+    emitter = Emitter(emit_every, monitor_dir,
+                      labelling_rule(ckpt["config"]["image"], threshold, min_volume_mm3, smooth_mm))
     try:
         if source == "-":
             run_live(imager, ckpt, sys.stdin.buffer, emitter, on_error, defer)
@@ -72,10 +77,11 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, min_v
 class Emitter:
     """Per-sample bookkeeping: latencies, records every N samples, monitor frames."""
 
-    def __init__(self, every: int, monitor_dir: str | None, threshold: float | None = None,
-                 min_volume_mm3: float = 0.0) -> None:
+    def __init__(self, every: int, monitor_dir: str | None, labelling: Labelling | None = None) -> None:
+        from lesscli.io.predictions import Labelling
+
         self.every, self.monitor_dir = every, monitor_dir
-        self.threshold, self.min_volume_mm3 = threshold, min_volume_mm3
+        self.labelling = labelling or Labelling()
         self.latency_s: list[float] = []
         self.scan, self.insert, self.touches, self.last_emitted = 0, "", [], -1
         self.last_t: float | None = None
@@ -100,14 +106,13 @@ class Emitter:
     def emit(self, stream, t, latency_s, advanced) -> None:
         from lesscli.infer.stream import entropy_summary
         from lesscli.io.labels import INCLUSION
-        from lesscli.io.predictions import labels_from_probs
         from lesscli.io.records import dumps
 
         t0 = time.perf_counter()
         probs = stream.probs()
         refresh_ms = (time.perf_counter() - t0) * 1e3
         ent = stream.entropy()
-        labels = labels_from_probs(probs, self.threshold, self.min_volume_mm3, stream.grid.spacing_mm)
+        labels = self.labelling.labels(probs, stream.grid.spacing_mm)
         row = {"scan": self.scan, "insert": self.insert, "step": stream.n_steps, "t": t,
                "particles_seen": int(stream.seen.sum()), "particles_advanced": advanced,
                **entropy_summary(ent, probs.shape[0]), "inclusion_voxels": int((labels == INCLUSION).sum()),

@@ -164,7 +164,8 @@ class Guidance:
 
 
 def guide_scan(imager, ckpt: dict, scans, s: int, opts: GuideOptions, width_mm: float | None = None,
-               threshold: float | None = None, min_volume_mm3: float | None = None) -> Guidance:
+               threshold: float | None = None, min_volume_mm3: float | None = None,
+               smooth_mm: float | None = None) -> Guidance:
     """Image scan ``s`` of a (partial) scan set and suggest its next touches.
 
     The candidate region is the scan's label footprint when it has a label volume and ``width_mm``
@@ -173,7 +174,6 @@ def guide_scan(imager, ckpt: dict, scans, s: int, opts: GuideOptions, width_mm: 
     from lesscli.data.image_labels import AUTO_SLICE
     from lesscli.infer.predict import labelling_rule, scan_grid
     from lesscli.infer.stream import StreamingImager
-    from lesscli.io.predictions import labels_from_probs
     from lesscli.models.registry import lookup
 
     image_cfg = ckpt["config"]["image"]
@@ -190,6 +190,6 @@ def guide_scan(imager, ckpt: dict, scans, s: int, opts: GuideOptions, width_mm: 
     probs = stream.probs()
     ent = stream.entropy() if opts.score == "entropy" else lookup(UNCERTAINTY, opts.score, "guide score")(probs)
     rows = suggest_touches(ent, grid, allowed, opts, stream.radius_mm)
-    threshold, min_volume_mm3 = labelling_rule(image_cfg, threshold, min_volume_mm3)
-    return Guidance(rows, labels_from_probs(probs, threshold, min_volume_mm3, grid.spacing_mm), ent, allowed, grid,
+    labelling = labelling_rule(image_cfg, threshold, min_volume_mm3, smooth_mm)
+    return Guidance(rows, labelling.labels(probs, grid.spacing_mm), ent, allowed, grid,
                     np.asarray(scans.pose[steps][:, :2], np.float64))

@@ -23,7 +23,7 @@ from lesscli.data.image_labels import AUTO_SLICE, grid_of, target_volume
 from lesscli.errors import DataError, LessError
 from lesscli.infer import forcemap
 from lesscli.io.checkpoint import load_checkpoint
-from lesscli.io.predictions import PredictionSet, ScanPrediction, labels_from_probs, nothing_known
+from lesscli.io.predictions import Labelling, PredictionSet, ScanPrediction, nothing_known
 from lesscli.io.scans import ScanSet, load_scans
 from lesscli.models.imager import Imager, grid_from_dict
 from lesscli.types import ImageGrid
@@ -43,6 +43,8 @@ class PredictOptions:
         slice_index: 2D slice rule (default: the model's training rule).
         min_volume_mm3: inclusion regions smaller than this are dropped (None: the checkpoint's
             ``config['image']['min_volume_mm3']``, chosen on validation data by ``image fit``; else 0).
+        smooth_mm: label from probabilities smoothed across each slice by a Gaussian of this standard
+            deviation (None: the checkpoint's ``config['image']['smooth_mm']``, chosen the same way; else 0).
     """
 
     threshold: float | None = None
@@ -52,6 +54,7 @@ class PredictOptions:
     batch_size: int = 4
     slice_index: int | None = None
     min_volume_mm3: float | None = None
+    smooth_mm: float | None = None
 
 
 def load_imager(path: str, map_location: str | torch.device = "cpu",
@@ -87,7 +90,7 @@ def load_imager(path: str, map_location: str | torch.device = "cpu",
 
 def check_image_config(image, path: str) -> None:
     """An imaging checkpoint's ``config['image']``: dim 2 or 3, slice a whole number, threshold None or 0..1,
-    minimum inclusion volume None or >= 0 mm^3."""
+    minimum inclusion volume None or >= 0 mm^3, smoothing None or >= 0 mm."""
     if not isinstance(image, dict):
         raise DataError(f"{path}: config 'image' must be a table, got {type(image).__name__}")
     if image.get("dim") not in (2, 3):
@@ -102,14 +105,20 @@ def check_image_config(image, path: str) -> None:
     if min_volume is not None and (isinstance(min_volume, bool) or not isinstance(min_volume, (int, float))
                                    or not 0 <= min_volume < float("inf")):
         raise DataError(f"{path}: config image.min_volume_mm3 must be a volume >= 0 mm^3, got {min_volume!r}")
+    smooth = image.get("smooth_mm")
+    if smooth is not None and (isinstance(smooth, bool) or not isinstance(smooth, (int, float))
+                               or not 0 <= smooth < float("inf")):
+        raise DataError(f"{path}: config image.smooth_mm must be a length >= 0 mm, got {smooth!r}")
 
 
-def labelling_rule(image_cfg: dict, threshold: float | None = None,
-                   min_volume_mm3: float | None = None) -> tuple[float | None, float]:
-    """The threshold and smallest kept inclusion volume to label with: the given ones, else the model's
-    (``config['image']``, chosen on validation data by ``image fit``), else argmax and 0."""
-    return (threshold if threshold is not None else image_cfg.get("threshold"),
-            min_volume_mm3 if min_volume_mm3 is not None else image_cfg.get("min_volume_mm3") or 0.0)
+def labelling_rule(image_cfg: dict, threshold: float | None = None, min_volume_mm3: float | None = None,
+                   smooth_mm: float | None = None) -> Labelling:
+    """The labelling rule to apply: each part as given, else the model's (``config['image']``, chosen
+    on validation data by ``image fit``), else argmax, no region rule, no smoothing (a model fitted
+    before a part existed labels as it did then)."""
+    return Labelling(threshold if threshold is not None else image_cfg.get("threshold"),
+                     float(min_volume_mm3 if min_volume_mm3 is not None else image_cfg.get("min_volume_mm3") or 0.0),
+                     float(smooth_mm if smooth_mm is not None else image_cfg.get("smooth_mm") or 0.0))
 
 
 def scans_for_model(path: str, ckpt: dict) -> ScanSet:
@@ -159,14 +168,14 @@ def predict_scan(imager: Imager, item: dict, lengths: list[int], grid: ImageGrid
 
 
 def _scan_prediction(scans: ScanSet, s: int, probs: np.ndarray, grid: ImageGrid, truth: np.ndarray | None,
-                     steps: int, threshold: float | None, min_volume_mm3: float) -> ScanPrediction:
+                     steps: int, labelling: Labelling) -> ScanPrediction:
     """One prediction record; a prefix of 0 steps images as nothing known (uniform probabilities)."""
     if steps == 0:
         probs = nothing_known(probs.shape)
     return ScanPrediction(probs=probs, origin_mm=np.array(grid.origin_mm),
                           spacing_mm=np.array(grid.spacing_mm), truth=truth, insert=str(scans.scan_insert[s]),
                           orientation=int(scans.scan_orientation[s]), steps=int(steps),
-                          label=labels_from_probs(probs, threshold, min_volume_mm3, grid.spacing_mm))
+                          label=labelling.labels(probs, grid.spacing_mm))
 
 
 def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, device: torch.device | str = "cpu",
@@ -180,7 +189,7 @@ def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, de
     if opts.grow and grids:
         imager.encoder = imager.encoder.with_grid(grow_extent_mm([g for g, _ in grids]))
     imager = imager.to(device).eval()
-    threshold, min_volume = labelling_rule(cfg["image"], opts.threshold, opts.min_volume_mm3)
+    labelling = labelling_rule(cfg["image"], opts.threshold, opts.min_volume_mm3, opts.smooth_mm)
     data = ScanDataset(scans, ckpt["norm_stats"], name)
     offsets = scans.scan_step_offsets()
     preds = []
@@ -188,8 +197,8 @@ def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, de
         grid, truth = grids[s]
         lengths = prefix_lengths(int(offsets[s + 1] - offsets[s]), opts.steps, opts.every)
         for k, probs in zip(lengths, predict_scan(imager, data[s], lengths, grid, opts.batch_size, device)):
-            preds.append(_scan_prediction(scans, s, probs, grid, truth, k, threshold, min_volume))
-    meta = {"dim": dim, "threshold": threshold, "min_volume_mm3": min_volume, "model": cfg["encoder"]["name"],
+            preds.append(_scan_prediction(scans, s, probs, grid, truth, k, labelling))
+    meta = {"dim": dim, **labelling.to_dict(), "model": cfg["encoder"]["name"],
             "decoder": cfg["decoder"]["name"], "width": cfg["decoder"].get("width"), "grown": bool(opts.grow),
             "particles": int(getattr(imager.encoder, "n_particles", 1)), "seed": cfg.get("train", {}).get("seed")}
     return PredictionSet(preds, meta)
@@ -207,15 +216,15 @@ def predict_forcemap(ckpt: dict, scans: ScanSet, opts: PredictOptions, path: str
     except (KeyError, TypeError, ValueError) as exc:
         raise DataError(f"{path}: malformed force-map checkpoint (config 'image'/'grid': {exc!r})") from None
     taxel_xy = forcemap.taxel_layout(scans.meta, name)
+    labelling = labelling_rule({}, opts.threshold, opts.min_volume_mm3, opts.smooth_mm)
     offsets, preds = scans.scan_step_offsets(), []
     for s in progress(range(scans.n_scans), desc="predict", leave=False):
         grid, truth = scan_grid(scans, s, dim, slice_index, default)
         for k in prefix_lengths(int(offsets[s + 1] - offsets[s]), opts.steps, opts.every):
             probs = forcemap.scan_probs(cal, forcemap.scan_touches(scans, s, taxel_xy, k), grid.shape,
                                         grid.origin_mm, grid.spacing_mm)
-            preds.append(_scan_prediction(scans, s, probs, grid, truth, k, opts.threshold, opts.min_volume_mm3 or 0.0))
-    meta = {"dim": dim, "threshold": opts.threshold, "min_volume_mm3": opts.min_volume_mm3 or 0.0,
-            "model": forcemap.MODEL, "decoder": None, "width": None,
+            preds.append(_scan_prediction(scans, s, probs, grid, truth, k, labelling))
+    meta = {"dim": dim, **labelling.to_dict(), "model": forcemap.MODEL, "decoder": None, "width": None,
             "grown": False, "particles": None, "seed": None}
     return PredictionSet(preds, meta)
 

@@ -18,7 +18,8 @@ spacing_mm         (S, 3) f64
 scan_insert        (S,) str
 scan_orientation   (S,) i64
 scan_steps         (S,) i64         number of input steps the prediction saw (prefix length)
-meta               () str           JSON: schema, version, dim, threshold, model, seed, set, history
+meta               () str           JSON: schema, version, dim, labelling rule (threshold,
+                                    min_volume_mm3, smooth_mm), model, seed, set, history
 =================  ===============  ==================================================
 """
 
@@ -39,17 +40,33 @@ SCHEMA, VERSION = "less.pred", 1
 EPS_LOG = 1e-12  # floor inside log(p) for the entropy of float16-rounded probabilities
 
 
+def smoothed(probs: np.ndarray, smooth_mm: float, spacing_mm) -> np.ndarray:
+    """Class probabilities (C, ..., H, W) averaged over a Gaussian of standard deviation ``smooth_mm``
+    across each slice (the last two axes, pixels of ``spacing_mm``; slices are not mixed: the label
+    grids' slices are thicker than their pixels), float32; still a distribution per voxel. 0: as given."""
+    probs = np.asarray(probs, dtype=np.float32)
+    if smooth_mm <= 0:
+        return probs
+    from scipy import ndimage
+
+    dy, dx = (float(v) for v in np.asarray(spacing_mm, np.float64)[-2:])
+    sigma = (0.0,) * (probs.ndim - 2) + (smooth_mm / dy, smooth_mm / dx)
+    return ndimage.gaussian_filter(probs, sigma, mode="nearest")
+
+
 def labels_from_probs(probs: np.ndarray, threshold: float | None = None, min_volume_mm3: float = 0.0,
-                      spacing_mm=(1.0, 1.0, 1.0)) -> np.ndarray:
+                      spacing_mm=(1.0, 1.0, 1.0), smooth_mm: float = 0.0) -> np.ndarray:
     """Class codes from probabilities (C, ...) -> (...) uint8.
 
     Without a threshold this is the argmax. With one, a voxel is pillar or inclusion only when that
     class's probability exceeds ``threshold``; otherwise it takes the more likely of background and
     insert (the hand-held rule of the paper). With ``min_volume_mm3`` > 0, inclusion regions (face-
     connected) smaller than that volume (voxels of ``spacing_mm``) take the more likely of background
-    and insert too: an inclusion is a solid body, not a speck.
+    and insert too: an inclusion is a solid body, not a speck. With ``smooth_mm`` > 0 both rules read
+    the probabilities :func:`smoothed` across each slice first, so that a boundary follows the
+    neighbourhood rather than single pixels.
     """
-    probs = np.asarray(probs, dtype=np.float32)
+    probs = smoothed(probs, smooth_mm, spacing_mm)
     labels = probs.argmax(axis=0).astype(np.uint8)
     if threshold is not None:
         thin = np.isin(labels, (PILLAR, INCLUSION))
@@ -67,6 +84,23 @@ def labels_from_probs(probs: np.ndarray, threshold: float | None = None, min_vol
             speck = small[regions]
             labels[speck] = probs[:2].argmax(axis=0)[speck]
     return labels
+
+
+@dataclass(frozen=True)
+class Labelling:
+    """A labelling rule: the arguments of :func:`labels_from_probs` beside the probabilities. ``image
+    fit --val`` chooses one and stores it in the model (``config['image']``); ``image predict``,
+    ``stream`` and ``guide`` apply it (see ``lesscli.infer.predict.labelling_rule``)."""
+
+    threshold: float | None = None
+    min_volume_mm3: float = 0.0
+    smooth_mm: float = 0.0
+
+    def labels(self, probs: np.ndarray, spacing_mm) -> np.ndarray:
+        return labels_from_probs(probs, self.threshold, self.min_volume_mm3, spacing_mm, self.smooth_mm)
+
+    def to_dict(self) -> dict:
+        return {"threshold": self.threshold, "min_volume_mm3": self.min_volume_mm3, "smooth_mm": self.smooth_mm}
 
 
 def nothing_known(shape: tuple[int, ...]) -> np.ndarray:

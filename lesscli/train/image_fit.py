@@ -21,6 +21,7 @@ import torch
 from lesscli.data.image_labels import AUTO_SLICE, ImageDataset, collate_images, training_targets
 from lesscli.io.checkpoint import load_checkpoint, save_checkpoint
 from lesscli.io.labels import INCLUSION, N_CLASSES
+from lesscli.io.predictions import Labelling
 from lesscli.io.scans import ScanSet
 from lesscli.models.imager import DECODERS, DEFAULT_DECODER, Imager, grid_to_dict
 from lesscli.models.imaging_loss import ALPHA_POWER, DICE_PER, GAMMA, LAMBDA, imaging_loss
@@ -47,6 +48,7 @@ class ImageModelConfig:
     select: str = "f1"            # best epoch on --val: inclusion "f1" (ties: loss) or "loss"
     threshold: float | None = None  # inclusion only above this probability at predict; None: chosen on --val
     min_volume_mm3: float | None = None  # smaller inclusion regions dropped at predict; None: chosen on --val
+    smooth_mm: float | None = None  # labels from probabilities smoothed across each slice (mm); None: chosen on --val
 
 
 @dataclass
@@ -72,6 +74,7 @@ _RULES = [("image.dim", lambda v: v in (2, 3), "2 or 3"), ("image.width", lambda
           ("loss.alpha_power", lambda v: 0 <= v <= 2, "in [0, 2]"),
           ("loss.dice_per", lambda v: v in DICE_PER, " or ".join(DICE_PER)),
           ("image.min_volume_mm3", lambda v: v is None or v >= 0, "unset or >= 0"),
+          ("image.smooth_mm", lambda v: v is None or v >= 0, "unset or >= 0"),
           ("train.epochs", lambda v: v >= 1, ">= 1"), ("train.batch_size", lambda v: v >= 1, ">= 1"),
           ("train.lr", lambda v: v > 0, "> 0")]
 
@@ -144,11 +147,14 @@ def inclusion_f1(model: torch.nn.Module, dataset, batch_size: int, device: torch
 
 # Labelling rules tried on the validation set. The best micro inclusion F1 wins; rules within
 # LABEL_F1_TOLERANCE of it (below the F1's scatter between validation draws) are told apart by their
-# sizing: the smallest mean diameter error (ties: the lowest threshold, then the largest minimum
-# volume, since regions the validation scans cannot tell apart are specks, not inclusions).
-# None: argmax; 0 mm^3: no region rule.
+# sizing: the smallest mean diameter error (ties: the least smoothing, the lowest threshold, then the
+# largest minimum volume, since regions the validation scans cannot tell apart are specks, not
+# inclusions). None: argmax; 0 mm^3: no region rule; 0 mm: no smoothing. The smoothing widths (one to
+# five pixels of the label grids, 0.48-0.95 mm) even out patch seams and single-pixel spurs; much wider
+# ones would round off the smallest inclusions (examples/README.md, "Sizing: the labelling rule").
 THRESHOLD_CHOICES = (None, 0.5, 0.6, 0.7, 0.8, 0.9)
 MIN_VOLUME_CHOICES_MM3 = (0.0, 50.0, 100.0, 150.0)
+SMOOTH_CHOICES_MM = (0.0, 1.0, 1.5, 2.0, 2.5)
 LABEL_F1_TOLERANCE = 0.01
 
 
@@ -163,23 +169,24 @@ def _diameter_or_zero(mask: np.ndarray, spacing_mm) -> float:
 
 def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: torch.device, spacing_mm,
                      collate_fn: Callable = collate_images, thresholds=THRESHOLD_CHOICES,
-                     volumes=MIN_VOLUME_CHOICES_MM3, tolerance: float = LABEL_F1_TOLERANCE
-                     ) -> tuple[float | None, float, dict, dict]:
-    """The inclusion threshold and minimum inclusion volume that label ``dataset`` best.
+                     volumes=MIN_VOLUME_CHOICES_MM3, smooths=SMOOTH_CHOICES_MM,
+                     tolerance: float = LABEL_F1_TOLERANCE) -> tuple[Labelling, dict, dict]:
+    """The labelling rule (smoothing, threshold, minimum inclusion volume) that labels ``dataset`` best.
 
-    Every pair of ``thresholds`` x ``volumes`` labels the validation volumes with
-    :func:`~lesscli.io.predictions.labels_from_probs`, the rule ``less image predict`` applies. The
-    pair with the best micro F1 wins, unless others within ``tolerance`` of it size the inclusions
-    better: then the one of those with the smallest mean diameter error over the scans (an empty
-    mask has diameter 0) does; ties go to the lowest threshold, then the largest minimum volume.
+    Every combination of ``smooths`` x ``thresholds`` x ``volumes`` labels the validation volumes
+    with :func:`~lesscli.io.predictions.labels_from_probs`, the rule ``less image predict`` applies.
+    The one with the best micro F1 wins, unless others within ``tolerance`` of it size the
+    inclusions better: then the one of those with the smallest mean diameter error over the scans
+    (an empty mask has diameter 0) does; ties go to the least smoothing, the lowest threshold, then
+    the largest minimum volume.
 
     Returns:
-        (threshold, min_volume_mm3, {str(threshold): {str(min_volume_mm3): F1}}, the same table of the
-        mean diameter error in mm).
+        (the rule, {str(smooth_mm): {str(threshold): {str(min_volume_mm3): F1}}}, the same table of
+        the mean diameter error in mm).
     """
-    from lesscli.io.predictions import labels_from_probs
+    from lesscli.io.predictions import labels_from_probs, smoothed
 
-    choices = [(th, float(mv)) for th in thresholds for mv in volumes]
+    choices = [(sm, th, float(mv)) for sm in smooths for th in thresholds for mv in volumes]
     counts = np.zeros((len(choices), 3), dtype=np.int64)                       # tp, fp, fn
     diameter_errors: list[list[float]] = [[] for _ in choices]
     loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, collate_fn=collate_fn)
@@ -191,21 +198,24 @@ def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: t
             for p, target in zip(probs, batch.target.cpu().numpy()):
                 true = target == INCLUSION
                 true_diameter = _diameter_or_zero(true, spacing_mm)
-                for i, (th, mv) in enumerate(choices):
-                    pred = labels_from_probs(p, th, mv, spacing_mm) == INCLUSION
+                smooth = {sm: smoothed(p, sm, spacing_mm) for sm in smooths}     # once per width
+                for i, (sm, th, mv) in enumerate(choices):
+                    pred = labels_from_probs(smooth[sm], th, mv, spacing_mm) == INCLUSION
                     counts[i] += ((pred & true).sum(), (pred & ~true).sum(), (~pred & true).sum())
                     diameter_errors[i].append(abs(_diameter_or_zero(pred, spacing_mm) - true_diameter))
     scores = [_f1(*map(int, c)) for c in counts]
     sizing = [float(np.mean(e)) if e else float("nan") for e in diameter_errors]
     ranked = [-1.0 if np.isnan(f) else f for f in scores]
     near = [i for i, f in enumerate(ranked) if f >= max(ranked) - tolerance]
-    n_volumes = len(choices) // len(thresholds)                                 # choices: threshold-major
+    n_volumes = len(volumes)                              # choices: smoothing-, then threshold-major
     best = min(near, key=lambda i: (float("inf") if np.isnan(sizing[i]) else sizing[i],
                                     i // n_volumes, -(i % n_volumes)))
 
     def table(values):
-        return {str(th): {f"{mv:g}": v for (t, mv), v in zip(choices, values) if t == th} for th in thresholds}
-    return (*choices[best], table(scores), table(sizing))
+        return {f"{sm:g}": {str(th): {f"{mv:g}": v for (s_, t, mv), v in zip(choices, values) if (s_, t) == (sm, th)}
+                            for th in thresholds} for sm in smooths}
+    smooth_mm, threshold, min_volume = choices[best]
+    return Labelling(threshold, min_volume, float(smooth_mm)), table(scores), table(sizing)
 
 
 @dataclass
@@ -275,22 +285,23 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
         summary.update({f"val_{k}": v for k, v in
                         inclusion_f1(model, val_set, cfg.train.batch_size, env.device, cfg.loss, collate).items()})
         image = cfg.image
-        if by_f1 and None in (image.threshold, image.min_volume_mm3) and env.is_main:
-            threshold, min_volume, scores, sizing = choose_labelling(
+        if by_f1 and None in (image.threshold, image.min_volume_mm3, image.smooth_mm) and env.is_main:
+            labelling, scores, sizing = choose_labelling(
                 model, val_set, cfg.train.batch_size, env.device, grid.spacing_mm, collate,
                 THRESHOLD_CHOICES if image.threshold is None else (image.threshold,),
-                MIN_VOLUME_CHOICES_MM3 if image.min_volume_mm3 is None else (image.min_volume_mm3,))
-            store_labelling(output, threshold, min_volume)
-            summary.update({"threshold": threshold, "min_volume_mm3": min_volume, "val_f1_by_labelling": scores,
+                MIN_VOLUME_CHOICES_MM3 if image.min_volume_mm3 is None else (image.min_volume_mm3,),
+                SMOOTH_CHOICES_MM if image.smooth_mm is None else (image.smooth_mm,))
+            store_labelling(output, labelling)
+            summary.update({**labelling.to_dict(), "val_f1_by_labelling": scores,
                             "val_diameter_error_mm_by_labelling": sizing})
     summary["seconds"] = round(time.perf_counter() - t0, 2)
     return summary
 
 
 
-def store_labelling(path: str, threshold: float | None, min_volume_mm3: float) -> None:
+def store_labelling(path: str, labelling: Labelling) -> None:
     """Record the chosen labelling rule in the imaging checkpoint's ``config['image']``."""
     ckpt = load_checkpoint(path)
-    ckpt["config"]["image"].update({"threshold": threshold, "min_volume_mm3": min_volume_mm3})
+    ckpt["config"]["image"].update(labelling.to_dict())
     save_checkpoint(path, ckpt["model_state"], ckpt["config"], ckpt["norm_stats"], ckpt["history"],
                     ckpt.get("extra"))

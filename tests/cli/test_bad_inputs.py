@@ -429,6 +429,8 @@ IMAGER_CASES = {
     "config image.threshold 2": lambda c: c["config"]["image"].__setitem__("threshold", 2.0),
     "config image.min_volume_mm3 negative": lambda c: c["config"]["image"].__setitem__("min_volume_mm3", -5.0),
     "config image.min_volume_mm3 a string": lambda c: c["config"]["image"].__setitem__("min_volume_mm3", "big"),
+    "config image.smooth_mm negative": lambda c: c["config"]["image"].__setitem__("smooth_mm", -1.0),
+    "config image.smooth_mm a string": lambda c: c["config"]["image"].__setitem__("smooth_mm", "wide"),
     "config grid without shape": lambda c: c["config"]["grid"].pop("shape"),
     "config encoder unknown": lambda c: c["config"]["encoder"].__setitem__("name", "lesss"),
     "config encoder.dim a string": lambda c: c["config"]["encoder"].__setitem__("dim", "a"),

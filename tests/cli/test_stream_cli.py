@@ -143,6 +143,38 @@ def test_stream_and_guide_label_with_the_models_rule(files, run_less, tmp_path):
     assert (guide_scan(imager, ckpt, scans, 0, opts, min_volume_mm3=0.0).labels == 3).sum() == kept[0]
 
 
+def test_stream_guide_and_predict_smooth_as_the_model_says(files, run_less, tmp_path):
+    """A model whose stored rule smooths (smooth_mm) labels the same voxels in ``stream``, ``guide`` and
+    ``image predict``; ``--smooth-mm 0`` turns it off and labels otherwise."""
+    from imaging_factory import tiny_imager
+
+    from lesscli.infer.guide import GuideOptions, guide_scan
+    from lesscli.io.checkpoint import save_checkpoint
+    from lesscli.io.predictions import load_predictions
+
+    folder, scans = files
+    imager, stats, config = tiny_imager(gain=4.0)
+    config["image"].update(threshold=None, min_volume_mm3=0.0, smooth_mm=3.0)
+    save_checkpoint(str(tmp_path / "smooth.pt"), imager.state_dict(), config, stats, [])
+
+    def counts(*opts):
+        rows = _records(run_less("stream", tmp_path / "smooth.pt", folder / "s.npz", *opts, check=True))
+        streamed = [max((r for r in rows if r["scan"] == s), key=lambda r: r["step"])["inclusion_voxels"]
+                    for s in range(scans.n_scans)]
+        run_less("image", "predict", tmp_path / "smooth.pt", folder / "s.npz", "-o", tmp_path / "p.npz", *opts,
+                 check=True)
+        predicted = [int((p.label == 3).sum()) for p in load_predictions(str(tmp_path / "p.npz")).scans]
+        assert streamed == predicted
+        return predicted
+
+    smooth, plain = counts(), counts("--smooth-mm", "0")
+    assert sum(plain) > 0 and smooth != plain, "the test model must mark inclusion edges that smoothing moves"
+    ckpt = {"config": config, "norm_stats": stats}
+    opts = GuideOptions(2, None, None, 3.0, "entropy")
+    assert (guide_scan(imager, ckpt, scans, 0, opts).labels == 3).sum() == smooth[0]
+    assert (guide_scan(imager, ckpt, scans, 0, opts, smooth_mm=0.0).labels == 3).sum() == plain[0]
+
+
 def test_bench_stream_paced_samples_arrive_at_the_rate():
     """--rate: each timed sample waits for its due time, so the timed loop lasts at least (n - 1) / rate
     (a lower bound: a slower machine only lengthens it); the row reports the share over the period."""

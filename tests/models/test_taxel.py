@@ -294,13 +294,14 @@ def test_cli_less_taxel_pretrain_fit_predict_round_trip(run_less, tmp_path):
     stored = torch.load(str(tmp_path / "img.pt"), weights_only=True)["config"]
     assert stored["encoder"]["name"] == "less-taxel" and stored["image"]["threshold"] == fit["threshold"]
     assert stored["image"]["min_volume_mm3"] == fit["min_volume_mm3"]
+    assert stored["image"]["smooth_mm"] == fit["smooth_mm"]
     sizing = fit["val_diameter_error_mm_by_labelling"]
-    assert sizing.keys() == fit["val_f1_by_labelling"].keys() and sizing[str(fit["threshold"])][
-        f"{fit['min_volume_mm3']:g}"] >= 0
+    assert sizing.keys() == fit["val_f1_by_labelling"].keys() and sizing[f"{fit['smooth_mm']:g}"][
+        str(fit["threshold"])][f"{fit['min_volume_mm3']:g}"] >= 0
     run_less("image", "predict", "img.pt", "va.npz", "-o", "pred.npz", "--device", "cpu", check=True, env=env)
     from lesscli.io.predictions import load_predictions
 
     preds = load_predictions(str(tmp_path / "pred.npz"))
     assert preds.meta["model"] == "less-taxel" and preds.meta["threshold"] == fit["threshold"]
-    assert preds.meta["min_volume_mm3"] == fit["min_volume_mm3"]
+    assert preds.meta["min_volume_mm3"] == fit["min_volume_mm3"] and preds.meta["smooth_mm"] == fit["smooth_mm"]
     assert all(np.isfinite(p.probs.astype(np.float32)).all() for p in preds.scans)
