@@ -137,7 +137,7 @@ def test_global_decoder_shapes(dim, shape):
 @pytest.mark.parametrize("dim", [1, 2, 3])
 @pytest.mark.parametrize("keep", [None, 1, 2, 5, 7, 8, 9])
 def test_subpixel_form_equals_the_transposed_convolution(dim, keep):
-    from lesscli.models.patch_decoder import subpixel_conv_t, subpixel_weights
+    from lesscli.models.subpixel import subpixel_conv_t, subpixel_weights
 
     gen = torch.Generator().manual_seed(dim)
     conv_t = getattr(torch.nn, f"ConvTranspose{dim}d")(3, 5, kernel_size=4, stride=2, padding=1)
@@ -171,7 +171,7 @@ def test_evaluation_decodes_like_training(dim, patch_px, width, depth):
 
 def test_evaluation_weights_follow_parameter_updates():
     """The rearranged sub-pixel weights are reused, and rebuilt after an optimiser step or a load."""
-    from lesscli.models.patch_decoder import eval_weights, subpixel_weights
+    from lesscli.models.subpixel import eval_weights, subpixel_weights
 
     dec = PatchDecoder(d_z=6, n_classes=4, dim=2, patch_px=16, width=16).eval()
     last = dec.up[-1]
@@ -193,7 +193,7 @@ def test_patch_decoder_needs_one_upsampling_layer():
 
 
 def test_subpixel_form_refuses_other_transposed_convolutions():
-    from lesscli.models.patch_decoder import subpixel_weights
+    from lesscli.models.subpixel import subpixel_weights
 
     with pytest.raises(ValueError, match="kernel 4, stride 2, padding 1"):
         subpixel_weights(torch.nn.ConvTranspose2d(3, 5, kernel_size=3, stride=2, padding=1))
