@@ -88,7 +88,7 @@ def labels_from_probs(probs: np.ndarray, threshold: float | None = None, min_vol
 
 @dataclass(frozen=True)
 class Labelling:
-    """A labelling rule: the arguments of :func:`labels_from_probs` beside the probabilities. ``image
+    """A labelling rule: the settings of :func:`labels_from_probs` beside the probabilities. ``image
     fit --val`` chooses one and stores it in the model (``config['image']``); ``image predict``,
     ``stream`` and ``guide`` apply it (see ``lesscli.infer.predict.labelling_rule``)."""
 
