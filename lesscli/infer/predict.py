@@ -97,18 +97,13 @@ def check_image_config(image, path: str) -> None:
         raise DataError(f"{path}: config image.dim must be 2 or 3, got {image.get('dim')!r}")
     if not isinstance(image.get("slice", AUTO_SLICE), int):
         raise DataError(f"{path}: config image.slice must be a whole number, got {image.get('slice')!r}")
-    threshold = image.get("threshold")
-    if threshold is not None and (isinstance(threshold, bool) or not isinstance(threshold, (int, float))
-                                  or not 0 <= threshold <= 1):
-        raise DataError(f"{path}: config image.threshold must be a probability 0..1, got {threshold!r}")
-    min_volume = image.get("min_volume_mm3")
-    if min_volume is not None and (isinstance(min_volume, bool) or not isinstance(min_volume, (int, float))
-                                   or not 0 <= min_volume < float("inf")):
-        raise DataError(f"{path}: config image.min_volume_mm3 must be a volume >= 0 mm^3, got {min_volume!r}")
-    smooth = image.get("smooth_mm")
-    if smooth is not None and (isinstance(smooth, bool) or not isinstance(smooth, (int, float))
-                               or not 0 <= smooth < float("inf")):
-        raise DataError(f"{path}: config image.smooth_mm must be a length >= 0 mm, got {smooth!r}")
+    for key, top, what in (("threshold", 1.0, "a probability 0..1"),
+                           ("min_volume_mm3", float("inf"), "a volume >= 0 mm^3"),
+                           ("smooth_mm", float("inf"), "a length >= 0 mm")):       # the labelling rule
+        value = image.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                  or not 0 <= value <= top or value == float("inf")):
+            raise DataError(f"{path}: config image.{key} must be {what}, got {value!r}")
 
 
 def labelling_rule(image_cfg: dict, threshold: float | None = None, min_volume_mm3: float | None = None,

@@ -153,17 +153,23 @@ class PatchDecoder(nn.Module):
                 out.index_copy_(0, rows, part)
             out = to_channels_last(out) if channels_last else out.contiguous()
         else:
-            h = self.inp(z.reshape(b * p, -1))
-            h = h.view(b * p, self.width, *([self.base_depth] if self.dim == 3 else []), BASE_PX, BASE_PX)
-            out = run_eval(self.up, h, self.depth_px if self.dim == 3 else None, channels_last)
+            out = run_eval(self.up, self._first_map(z.reshape(b * p, -1)), self._keep(), channels_last)
         out = out if self.dim == 3 else out[:, :, None]
         return out.reshape(b, p, *out.shape[1:]).to(torch.float32)
+
+    def _first_map(self, z: Tensor) -> Tensor:
+        """(N, d_in) -> (N, width, [base_depth,] BASE_PX, BASE_PX): the upsampling stack's input."""
+        return self.inp(z).view(z.shape[0], self.width, *([self.base_depth] if self.dim == 3 else []),
+                                BASE_PX, BASE_PX)
+
+    def _keep(self) -> int | None:
+        """Output depth rows to keep (a 3D column's depth; None in 2D)."""
+        return self.depth_px if self.dim == 3 else None
 
     def _decode_train(self, z: Tensor) -> Tensor:
         """(N, d_in) -> (N, C, [depth_px,] ph, pw) differentiable logits: :func:`run_train` on the CPU
         (where it was measured faster), the modules elsewhere."""
-        h = self.inp(z).view(z.shape[0], self.width, *([self.base_depth] if self.dim == 3 else []), BASE_PX, BASE_PX)
-        keep = self.depth_px if self.dim == 3 else None
+        h, keep = self._first_map(z), self._keep()
         return run_train(self.up, h, keep) if h.device.type == "cpu" else self.up(h)[:, :, :keep]
 
     def forward(self, states, grid: ImageGrid) -> Tensor:
