@@ -31,6 +31,8 @@ class ModelConfig:
                                         # "scale" (no centring); "" = the encoder's own (less: global)
     map_contrast: str = "step"          # less-taxel: contrast to the step's mean ("step") or to a plane
                                         # fitted over the step's pressing taxels ("plane")
+    map_cells: int = 7                  # less-taxel: cells per side of each particle's stiffness map
+    map_pitch_mm: float = 2.5           # less-taxel: distance between map cells
 
 
 @dataclass
@@ -72,7 +74,8 @@ _RULES = [("model.dim", lambda v: v >= 1, ">= 1"), ("model.spacing_mm", lambda v
           ("train.min_lr_ratio", lambda v: 0 <= v <= 1, "in [0, 1]"),
           ("train.num_workers", lambda v: v >= 0, ">= 0"), ("ssl.k_input", lambda v: v >= 1, ">= 1"),
           ("ssl.k_query", lambda v: v >= 1, ">= 1"),
-          ("model.map_contrast", lambda v: v in ("step", "plane"), "step or plane")]
+          ("model.map_contrast", lambda v: v in ("step", "plane"), "step or plane"),
+          ("model.map_cells", lambda v: v >= 1, ">= 1"), ("model.map_pitch_mm", lambda v: v > 0, "> 0")]
 
 
 def check_rules(cfg, rules) -> None:

@@ -17,6 +17,8 @@ from lesscli.train.config import ModelConfig, PretrainConfig, check_pretrain_con
 from lesscli.train.loop import EVAL_SEED, FitResult, data_identity, fit
 from lesscli.train.watch import Watch
 
+MAP_SETTINGS = ("map_contrast", "map_cells", "map_pitch_mm")   # model settings of less-taxel's stiffness map
+
 
 def encoder_kwargs(cfg: PretrainConfig, n_force: int, taxel_xy_mm: list | None = None) -> dict:
     """Constructor arguments of the configured encoder (``taxel_xy_mm`` for encoders that take it)."""
@@ -29,11 +31,12 @@ def encoder_kwargs(cfg: PretrainConfig, n_force: int, taxel_xy_mm: list | None =
         if taxel_xy_mm is None:
             raise DataError(f"encoder '{m.name}' needs the sensor's taxel layout (meta sensor.taxel_xy_mm)")
         kwargs["taxel_xy_mm"] = taxel_xy_mm
-    if "map_contrast" in params:
-        kwargs["map_contrast"] = m.map_contrast
-    elif m.map_contrast != ModelConfig.map_contrast:
-        raise LessError(f"setting model.map_contrast = {m.map_contrast!r} applies to less-taxel only, "
-                        f"not to encoder '{m.name}'")
+    for key in MAP_SETTINGS:                    # the stiffness map's settings (less-taxel)
+        value = getattr(m, key)
+        if key in params:
+            kwargs[key] = value
+        elif value != getattr(ModelConfig, key):
+            raise LessError(f"setting model.{key} = {value!r} applies to less-taxel only, not to encoder '{m.name}'")
     return kwargs
 
 

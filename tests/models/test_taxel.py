@@ -224,10 +224,31 @@ def test_map_contrast_is_a_less_taxel_setting():
     enc = build_encoder({"name": "less-taxel", **_encoder(map_contrast="plane").config()})
     assert enc.map_contrast == "plane"
     cfg.model.name = "less"
-    with pytest.raises(LessError, match="less-taxel only"):
+    with pytest.raises(LessError, match="map_contrast = 'plane' applies to less-taxel only"):
         encoder_kwargs(cfg, 90)
     with pytest.raises(ValueError, match="map_contrast"):
         _encoder(map_contrast="edge")
+
+
+@pytest.mark.parametrize("key, value", [("map_cells", 9), ("map_pitch_mm", 2.0)])
+def test_map_size_is_a_less_taxel_setting(key, value):
+    from lesscli.errors import LessError
+    from lesscli.train.config import PretrainConfig
+    from lesscli.train.pretrain import build_model
+
+    cfg = PretrainConfig()
+    cfg.model.name, cfg.model.dim = "less-taxel", 8
+    setattr(cfg.model, key, value)
+    enc = build_model(cfg, 90, LAYOUT).encoder
+    assert enc.settings[key] == value
+    cells = enc.settings["map_cells"]
+    assert enc.dim == 8 + 3 * cells * cells and enc.axis_mm.numel() == cells
+    assert float(enc.axis_mm[1] - enc.axis_mm[0]) == pytest.approx(enc.settings["map_pitch_mm"])
+    again = build_encoder(enc.config())                                  # the checkpoint keeps the map size
+    assert again.dim == enc.dim and again.settings[key] == value
+    cfg.model.name = "less"
+    with pytest.raises(LessError, match=f"model.{key} = {value!r} applies to less-taxel only"):
+        build_model(cfg, 90)
 
 
 def test_registry_round_trip_and_grown_grid_keep_outputs():
