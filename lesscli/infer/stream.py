@@ -121,11 +121,12 @@ class PatchCanvas:
             if self.place[p] is None:
                 continue
             on_grid, part = self.place[p]
-            self.canvas[on_grid].add_(new[j][part]).sub_(self.cache[p][part])
+            patch, old = new[j][part], self.cache[p][part]
+            self.canvas[on_grid].add_(patch).sub_(old)
+            old.copy_(patch)
             if not self.placed[p]:
                 self.cover[on_grid[1:]] += 1.0
                 self.placed[p] = True
-        self.cache.index_copy_(0, particles, new)       # whole patches, one copy for all of them
 
     def within_context(self, particles: Tensor, seen: Tensor) -> Tensor:
         """(k,) particle indices -> every seen particle whose context convolution reads one of them
