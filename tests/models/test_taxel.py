@@ -326,3 +326,16 @@ def test_cli_less_taxel_pretrain_fit_predict_round_trip(run_less, tmp_path):
     assert preds.meta["model"] == "less-taxel" and preds.meta["threshold"] == fit["threshold"]
     assert preds.meta["min_volume_mm3"] == fit["min_volume_mm3"] and preds.meta["smooth_mm"] == fit["smooth_mm"]
     assert all(np.isfinite(p.probs.astype(np.float32)).all() for p in preds.scans)
+
+
+@pytest.mark.parametrize("key, value, rule", [("map_cells", 0, ">= 1"), ("map_pitch_mm", 0.0, "> 0"),
+                                              ("map_pitch_mm", -2.5, "> 0")])
+def test_map_size_settings_are_checked(key, value, rule):
+    from lesscli.errors import LessError
+    from lesscli.train.config import PretrainConfig, check_pretrain_config
+
+    cfg = PretrainConfig()
+    cfg.model.name = "less-taxel"
+    setattr(cfg.model, key, value)
+    with pytest.raises(LessError, match=f"model.{key} = {value!r} is invalid: must be {rule}"):
+        check_pretrain_config(cfg)
