@@ -5,10 +5,10 @@ these inserts, so the catalogue's ``multiple`` set stays a test set that no choi
 construction as the catalogue (spheres at the manufacturing depth, each on its own pillar, catalogue
 materials) with other counts, sizes, directions and places, drawn from a fixed seed:
 
-    python examples/dev_multiple.py > examples/scenes/dev-multiple.toml
+    python examples/dev_multiple.py > examples/scenes/dev-multiple.json
 
-Simulate with the headline run's scene: ``less simulate scenes/quick.toml --set contact.tier=green
---set phantoms.set=scenes/dev-multiple.toml ...`` (``make -C examples dev-multiple``).
+(a phantom-set file as ``less phantom`` writes them: a JSON list of phantom specs). The headline run
+simulates it with its scene as the ``dev`` set (``make -C examples accuracy``: ``work/accuracy/dev.npz``).
 """
 
 from __future__ import annotations
@@ -61,18 +61,7 @@ def dev_multiple(seed: int = SEED) -> list[Phantom]:
 
 
 def main() -> None:
-    print("# written by examples/dev_multiple.py: a development set of multiple-inclusion inserts")
-    for phantom in dev_multiple():
-        print("\n[[phantom]]")
-        for key, value in phantom.to_dict().items():
-            print(f"{key} = {json.dumps(value)}" if not isinstance(value, (dict, list)) else _toml(key, value))
-
-
-def _toml(key: str, value) -> str:
-    if isinstance(value, dict):
-        return f"{key} = {{ " + ", ".join(f"{k} = {json.dumps(v)}" for k, v in value.items()) + " }"
-    return f"{key} = [" + ", ".join("{ " + ", ".join(f"{k} = {json.dumps(v)}" for k, v in item.items()) + " }"
-                                    for item in value) + "]"
+    print(json.dumps([phantom.to_dict() for phantom in dev_multiple()], indent=1))
 
 
 if __name__ == "__main__":
