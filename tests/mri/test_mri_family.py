@@ -15,7 +15,7 @@ import json
 import nibabel as nib
 import numpy as np
 import pytest
-from mri_family import Case, generate, inclusion_scores, pillar_voxels_wide, scores
+from mri_family import PILLAR, Case, generate, inclusion_scores, pillar_voxels_wide, scores
 
 from lesscli.mri.segment import segment
 
@@ -245,3 +245,28 @@ def test_outer_surface_end_faces_within_a_slice(name):
     vol = generate(FACE_CASES[name])
     seg = segment(vol.image, vol.spacing_mm, where=name)
     assert scores(seg.labels, vol.truth)["insert"] >= 0.975
+
+
+@pytest.mark.parametrize("spacing", [(0.9, 1.1, 1.1), (1.2, 0.8, 0.8)])
+def test_box_partial_volume_keeps_a_thin_posts_silicone_and_the_ramp_adds_to_it(spacing):
+    """The family's generator itself: without noise and bias a post's silicone per slice (the blur
+    keeps its sum) is its disc's area under the box partial volume (within 2 %), while the ramp's fill
+    adds to it (the bias of the ramp family described in README)."""
+    diameter = 1.8
+    excess = {}
+    for pv in ("box", "ramp"):
+        case = Case(seed=3, spacing_mm=spacing, inclusion_mm=(10.0,), pillar_mm=diameter, pillar_height_mm=(12.0,),
+                    noise=0.0, bias=0.0, silicone_brighter=True, yaw_deg=17.0, partial_volume=pv)
+        vol = generate(case)
+        post = vol.truth == PILLAR
+        rows = np.nonzero(post.any(axis=(1, 2)))[0][3:-3]           # slabs away from the base and the ball
+        centre = np.argwhere(post[rows[0]]).mean(axis=0)
+        a1, a2 = np.ogrid[:post.shape[1], :post.shape[2]]
+        r = np.hypot((a1 - centre[0]) * spacing[1], (a2 - centre[1]) * spacing[2])
+        disc = r < 4.0
+        gel = np.median(vol.image[rows][:, (r > 3.0) & disc])         # the filling's level around the post
+        share = (vol.image[rows][:, disc] - gel) / (1.0 - gel)        # silicone share (silicone_brighter: 1)
+        area = share.sum(axis=1).mean() * spacing[1] * spacing[2]
+        excess[pv] = area / (np.pi * diameter ** 2 / 4) - 1
+    assert abs(excess["box"]) < 0.02
+    assert excess["ramp"] > 0.05
