@@ -14,6 +14,11 @@ job that ended a minute ago, the sample alone misses a bursty one between its bu
 
 :func:`choose_threads` is the pure rule (table-tested); :func:`apply_threads` reads the machine,
 applies the choice to torch and, where threadpoolctl is installed, to the BLAS/OpenMP pools.
+
+Fewer threads keep latency-bound work from waiting on its own threads, not on other processes: with
+more runnable processes than cores, an update now and then waits out another's time slice.
+:func:`set_realtime` (``--realtime`` of ``stream`` and ``bench stream``) lets it preempt them instead:
+the real-time FIFO policy, where the system permits it.
 """
 
 from __future__ import annotations
@@ -24,6 +29,8 @@ import os
 import time
 from collections.abc import Callable
 from typing import Literal
+
+from lesscli.errors import LessError
 
 Work = Literal["latency", "throughput"]
 
@@ -166,3 +173,32 @@ def set_threads(n: int, torch_too: bool = True) -> None:
     else:
         threadpool_limits(n)
 
+
+
+REALTIME_PRIORITY = 10           # SCHED_FIFO priority of --realtime (1-99): above every normal process, low among RT
+
+
+def set_realtime(priority: int = REALTIME_PRIORITY, tasks: str = "/proc/self/task") -> None:
+    """Run every thread of this process, and those it starts later, under the real-time FIFO policy
+    at ``priority``: each preempts normal processes at once instead of sharing a core with them.
+
+    A thread that does not block holds its core until it does (the kernel keeps 5 % of each second
+    for the others by default), so it suits latency-bound work paced by its input. Processes started
+    from here inherit the policy unless they reset it (the busy processes of the benchmarks do).
+    Raises LessError where the platform has no such policy or the process may not take it.
+    """
+    if not hasattr(os, "SCHED_FIFO"):
+        raise LessError("--realtime: this platform has no real-time scheduling (SCHED_FIFO, Linux)")
+    try:
+        tids = [int(t) for t in os.listdir(tasks)]
+    except OSError:
+        tids = [0]
+    try:
+        for tid in tids:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+    except PermissionError:
+        raise LessError(f"--realtime: this process may not take real-time priority {priority} "
+                        f"(it needs root, CAP_SYS_NICE or a real-time limit `ulimit -r` of {priority} or more)") from None
+    except ProcessLookupError:   # a thread that ended meanwhile
+        pass
+    logging.getLogger("less").info("scheduling: real-time FIFO, priority %d", priority)

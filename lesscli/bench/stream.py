@@ -144,20 +144,23 @@ def stream_models(model_path: str | None, dim: int, widths: list[int | None], se
 
 
 def run_stream(models: list[tuple], steps: list[int], loads: list[int], updates: int, full_repeats: int,
-               threads: int | None, seed: int, rate_hz: float = 0.0) -> list[dict]:
+               threads: int | None, seed: int, rate_hz: float = 0.0, realtime: bool = False) -> list[dict]:
     """One row per load level, model and prefix length (see :func:`measure`).
 
     Beside ``load`` busy processes the thread count is the one the ``stream`` command would choose
-    with them running, unless ``threads`` fixes it.
+    with them running, unless ``threads`` fixes it. ``realtime``: the whole measurement under the
+    real-time FIFO policy, as ``stream --realtime`` (the busy processes stay ordinary ones).
     """
     import numpy as np
     import torch
 
     from lesscli.bench.timing import busy_processes
     from lesscli.infer.stream import update_work
-    from lesscli.threads import apply_threads
+    from lesscli.threads import apply_threads, set_realtime
 
     work = max(update_work(imager) for imager, _, _ in models)
+    if realtime:
+        set_realtime()
     rows = []
     for load in loads:
         with busy_processes(load):
@@ -168,6 +171,7 @@ def run_stream(models: list[tuple], steps: list[int], loads: list[int], updates:
                     row = measure(imager, stats, n, updates, full_repeats, rng, rate_hz)
                     row.update({"dim": int(imager.grid.shape[0] > 1) + 2,
                                 "width": getattr(imager.decoder, "width", None),
-                                "threads": torch.get_num_threads(), "load": load, "model": name})
+                                "threads": torch.get_num_threads(), "load": load, "realtime": realtime,
+                                "model": name})
                     rows.append(row)
     return rows

@@ -8,7 +8,7 @@ from __future__ import annotations
 import click
 
 from lesscli.bench.stream import DEFAULT_STEPS, run_stream, stream_models
-from lesscli.cli.common import comma_list, format_option, seed_option, threads_option
+from lesscli.cli.common import comma_list, format_option, realtime_option, seed_option, threads_option
 
 
 @click.command("stream")
@@ -28,10 +28,11 @@ from lesscli.cli.common import comma_list, format_option, seed_option, threads_o
               help="Timed samples arrive at this rate, as from a live sensor (the process sleeps between "
                    "them); 0: back to back.  [default: 0]")
 @threads_option(help="CPU threads for torch and BLAS (default: the stream command's choice).")
+@realtime_option()
 @seed_option()
 @format_option
-def cli(quick, steps_text, updates, full_repeats, dim, width_text, model_path, load_text, rate_hz, threads, seed,
-        fmt) -> None:
+def cli(quick, steps_text, updates, full_repeats, dim, width_text, model_path, load_text, rate_hz, threads, realtime,
+        seed, fmt) -> None:
     """Per-update latency (median, p99) of incremental imaging vs full recomputation, as a table."""
     from lesscli.io.records import emit_records
 
@@ -46,7 +47,7 @@ def cli(quick, steps_text, updates, full_repeats, dim, width_text, model_path, l
         raise click.UsageError("--width sizes the default model; a --model checkpoint has its own")
     models = stream_models(model_path, int(dim), widths, seed)
     emit_records(run_stream(models, steps, loads, updates or (20 if quick else 200),
-                            full_repeats or (3 if quick else 10), threads, seed, rate_hz), fmt)
+                            full_repeats or (3 if quick else 10), threads, seed, rate_hz, realtime), fmt)
 
 
 def load_levels(text: str) -> list[int]:

@@ -126,6 +126,13 @@ def threads_option(help: str = "CPU threads for torch and BLAS (default: chosen 
     return click.option("--threads", type=click.IntRange(1), default=None, metavar="N", help=help)
 
 
+def realtime_option():
+    """``--realtime``: latency-bound commands run under the real-time FIFO policy (lesscli.threads.set_realtime)."""
+    return click.option("--realtime", is_flag=True,
+                        help="Run under the real-time FIFO scheduling policy, so that busy processes do not delay "
+                             "updates (Linux; needs root, CAP_SYS_NICE or `ulimit -r`).")
+
+
 def labelling_options(func):
     """``--threshold``, ``--min-volume-mm3`` and ``--smooth-mm``: the labelling rule of every command that
     labels images (``image predict``, ``stream``, ``guide``); each defaults to the model's (see

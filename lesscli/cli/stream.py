@@ -12,6 +12,7 @@ from lesscli.cli.common import (
     checked_output,
     device_option,
     labelling_options,
+    realtime_option,
     renamed_option,
     threads_option,
 )
@@ -38,8 +39,9 @@ LATENCY_PERCENTILES = (50, 90, 99)
 @click.option("--defer", is_flag=True, help="Re-decode patches only when a record is written (same images, faster).")
 @device_option()
 @threads_option()
+@realtime_option()
 def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, min_volume_mm3, smooth_mm, defer, device,
-        threads) -> None:
+        threads, realtime) -> None:
     """Image SOURCE incrementally with the imaging checkpoint MODEL.
 
     SOURCE is a scan set (each scan replayed from a fresh state, at --rate samples/s or as fast as
@@ -55,12 +57,14 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, min_v
 
     from lesscli.infer.predict import labelling_rule, load_imager
     from lesscli.infer.stream import update_work
-    from lesscli.threads import apply_threads
+    from lesscli.threads import apply_threads, set_realtime
     from lesscli.train.distributed import resolve_device
 
     dev = resolve_device(device)
     imager, ckpt = load_imager(model, dev)
     apply_threads("latency", lambda: update_work(imager), threads)
+    if realtime:
+        set_realtime()
     if monitor_dir:
         os.makedirs(monitor_dir, exist_ok=True)
     emitter = Emitter(emit_every, monitor_dir,
