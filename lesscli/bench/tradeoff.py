@@ -1,10 +1,11 @@
 """Accuracy against time: one knob at a time around a base setting, all on the same simulated data.
 
 Knobs (``KNOBS``): simulator contact tier, receptive field beta (the paper's ablation), particle
-spacing, state width d_z, image decoder width, subsampling rate and SSL training epochs. For each
-setting the run simulates (once per tier, cached), subsamples, pretrains a LESS representation, fits
-a 3D image decoder, predicts the held-out ``single`` inserts and the ``multiple`` set, and scores the
-inclusion class. Each row holds the times (simulation, pretraining, image fitting, inference latency
+spacing, state width d_z, image decoder width, subsampling rate, SSL training epochs and, at
+prediction only, the turns averaged (``image predict --turns``). For each setting the run simulates
+(once per tier, cached), subsamples, pretrains a LESS representation, fits a 3D image decoder (once
+per trained setting: settings that differ only in ``turns`` share the model), predicts the held-out
+``single`` inserts and the ``multiple`` set, and scores the inclusion class. Each row holds the times (simulation, pretraining, image fitting, inference latency
 per scan) and the micro F1 on both sets, plus ratios against the base setting measured in the same run.
 """
 
@@ -19,7 +20,7 @@ import numpy as np
 
 # knob name -> Setting field it varies
 KNOBS: dict[str, str] = {"tier": "tier", "receptive_field": "receptive_field_mm", "spacing": "spacing_mm",
-                         "dim": "dim", "width": "width", "subsample": "every", "epochs": "epochs"}
+                         "dim": "dim", "width": "width", "subsample": "every", "epochs": "epochs", "turns": "turns"}
 
 
 @dataclass(frozen=True)
@@ -33,6 +34,11 @@ class Setting:
     width: int = 16             # channels of the image decoder's first feature map
     every: int = 50
     epochs: int = 10
+    turns: int = 1              # prediction only: images averaged over the scan's turns (image predict --turns)
+
+    def trained(self) -> Setting:
+        """The setting of the model it predicts with (prediction-only knobs at their base)."""
+        return replace(self, turns=1)
 
 
 @dataclass
@@ -68,13 +74,13 @@ class TradeoffPlan:
 QUICK = TradeoffPlan(
     base=Setting(),
     values={"tier": ("winkler", "green"), "receptive_field": (5.0, 10.0, 20.0), "spacing": (6.0, 10.0),
-            "dim": (16, 32), "width": (8, 16, 32), "subsample": (25, 50), "epochs": (4, 10)})
+            "dim": (16, 32), "width": (8, 16, 32), "subsample": (25, 50), "epochs": (4, 10), "turns": (1, 4)})
 FULL = TradeoffPlan(
     base=Setting(tier="green", dim=128, width=32, epochs=100),
     values={"tier": ("winkler", "green", "fem"), "receptive_field": (5.0, 7.5, 10.0, 15.0, 20.0, 30.0),
             "spacing": (4.0, 6.0, 8.0, 10.0), "dim": (64, 128, 256, 512, 1024), "width": (16, 32, 64),
             "subsample": (10, 25, 50, 100),
-            "epochs": (25, 50, 100, 200)},
+            "epochs": (25, 50, 100, 200), "turns": (1, 2, 4)},
     single_inserts=30, multiple_inserts=10, orientations=(0, 2, 4, 6), n_traj=100, label_shape=(26, 128, 128),
     label_spacing_mm=(0.9, 0.4774, 0.4774), image_epochs=100, lr=1e-4, image_lr=1e-4, patch_px=32)
 
@@ -185,7 +191,7 @@ def evaluate(imager_path: str, s: Setting, data: BenchData, run: TradeoffRun) ->
     for name, scans in (("single", data.test), ("multiple", data.multiple)):
         scans = subsample(scans, every=s.every)
         t0 = time.perf_counter()
-        preds = predict(imager, ckpt, scans, PredictOptions(), dev, name=name)
+        preds = predict(imager, ckpt, scans, PredictOptions(turns=s.turns), dev, name=name)
         if name == "single":
             out["latency_ms_per_scan"] = 1e3 * (time.perf_counter() - t0) / max(1, scans.n_scans)
         summary = summarise(score_prediction_set(preds, name))[0]
@@ -218,14 +224,16 @@ def run_tradeoff(plan: TradeoffPlan, knobs: list[str], run: TradeoffRun) -> list
     if not any(s == plan.base for _, _, s in todo):
         todo.insert(0, ("base", "base", plan.base))
     data: dict[str, BenchData] = {}
+    models: dict[Setting, dict] = {}
     done: dict[Setting, dict] = {}
     rows = []
     for knob, value, s in run.progress(todo, desc="settings", unit="setting"):
         if s.tier not in data:
             data[s.tier] = make_data(plan, s.tier, run)
+        if s.trained() not in models:
+            models[s.trained()] = train_setting(plan, s.trained(), data[s.tier], run, f"s{len(models):02d}")
         if s not in done:
-            stem = f"s{len(done):02d}"
-            trained = train_setting(plan, s, data[s.tier], run, stem)
+            trained = models[s.trained()]
             done[s] = {**trained, **evaluate(trained["imager"], s, data[s.tier], run)}
         res = done[s]
         rows.append({"knob": knob, "value": value, **s.__dict__, "sim_s": data[s.tier].sim_s,

@@ -32,7 +32,8 @@ def _parse_values(items: tuple[str, ...], knobs: dict, base) -> dict[str, tuple]
 @click.command("tradeoff")
 @click.option("--quick", is_flag=True, help="Minutes on a CPU: small data, few epochs, few values per knob.")
 @click.option("--knob", "knobs", multiple=True, metavar="NAME",
-              help="Vary only these knobs (repeatable): tier, receptive_field, spacing, dim, width, subsample, epochs.")
+              help="Vary only these knobs (repeatable): tier, receptive_field, spacing, dim, width, subsample, epochs, "
+                   "turns (prediction only).")
 @click.option("--inserts", type=click.IntRange(min=4), default=None,
               help="Single-inclusion inserts to simulate (a quarter held out for testing).")
 @click.option("--n-traj", type=click.IntRange(min=2), default=None, help="Pokes per scan.")

@@ -104,11 +104,14 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
               help="Also write label and entropy NIfTI volumes here.")
 @click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True,
               help="Scans imaged together (memory against speed).")
+@click.option("--turns", type=click.Choice(["1", "2", "4"]), default="1", show_default=True,
+              help="Average the images of the scan turned by each half (2) or quarter (4) turn about the insert's "
+                   "axis (learned imagers; that many times the time).")
 @device_option()
 @threads_option()
 @format_option
 def predict_cmd(model, data, output, threshold, min_volume_mm3, smooth_mm, steps, every, grow, slice_index, nifti_dir,
-                batch_size, device, threads, fmt) -> None:
+                batch_size, turns, device, threads, fmt) -> None:
     """Predict label images of every scan in DATA with an imaging checkpoint MODEL.
 
     Per scan: class probabilities, labels, per-pixel Shannon entropy (nats), the truth when DATA
@@ -132,7 +135,7 @@ def predict_cmd(model, data, output, threshold, min_volume_mm3, smooth_mm, steps
 
     t0 = time.perf_counter()
     n_threads = apply_threads("throughput", override=threads)     # whole scans in batches
-    opts = PredictOptions(threshold, steps, every, grow, batch_size, slice_index, min_volume_mm3, smooth_mm)
+    opts = PredictOptions(threshold, steps, every, grow, batch_size, slice_index, min_volume_mm3, smooth_mm, int(turns))
     preds, ckpt, scans = predict_file(model, data, opts, resolve_device(device), progress=progress)
     preds.meta.update({"imager": model, "set": data,
                        "history": append_history({"history": [

@@ -4,12 +4,16 @@ Each scan is imaged on its own label grid when it has one (3D: the volume's grid
 through the inclusion centre, or the trained slice index), else on the training grid. ``steps``/
 ``every`` image prefixes of the scan's sequence (the image developing over time); ``grow`` extends
 the particle grid over the largest label grid at the same particle spacing (weights are shared).
+``turns`` 2 or 4 averages the probabilities of the scan turned by each half or quarter turn about the
+insert's axis (its poses turned, the image turned back): the model reads the same touches at other
+angles, at that many times the prediction's cost.
 A force-map calibration (``less image fit --model forcemap``) predicts on the same grids
 (:func:`predict_forcemap`); :func:`predict_file` tells the two checkpoint kinds apart.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from collections.abc import Callable
@@ -26,7 +30,11 @@ from lesscli.io.checkpoint import load_checkpoint
 from lesscli.io.predictions import Labelling, PredictionSet, ScanPrediction, nothing_known
 from lesscli.io.scans import ScanSet, load_scans
 from lesscli.models.imager import Imager, grid_from_dict
+from lesscli.sim.state import rotate_pose
 from lesscli.types import ImageGrid
+
+TURNS = (1, 2, 4)                # predictions averaged over the scan turned by 360 / turns degrees each
+GRID_CENTRE_TOL = 1e-3           # a label grid centred on the insert's axis to this share of a pixel
 
 
 @dataclass
@@ -45,6 +53,7 @@ class PredictOptions:
             ``config['image']['min_volume_mm3']``, chosen on validation data by ``image fit``; else 0).
         smooth_mm: label from probabilities smoothed across each slice by a Gaussian of this standard
             deviation (None: the checkpoint's ``config['image']['smooth_mm']``, chosen the same way; else 0).
+        turns: 1, or 2 / 4: average over the scan turned by half / quarter turns (module docstring).
     """
 
     threshold: float | None = None
@@ -55,6 +64,7 @@ class PredictOptions:
     slice_index: int | None = None
     min_volume_mm3: float | None = None
     smooth_mm: float | None = None
+    turns: int = 1
 
 
 def load_imager(path: str, map_location: str | torch.device = "cpu",
@@ -162,6 +172,30 @@ def predict_scan(imager: Imager, item: dict, lengths: list[int], grid: ImageGrid
     return out
 
 
+def quarter_turns(turns: int) -> list[int]:
+    """Quarter turns (multiples of 90 degrees about the insert's axis) averaged for ``turns``."""
+    if turns not in TURNS:
+        raise LessError(f"turns must be one of {', '.join(map(str, TURNS))}, got {turns}")
+    return list(range(0, 4, 4 // turns))
+
+
+def turned(scans: ScanSet, quarters: int) -> ScanSet:
+    """The scan set with its poses turned by ``quarters`` x 90 degrees about the insert's axis, yaw kept in
+    [0, 2 pi) (the pose encoding is not periodic in yaw, so four quarter turns give back the scan)."""
+    pose = rotate_pose(scans.pose.astype(np.float64), 2 * quarters)
+    pose[:, 5] = np.mod(pose[:, 5], 2 * math.pi)
+    return dataclasses.replace(scans, pose=pose.astype(scans.pose.dtype))
+
+
+def check_turnable(grid: ImageGrid, where: str) -> None:
+    """A grid that a quarter turn about the insert's axis maps onto itself (LessError otherwise)."""
+    (_, h, w), (_, dy, dx), (_, oy, ox) = grid.shape, grid.spacing_mm, grid.origin_mm
+    centred = all(abs(o + (n - 1) / 2 * d) <= GRID_CENTRE_TOL * d for o, n, d in ((oy, h, dy), (ox, w, dx)))
+    if h != w or not math.isclose(dy, dx, rel_tol=1e-6) or not centred:
+        raise LessError(f"{where}: --turns needs a square label grid centred on the insert's axis, got "
+                        f"{h} x {w} pixels of {dy:g} x {dx:g} mm from ({oy:g}, {ox:g}) mm")
+
+
 def _scan_prediction(scans: ScanSet, s: int, probs: np.ndarray, grid: ImageGrid, truth: np.ndarray | None,
                      steps: int, labelling: Labelling) -> ScanPrediction:
     """One prediction record; a prefix of 0 steps images as nothing known (uniform probabilities)."""
@@ -185,15 +219,24 @@ def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, de
         imager.encoder = imager.encoder.with_grid(grow_extent_mm([g for g, _ in grids]))
     imager = imager.to(device).eval()
     labelling = labelling_rule(cfg["image"], opts.threshold, opts.min_volume_mm3, opts.smooth_mm)
-    data = ScanDataset(scans, ckpt["norm_stats"], name)
+    quarters = quarter_turns(opts.turns)
+    if len(quarters) > 1:
+        for s, (grid, _) in enumerate(grids):
+            check_turnable(grid, f"{name}: scan {s}")
+    data = [ScanDataset(turned(scans, q) if q else scans, ckpt["norm_stats"], name) for q in quarters]
     offsets = scans.scan_step_offsets()
     preds = []
     for s in progress(range(scans.n_scans), desc="predict", leave=False):
         grid, truth = grids[s]
         lengths = prefix_lengths(int(offsets[s + 1] - offsets[s]), opts.steps, opts.every)
-        for k, probs in zip(lengths, predict_scan(imager, data[s], lengths, grid, opts.batch_size, device)):
-            preds.append(_scan_prediction(scans, s, probs, grid, truth, k, labelling))
-    meta = {"dim": dim, **labelling.to_dict(), "model": cfg["encoder"]["name"],
+        mean = [0.0] * len(lengths)
+        for q, turned_data in zip(quarters, data):      # each image turned back onto the scan's grid
+            out = predict_scan(imager, turned_data[s], lengths, grid, opts.batch_size, device)
+            mean = [m + np.rot90(p, k=q, axes=(-2, -1)) / len(quarters) for m, p in zip(mean, out)]
+        for k, probs in zip(lengths, mean):
+            preds.append(_scan_prediction(scans, s, np.ascontiguousarray(probs, dtype=np.float32), grid, truth, k,
+                                          labelling))
+    meta = {"dim": dim, **labelling.to_dict(), "turns": int(opts.turns), "model": cfg["encoder"]["name"],
             "decoder": cfg["decoder"]["name"], "width": cfg["decoder"].get("width"), "grown": bool(opts.grow),
             "particles": int(getattr(imager.encoder, "n_particles", 1)), "seed": cfg.get("train", {}).get("seed")}
     return PredictionSet(preds, meta)
@@ -204,6 +247,9 @@ def predict_forcemap(ckpt: dict, scans: ScanSet, opts: PredictOptions, path: str
     """Force-map predictions (:mod:`lesscli.infer.forcemap`) of every scan and prefix, on the grids
     :func:`predict` uses; ``path`` names the checkpoint in errors, ``name`` the scan set."""
     cfg = ckpt["config"]
+    if opts.turns != 1:
+        raise LessError(f"{path}: --turns averages a learned imager's readings of the turned scan; the force map "
+                        "places each touch in the insert's frame, so turning it changes nothing")
     cal = forcemap.calibration_from_dict(cfg.get("forcemap") or {}, path)
     try:
         dim, default = int(cfg["image"]["dim"]), grid_from_dict(cfg["grid"])

@@ -66,6 +66,20 @@ def test_a_setting_shared_by_two_knobs_is_trained_once_and_ratios_use_the_base(m
     assert rf20["f1_single_delta"] == pytest.approx(0.1)
 
 
+def test_turns_share_the_trained_model_and_are_evaluated_each(monkeypatch, tmp_path):
+    trained, evaluated = [], []
+    monkeypatch.setattr(tradeoff, "make_data", lambda plan, tier, run: tradeoff.BenchData(None, None, None, 1.0))
+    monkeypatch.setattr(tradeoff, "train_setting", lambda plan, s, data, run, stem: trained.append(s) or {
+        "imager": stem, "pretrain_s": 2.0, "fit_s": 1.0, "train_steps": 10})
+    monkeypatch.setattr(tradeoff, "evaluate", lambda path, s, data, run: evaluated.append((path, s.turns)) or {
+        "latency_ms_per_scan": 2.0 * s.turns, "f1_single": 0.5 + s.turns / 100, "f1_multiple": 0.5})
+    rows = run_tradeoff(QUICK, ["turns"], TradeoffRun(workdir=str(tmp_path)))
+    assert trained == [QUICK.base] and evaluated == [("s00", 1), ("s00", 4)]
+    four = next(r for r in rows if r["value"] == 4)
+    assert four["train_s_ratio"] == 1.0 and four["latency_ms_per_scan_ratio"] == 4.0
+    assert four["f1_single_delta"] == pytest.approx(0.03)
+
+
 def test_figures_are_non_blank_pngs(tmp_path):
     rows = [{"knob": "dim", "value": d, "train_s": d / 4, "f1_single": 0.3 + d / 1000, "f1_multiple": 0.2}
             for d in (16, 32, 64)]

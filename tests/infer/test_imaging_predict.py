@@ -4,14 +4,23 @@ import math
 
 import numpy as np
 import pytest
-from factories import sphere_labels
-from imaging_factory import learnable_scanset, make_representation
+from factories import random_scanset, sphere_labels
+from imaging_factory import learnable_scanset, make_representation, tiny_imager
 
 from lesscli.data.image_labels import inclusion_slice, target_volume, training_targets
-from lesscli.errors import DataError
-from lesscli.infer.predict import PredictOptions, load_imager, predict, prefix_lengths
+from lesscli.errors import DataError, LessError
+from lesscli.infer.predict import (
+    PredictOptions,
+    load_imager,
+    predict,
+    predict_forcemap,
+    prefix_lengths,
+    quarter_turns,
+    turned,
+)
 from lesscli.train.config import load_config
 from lesscli.train.image_fit import ImageFitConfig, fit_imager
+from lesscli.types import ImageGrid
 
 
 def _fit(tmp_path, train, name="less", dim=2, epochs=1):
@@ -78,3 +87,41 @@ def test_global_baseline_fit_and_predict(tmp_path):
     for p in preds.scans:
         assert p.probs.shape == (4, 6, 32, 32)
         assert np.allclose(p.probs.astype(np.float32).sum(axis=0), 1.0, atol=1e-2)
+
+
+def _turned_image(img: np.ndarray, quarters: int) -> np.ndarray:
+    """An image (..., H, W) on a grid centred on the insert's axis (axis -2: y, axis -1: x, both rising
+    with the index), turned by ``quarters`` x 90 degrees counter-clockwise in the x-y plane (x onto y):
+    each pixel takes the value of the pixel that the turn carries onto it, from coordinates."""
+    h, w = img.shape[-2:]
+    y, x = np.meshgrid(np.arange(h) - (h - 1) / 2, np.arange(w) - (w - 1) / 2, indexing="ij")
+    c, s = round(math.cos(-quarters * math.pi / 2)), round(math.sin(-quarters * math.pi / 2))
+    xs, ys = c * x - s * y, s * x + c * y                                  # the source point
+    return img[..., np.rint(ys + (h - 1) / 2).astype(int), np.rint(xs + (w - 1) / 2).astype(int)]
+
+
+@pytest.mark.parametrize("encoder", ["less", "global"])
+def test_turn_average_follows_a_turned_scan_and_the_model_alone_does_not(encoder):
+    imager, stats, config = tiny_imager(dim=3, encoder=encoder)
+    ckpt = {"config": config, "norm_stats": stats}
+    scans = random_scanset(n_scans=2, max_len=30, seed=3, with_labels=False)
+    probs = {(t, q): [p.probs for p in predict(imager, ckpt, turned(scans, q) if q else scans,
+                                               PredictOptions(turns=t)).scans]
+             for t in (1, 4) for q in (0, 1)}
+    for a, b in zip(probs[4, 0], probs[4, 1]):
+        np.testing.assert_allclose(b, _turned_image(a, 1), atol=1e-5)      # the average is turn-equivariant
+    assert max(np.abs(b - _turned_image(a, 1)).max() for a, b in zip(probs[1, 0], probs[1, 1])) > 1e-2
+    for a, b in zip(probs[1, 0], probs[4, 0]):
+        assert b.shape == a.shape and np.allclose(b.sum(axis=0), 1.0, atol=1e-5) and not np.allclose(a, b)
+
+
+def test_turns_need_a_centred_square_grid_and_a_learned_imager():
+    off_centre = ImageGrid((1, 48, 48), (0.0, -20.0, -23.5), (0.9, 1.0, 1.0))
+    imager, stats, config = tiny_imager(dim=2, grid=off_centre)
+    scans = random_scanset(n_scans=1, seed=3, with_labels=False)
+    with pytest.raises(LessError, match=r"scan 0: --turns needs a square label grid centred on the insert's axis"):
+        predict(imager, {"config": config, "norm_stats": stats}, scans, PredictOptions(turns=2))
+    with pytest.raises(LessError, match="turns must be one of 1, 2, 4"):
+        quarter_turns(3)
+    with pytest.raises(LessError, match=r"fm\.pt: --turns averages a learned imager's"):
+        predict_forcemap({"config": {}}, scans, PredictOptions(turns=4), "fm.pt")
