@@ -174,7 +174,6 @@ def set_threads(n: int, torch_too: bool = True) -> None:
         threadpool_limits(n)
 
 
-
 REALTIME_PRIORITY = 10           # SCHED_FIFO priority of --realtime (1-99): above every normal process, low among RT
 
 
@@ -193,12 +192,12 @@ def set_realtime(priority: int = REALTIME_PRIORITY, tasks: str = "/proc/self/tas
         tids = [int(t) for t in os.listdir(tasks)]
     except OSError:
         tids = [0]
-    try:
-        for tid in tids:
+    for tid in tids:
+        try:
             os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
-    except PermissionError:
-        raise LessError(f"--realtime: this process may not take real-time priority {priority} "
-                        f"(it needs root, CAP_SYS_NICE or a real-time limit `ulimit -r` of {priority} or more)") from None
-    except ProcessLookupError:   # a thread that ended meanwhile
-        pass
+        except ProcessLookupError:   # a thread that ended meanwhile
+            continue
+        except PermissionError:
+            raise LessError(f"--realtime: this process may not take real-time priority {priority} (it needs "
+                            f"root, CAP_SYS_NICE or a real-time limit `ulimit -r` of {priority} or more)") from None
     logging.getLogger("less").info("scheduling: real-time FIFO, priority %d", priority)
