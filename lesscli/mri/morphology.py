@@ -11,7 +11,9 @@
   (:mod:`lesscli.mri.pillar`); an inclusion without one gets a warning.
 - Each inclusion's surface is re-thresholded with its local contrast, at the level where a blurred
   ball's surface lies (below half-way on a curved surface: the blur spreads a small body's silicone
-  outwards), with the blur and radius fitted to the body's own profile.
+  outwards), with the blur and radius fitted to the body's own profile, away from the pillars and
+  from the base's silicone (:func:`lesscli.mri.pillar.find_pillars`'s base zone); where the pillar
+  meets the inclusion, the inclusion takes back the pillar's voxels inside its sphere.
 - Everything else (the skin, partial-volume speckle) stays insert.
 
 Openings and dilations use Euclidean distance transforms with the voxel spacing, so balls are round
@@ -140,7 +142,7 @@ def _in_filling(bodies: np.ndarray, silicone: np.ndarray, insert: np.ndarray, sp
 
 
 def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray, spacing: np.ndarray,
-                   reach_mm: float, shape: str = "auto") -> np.ndarray:
+                   reach_mm: float, shape: str = "auto", unfitted: np.ndarray | None = None) -> np.ndarray:
     """Each body's surface between its own interior level and the filling's level around it.
 
     The opening leaves a body's surface where the global threshold put it, up to the roughness that
@@ -149,7 +151,8 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
     that surface; "ball" takes the fitted ball's voxels instead; "auto" takes the ball where it fits the
     voxels near the body as well as the scan's noise allows (:attr:`Ball.misfit` at most
     ``BALL_MISFIT``: the noise, not the shape, is then what separates them) and the image's surface
-    elsewhere (a body that is not a ball fits worse).
+    elsewhere (a body that is not a ball fits worse). ``unfitted``: voxels no ball is fitted to (the base's
+    silicone), None: none.
 
     Returns:
         (inclusion mask, one dict per body: ``shape`` "ball" or "image", ``centre_index`` (the fitted
@@ -163,7 +166,7 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
     shapes = []
     for i, sl in enumerate(ndimage.find_objects(comps), start=1):
         own = comps == i
-        fit = fitted_ball(own, fraction, allowed, spacing, sl, reach_mm)
+        fit = fitted_ball(own, fraction, allowed, spacing, sl, reach_mm, unfitted)
         if fit is None:
             out |= own
             shapes.append({"shape": "image", "centre_index": list(ndimage.center_of_mass(own)),
@@ -210,9 +213,10 @@ class Ball:
 
 
 def fitted_ball(own_full: np.ndarray, fraction: np.ndarray, allowed: np.ndarray, spacing: np.ndarray,
-                sl: tuple, reach_mm: float) -> Ball | None:
+                sl: tuple, reach_mm: float, unfitted: np.ndarray | None = None) -> Ball | None:
     """The blurred ball of one body (``own_full``, bounding slices ``sl``) fitted in ``allowed`` voxels
-    (:func:`_fit_ball`); None where no filling surrounds it."""
+    (:func:`_fit_ball`); None where no filling surrounds it. ``unfitted``: voxels left out of the fit and
+    of its misfit (silicone that is not the ball's: the base), where the ball may still be drawn."""
     from scipy import ndimage
 
     voxel = float(spacing.max())
@@ -222,12 +226,13 @@ def fitted_ball(own_full: np.ndarray, fraction: np.ndarray, allowed: np.ndarray,
     outside = ndimage.distance_transform_edt(~own, sampling=spacing)
     inside = ndimage.distance_transform_edt(own, sampling=spacing)
     interior = own & (inside > voxel) if (own & (inside > voxel)).any() else own
-    ring = allowed[box] & (outside > LEVEL_VOXELS[0] * voxel) & (outside <= LEVEL_VOXELS[1] * voxel)
+    fitted = allowed[box] if unfitted is None else allowed[box] & ~unfitted[box]
+    ring = fitted & (outside > LEVEL_VOXELS[0] * voxel) & (outside <= LEVEL_VOXELS[1] * voxel)
     if not ring.any():
         return None
     filling = float(np.median(frac[ring]))
     level = 0.5 * (float(np.median(frac[interior])) + filling)
-    near = (outside <= PROFILE_VOXELS * voxel) & allowed[box]
+    near = (outside <= PROFILE_VOXELS * voxel) & fitted
     body = own | ((outside <= reach_mm) & allowed[box] & (frac > level))
     origin = np.array([b.start for b in box], dtype=np.float64) * spacing
     points = np.argwhere(near) * spacing
@@ -288,12 +293,15 @@ def _fit_ball(values: np.ndarray, points_mm: np.ndarray, body: np.ndarray, spaci
     return least_squares(residuals, start, bounds=(lo, hi)).x
 
 
-def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray) -> np.ndarray:
-    """The ``pillar`` voxels inside the sphere of each body's centroid and volume.
+def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray, shapes: list[dict]) -> np.ndarray:
+    """The ``pillar`` voxels inside each body's sphere: its fitted ball where it was drawn as one, else the
+    sphere of its centroid and volume.
 
-    Where a pillar meets an inclusion the image shows one silicone body; the inclusion's surface is
-    continued across the pillar as the sphere of the same volume and centre (the body plus the pillar
-    voxels inside that sphere, found by a few fixed-point steps).
+    Where a pillar meets an inclusion the image shows one silicone body, and the pillar is drawn up to the
+    inclusion's centre; the inclusion takes back the voxels inside it. A body drawn as its fitted ball
+    (``shapes``, :func:`_local_surface`) is that ball, cap included, as the phantom's sphere stands on its
+    post; another body's surface is continued across the pillar as the sphere of the same volume and
+    centre (the body plus the pillar voxels inside that sphere, found by a few fixed-point steps).
     """
     from scipy import ndimage
 
@@ -303,13 +311,25 @@ def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray) -> n
     if not len(cand):
         return out
     cand_mm, voxel_mm3 = cand * spacing, float(np.prod(spacing))
+    balls = {}              # component -> (centre, radius) of the ball it was drawn as
+    body_mm = np.argwhere(comps) * spacing
+    for row in shapes:
+        if row["shape"] == "ball" and len(body_mm):     # the component nearest its centre (the pillar runs through it)
+            centre = np.asarray(row["centre_index"]) * spacing
+            nearest = np.argmin(np.sum((body_mm - centre) ** 2, axis=1))
+            balls[int(comps[tuple(np.round(body_mm[nearest] / spacing).astype(int))])] = (
+                centre, 0.5 * row["ball_diameter_mm"])
     for i, sl in enumerate(ndimage.find_objects(comps), start=1):
-        own_mm = (np.argwhere(comps[sl] == i) + [s.start for s in sl]) * spacing
-        inside = np.zeros(len(cand), dtype=bool)
-        for _ in range(JUNCTION_STEPS):
-            centre = (own_mm.sum(axis=0) + cand_mm[inside].sum(axis=0)) / (len(own_mm) + inside.sum())
-            radius = (3.0 * (len(own_mm) + inside.sum()) * voxel_mm3 / (4 * math.pi)) ** (1 / 3)
+        if i in balls:
+            centre, radius = balls[i]
             inside = np.sum((cand_mm - centre) ** 2, axis=1) <= radius ** 2
+        else:
+            own_mm = (np.argwhere(comps[sl] == i) + [s.start for s in sl]) * spacing
+            inside = np.zeros(len(cand), dtype=bool)
+            for _ in range(JUNCTION_STEPS):
+                centre = (own_mm.sum(axis=0) + cand_mm[inside].sum(axis=0)) / (len(own_mm) + inside.sum())
+                radius = (3.0 * (len(own_mm) + inside.sum()) * voxel_mm3 / (4 * math.pi)) ** (1 / 3)
+                inside = np.sum((cand_mm - centre) ** 2, axis=1) <= radius ** 2
         out[tuple(cand[inside].T)] = True
     return out
 
@@ -357,10 +377,11 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     inc_ids, n_inclusions = ndimage.label(bodies)
     warnings = [] if n_inclusions else ["no inclusion found"]
     deep = ins & (depth > shell_mm)
-    pillar, missing, _side = find_pillars(frac, ins, inc_ids, n_inclusions, spacing, insert_axis(ins, spacing),
-                                          pillar_max_diameter_mm, deep)
-    inclusion, shapes = _local_surface(bodies, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm, inclusion_shape)
-    inclusion |= _junctions(inclusion, pillar, spacing)
+    pillar, missing, _side, base = find_pillars(frac, ins, inc_ids, n_inclusions, spacing,
+                                                insert_axis(ins, spacing), pillar_max_diameter_mm, deep)
+    inclusion, shapes = _local_surface(bodies, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm, inclusion_shape,
+                                       base)
+    inclusion |= _junctions(inclusion, pillar, spacing, shapes)
     pillar &= ~inclusion
     for i in missing:
         centre = (np.round(ndimage.center_of_mass(inc_ids == i)).astype(int) + offset).tolist()

@@ -523,12 +523,14 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
             None: the insert.
 
     Returns:
-        (pillar mask, labels of the inclusions without a pillar, base side: +1 along ``axis``, -1 against).
+        (pillar mask, labels of the inclusions without a pillar, base side: +1 along ``axis``, -1 against,
+        base zone: bool mask of the voxels past the base surface (:func:`_base_zone`), None where no pillar
+        was found).
     """
     spacing = np.asarray(spacing_mm, dtype=np.float64)
     pillar = np.zeros(insert.shape, dtype=bool)
     if n_inclusions == 0:
-        return pillar, [], 1
+        return pillar, [], 1, None
     from scipy import ndimage
 
     voxel = float(spacing.max())
@@ -604,4 +606,16 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         rho = np.linalg.norm(col.uv - line[0] - st[:, None] * line[1], axis=1)
         sel = col.inside & ~col.other & (rho <= radius) & (st >= 0) & (st <= end)
         pillar[tuple(i[sel] for i in col.index)] = True
-    return pillar, sorted(missing), side
+    return pillar, sorted(missing), side, _base_zone(found, centres, axis, side, spacing, insert.shape)
+
+
+def _base_zone(found: dict, centres: np.ndarray, axis: np.ndarray, side: int, spacing: np.ndarray,
+               shape: tuple) -> np.ndarray | None:
+    """The voxels past the base surface: the base's silicone, which no inclusion's ball holds. The surface is
+    the median over the pillars found of where each met the base (one cast plane); None without a pillar."""
+    if not found:
+        return None
+    surface = float(np.median([side * float(centres[label - 1] @ axis) + end
+                               for label, (_line, _radius, end) in found.items()]))
+    d = np.meshgrid(*(np.arange(n) * s * a for n, s, a in zip(shape, spacing, axis)), indexing="ij", sparse=True)
+    return side * (d[0] + d[1] + d[2]) > surface

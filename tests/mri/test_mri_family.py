@@ -149,6 +149,41 @@ def test_base_surface_is_not_placed_deep_by_a_noisy_base_level():
     assert all(row["dice_pillar"] >= MIN_DICE["pillar"] for row in inclusion_scores(seg.labels, vol))
 
 
+@pytest.mark.parametrize("seed", [760, 761])
+def test_post_one_slice_tall_under_large_inclusions_leaves_them_balls(seed):
+    """1.03 mm slices: 3.4 mm posts 1.1 and 1.3 mm tall under a 15.8 and a 15 mm inclusion (pillar Dice 0.80).
+
+    The base lies within the blur of each ball's cap; fitted with it, the ball's misfit rose over the noise
+    (1.8-2.0 times it), the inclusion kept the image's surface, which the blur carried over the post
+    (pillar Dice 0.54-0.62 on three of the four). The base's silicone, past its surface found under the
+    posts, is left out of the ball's fit (misfit 0.9)."""
+    vol = generate(Case(seed=seed, spacing_mm=(1.03, 0.73, 0.73), inclusion_mm=(15.8, 15.0), pillar_mm=3.36,
+                        pillar_height_mm=(1.1, 1.3), noise=0.035, bias=0.3))
+    seg = segment(vol.image, vol.spacing_mm, where="short posts")
+    assert seg.warnings == [] and [row["shape"] for row in seg.inclusion_shapes] == ["ball", "ball"]
+    assert all(row["dice_pillar"] >= MIN_DICE["pillar"] for row in inclusion_scores(seg.labels, vol))
+
+
+BENT_FIELD = ("the bias field, fitted with the voxels at the tissue boundaries (skin, base, inclusions), bends near "
+              "the base and puts the ball 0.2 mm away from it, the cap's slice then labelled pillar; a refit on the "
+              "tissue interiors centres it but lost 14 other volumes of the family (README, mri-label)")
+
+
+@pytest.mark.xfail(strict=True, reason=BENT_FIELD)
+@pytest.mark.parametrize("seed", [770, 776])
+def test_a_ball_on_a_short_post_is_centred_on_its_sphere(seed):
+    """1.19 mm slices, bias 0.2: a 10.3 mm inclusion on a 3 mm post 2 mm tall, base up. The fitted ball's
+    centre lies within 0.08 mm of the sphere's along the insert axis, and the post meets pillar Dice 0.80
+    (today 0.21 mm off, pillar Dice 0.55 and 0.52)."""
+    vol = generate(Case(seed=seed, spacing_mm=(1.19, 1.1, 1.1), inclusion_mm=(10.3,), pillar_mm=3.0,
+                        pillar_height_mm=(2.0,), base_up=True, noise=0.05, bias=0.2))
+    seg = segment(vol.image, vol.spacing_mm, where="post")
+    (shape,) = seg.inclusion_shapes
+    axial = (shape["centre_index"][0] - vol.centres_index[0][0]) * vol.spacing_mm[0]
+    assert shape["shape"] == "ball" and abs(axial) <= 0.08
+    assert inclusion_scores(seg.labels, vol)[0]["dice_pillar"] >= MIN_DICE["pillar"]
+
+
 def test_inclusion_without_pillar_is_labelled_with_one_warning():
     vol = generate(Case(seed=506, spacing_mm=(0.9, 0.8, 0.8), inclusion_mm=(9.0, 12.0), pillar_mm=0.0,
                         pillar_height_mm=(4.0, 8.0), noise=0.05, bias=0.2))

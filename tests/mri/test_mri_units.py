@@ -97,6 +97,24 @@ def test_split_silicone_warns_once_for_an_inclusion_without_pillar():
     assert len(warnings) == 1 and "no pillar found under the inclusion near voxel [20, 30, 30]" in warnings[0]
 
 
+def test_an_inclusion_drawn_as_its_ball_takes_its_cap_back_from_the_pillar():
+    """The pillar is drawn up to its inclusion's centre and the inclusion takes back the voxels inside it: all
+    of its fitted ball where it was drawn as that ball (the post ends at the sphere's surface, cap and all);
+    a body drawn from the image is continued as the sphere of its own volume."""
+    from lesscli.mri.morphology import _junctions
+
+    shape = (44, 40, 40)
+    z, y, x = _grid(shape)
+    centre, radius = np.array([12.0, 10.2, 9.9]), 4.3
+    ball = (z - centre[0]) ** 2 + (y - centre[1]) ** 2 + (x - centre[2]) ** 2 <= radius ** 2
+    column = ((y - centre[1]) ** 2 + (x - centre[2]) ** 2 <= 1.3 ** 2) & (z >= 3.0) & (z <= centre[0])
+    drawn = {"centre_index": list(centre / SPACING), "ball_diameter_mm": 2 * radius}
+    as_ball = _junctions(ball & ~column, column, SPACING, [{**drawn, "shape": "ball"}])
+    np.testing.assert_array_equal(as_ball, column & ball)
+    as_image = _junctions(ball & ~column, column, SPACING, [{**drawn, "shape": "image"}])
+    assert not (as_image & ~(column & ball)).any() and as_image.any()
+
+
 def test_split_silicone_warns_without_inclusion():
     shape = (30, 30, 30)
     insert = np.ones(shape, bool)
