@@ -312,13 +312,12 @@ def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray, shap
         return out
     cand_mm, voxel_mm3 = cand * spacing, float(np.prod(spacing))
     balls = {}              # component -> (centre, radius) of the ball it was drawn as
-    body_mm = np.argwhere(comps) * spacing
+    body = np.argwhere(comps)
     for row in shapes:
-        if row["shape"] == "ball" and len(body_mm):     # the component nearest its centre (the pillar runs through it)
+        if row["shape"] == "ball" and len(body):    # the component nearest its centre (the pillar runs through it)
             centre = np.asarray(row["centre_index"]) * spacing
-            nearest = np.argmin(np.sum((body_mm - centre) ** 2, axis=1))
-            balls[int(comps[tuple(np.round(body_mm[nearest] / spacing).astype(int))])] = (
-                centre, 0.5 * row["ball_diameter_mm"])
+            nearest = body[np.argmin(np.sum((body * spacing - centre) ** 2, axis=1))]
+            balls[int(comps[tuple(nearest)])] = (centre, 0.5 * row["ball_diameter_mm"])
     for i, sl in enumerate(ndimage.find_objects(comps), start=1):
         if i in balls:
             centre, radius = balls[i]
