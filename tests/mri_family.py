@@ -71,6 +71,16 @@ class Volume:
     centres_index: np.ndarray       # (n, 3) inclusion centres as (fractional) array indices
     height_mm: float
     case: Case
+    base_index: float               # the base's surface under the filling, as a (fractional) index along axis 0
+
+    def undecided_slices(self) -> np.ndarray:
+        """(axis-0 length,) bool: the slices whose voxel centres lie nearer the base's surface than half the box
+        partial volume's sub-voxel step. A flat surface anywhere in that band leaves the same points of each
+        box on either side, so the image is the same whichever side of it the centres (and the truth) are; the
+        ramp is continuous and leaves none."""
+        k = np.arange(self.truth.shape[0])
+        band = 0.5 / BOX_POINTS if self.case.partial_volume == "box" else 0.0
+        return np.abs(k - self.base_index) < band
 
 
 def _octagon_sd(x: np.ndarray, y: np.ndarray, apothem: float) -> np.ndarray:
@@ -226,7 +236,8 @@ def generate(case: Case) -> Volume:
     world = np.column_stack([(centres[:, 2] - 0.5 * height) * sign + shift[0],
                              s * centres[:, 0] + c * centres[:, 1] + shift[1],
                              c * centres[:, 0] - s * centres[:, 1] + shift[2]])
-    return Volume(image, truth, spacing, world / spacing + (np.asarray(shape) - 1) / 2, height, case)
+    base = ((case.base_mm - 0.5 * height) * sign + shift[0]) / spacing[0] + (shape[0] - 1) / 2
+    return Volume(image, truth, spacing, world / spacing + (np.asarray(shape) - 1) / 2, height, case, float(base))
 
 
 # Bands of the family: each parameter is drawn uniformly from its full range.
@@ -268,8 +279,20 @@ def scores(labels: np.ndarray, truth: np.ndarray) -> dict[str, float]:
             for code, name in ((INSERT, "insert"), (PILLAR, "pillar"), (INCLUSION, "inclusion"))}
 
 
+def base_error_mm(base, volume: Volume) -> float:
+    """How far a found base surface (``normal . x = offset_mm``, x in mm of array index times spacing, the
+    normal into the base: :class:`lesscli.mri.pillar.BaseSurface`) lies past the true one, along axis 0
+    at the scan's lateral centre (positive: into the base)."""
+    spacing = volume.spacing_mm
+    lateral = (np.asarray(volume.truth.shape) - 1) / 2 * spacing
+    at = (base.offset_mm - base.normal[1] * lateral[1] - base.normal[2] * lateral[2]) / base.normal[0]
+    return float((at - volume.base_index * spacing[0]) * np.sign(base.normal[0]))
+
+
 def inclusion_scores(labels: np.ndarray, volume: Volume) -> list[dict]:
-    """Per inclusion: Dice of inclusion and pillar in its cell (voxels nearer its centre across the axis).
+    """Per inclusion: Dice of inclusion and pillar in its cell (voxels nearer its centre across the axis), and
+    the pillar's Dice without the slices the box partial volume leaves undecided at the base
+    (:meth:`Volume.undecided_slices`; the same as the pillar's Dice under the ramp).
 
     The insert axis is array axis 0, so cells split the plane of axes 1 and 2 between the inclusions.
     """
@@ -277,10 +300,13 @@ def inclusion_scores(labels: np.ndarray, volume: Volume) -> list[dict]:
     a1, a2 = np.meshgrid(*(np.arange(k) * h for k, h in zip(truth.shape[1:], spacing[1:])), indexing="ij")
     d2 = [(a1 - c[1] * spacing[1]) ** 2 + (a2 - c[2] * spacing[2]) ** 2 for c in volume.centres_index]
     cell_of = np.argmin(np.stack(d2), axis=0)
+    decided = ~volume.undecided_slices()[:, None, None]
     rows = []
     for k in range(len(volume.centres_index)):
         cell = np.broadcast_to(cell_of == k, truth.shape)
+        pillar, true_pillar = (labels == PILLAR) & cell, (truth == PILLAR) & cell
         rows.append({"inclusion_mm": volume.case.inclusion_mm[k], "pillar_height_mm": volume.case.pillar_height_mm[k],
                      "dice_inclusion": dice((labels == INCLUSION) & cell, (truth == INCLUSION) & cell),
-                     "dice_pillar": dice((labels == PILLAR) & cell, (truth == PILLAR) & cell)})
+                     "dice_pillar": dice(pillar, true_pillar),
+                     "dice_pillar_decided": dice(pillar & decided, true_pillar & decided)})
     return rows

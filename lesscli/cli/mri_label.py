@@ -97,7 +97,9 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
         rep.save_qc(qc, seg.corrected, seg.labels, seg.spacing_mm, title=f"{scan_path}: blue insert, orange outline "
                     "pillar, red inclusion")
     if report:
-        emit_records(rows + rep.shape_rows(seg.inclusion_shapes, scan.affine) + rep.warning_rows(seg.warnings), fmt)
+        rows += rep.shape_rows(seg.inclusion_shapes, scan.affine)
+        rows += rep.base_rows(seg.base_surface, seg.spacing_mm, seg.labels.shape, scan.affine)
+        emit_records(rows + rep.warning_rows(seg.warnings), fmt)
 
 
 @click.command("mri-label")

@@ -524,8 +524,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
 
     Returns:
         (pillar mask, labels of the inclusions without a pillar, base side: +1 along ``axis``, -1 against,
-        base zone: bool mask of the voxels past the base surface (:func:`_base_zone`), None where no pillar
-        was found).
+        the base's surface (:class:`BaseSurface`), None where no pillar was found).
     """
     spacing = np.asarray(spacing_mm, dtype=np.float64)
     pillar = np.zeros(insert.shape, dtype=bool)
@@ -606,16 +605,28 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         rho = np.linalg.norm(col.uv - line[0] - st[:, None] * line[1], axis=1)
         sel = col.inside & ~col.other & (rho <= radius) & (st >= 0) & (st <= end)
         pillar[tuple(i[sel] for i in col.index)] = True
-    return pillar, sorted(missing), side, _base_zone(found, centres, axis, side, spacing, insert.shape)
+    base = None
+    if found:                               # one cast plane: the median of where the posts met it
+        base = BaseSurface(side * axis, float(np.median([side * float(centres[label - 1] @ axis) + end
+                                                         for label, (_line, _radius, end) in found.items()])))
+    return pillar, sorted(missing), side, base
 
 
-def _base_zone(found: dict, centres: np.ndarray, axis: np.ndarray, side: int, spacing: np.ndarray,
-               shape: tuple) -> np.ndarray | None:
-    """The voxels past the base surface: the base's silicone, which no inclusion's ball holds. The surface is
-    the median over the pillars found of where each met the base (one cast plane); None without a pillar."""
-    if not found:
-        return None
-    surface = float(np.median([side * float(centres[label - 1] @ axis) + end
-                               for label, (_line, _radius, end) in found.items()]))
-    d = np.meshgrid(*(np.arange(n) * s * a for n, s, a in zip(shape, spacing, axis)), indexing="ij", sparse=True)
-    return side * (d[0] + d[1] + d[2]) > surface
+@dataclass
+class BaseSurface:
+    """The base's surface under the filling, found under the posts: the plane ``normal . x = offset_mm``,
+    x in millimetres along the array axes from the first voxel's centre (index times spacing), the unit
+    ``normal`` pointing into the base."""
+
+    normal: np.ndarray
+    offset_mm: float
+
+    def beyond(self, spacing: np.ndarray, shape: tuple) -> np.ndarray:
+        """bool mask of the voxels past the surface: the base's silicone, which no inclusion's ball holds."""
+        d = np.meshgrid(*(np.arange(n) * s * a for n, s, a in zip(shape, spacing, self.normal)), indexing="ij",
+                        sparse=True)
+        return d[0] + d[1] + d[2] > self.offset_mm
+
+    def shifted(self, origin_index: np.ndarray, spacing: np.ndarray) -> BaseSurface:
+        """The same plane on a grid (of the same spacing) whose index 0 lies at this one's ``origin_index``."""
+        return BaseSurface(self.normal, self.offset_mm - float(self.normal @ (np.asarray(origin_index) * spacing)))

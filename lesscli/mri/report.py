@@ -1,4 +1,4 @@
-"""Records about a segmentation (class volumes, inclusions, frame, warnings) and a QC figure."""
+"""Records about a segmentation (class volumes, inclusions, base surface, frame, warnings) and a QC figure."""
 
 from __future__ import annotations
 
@@ -62,6 +62,23 @@ def shape_rows(shapes: list[dict], affine: np.ndarray) -> list[dict]:
     return [{"row": "inclusion_shape", "shape": s["shape"],
              "centre_mm": [round(float(v), 3) for v in voxel_to_world(np.asarray([s["centre_index"]]), affine)[0]],
              "ball_diameter_mm": s["ball_diameter_mm"], "ball_misfit": s["ball_misfit"]} for s in shapes]
+
+
+def base_rows(base, spacing_mm, shape: tuple, affine: np.ndarray) -> list[dict]:
+    """The base's surface under the filling (:class:`lesscli.mri.pillar.BaseSurface`, found under the
+    pillars; no row without one) in the affine's world frame: the plane's point nearest the scan's centre
+    and its unit normal, pointing into the base."""
+    from lesscli.mri.frame import voxel_to_world
+
+    if base is None:
+        return []
+    spacing = np.asarray(spacing_mm, dtype=np.float64)
+    centre = (np.asarray(shape) - 1) / 2 * spacing
+    point = centre - (float(base.normal @ centre) - base.offset_mm) * base.normal
+    normal = np.linalg.solve(np.asarray(affine)[:3, :3].T, base.normal * spacing)
+    return [{"row": "base_surface", "point_mm": [round(float(v), 3) for v in voxel_to_world(point[None] / spacing,
+                                                                                            affine)[0]],
+             "normal": [round(float(v), 5) for v in normal / np.linalg.norm(normal)]}]
 
 
 def frame_row(frame) -> dict:

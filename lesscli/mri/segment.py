@@ -27,7 +27,7 @@ import numpy as np
 
 from lesscli.errors import DataError
 from lesscli.io.labels import BACKGROUND, INCLUSION, INSERT, PILLAR
-from lesscli.mri.pillar import MAD_TO_SIGMA
+from lesscli.mri.pillar import MAD_TO_SIGMA, BaseSurface
 
 NORM_PERCENTILE = 99.5
 MIN_SHAPE = 8                   # voxels per axis
@@ -79,6 +79,8 @@ class Segmentation:
         warnings: human-readable problems found.
         inclusion_shapes: per inclusion, how its surface was drawn (``shape`` "ball" or "image",
             ``centre_index``, ``ball_diameter_mm``, ``ball_misfit``; see ``SegmentParams.inclusion_shape``).
+        base_surface: the base's surface under the filling, found under the pillars
+            (:class:`lesscli.mri.pillar.BaseSurface`, on the input's grid); None without a pillar.
     """
 
     labels: np.ndarray
@@ -90,6 +92,7 @@ class Segmentation:
     silicone: np.ndarray
     warnings: list[str] = field(default_factory=list)
     inclusion_shapes: list[dict] = field(default_factory=list)
+    base_surface: BaseSurface | None = None
 
 
 def validate(image: np.ndarray, where: str) -> np.ndarray:
@@ -277,7 +280,7 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     silicone = bright_mask if silicone_brighter else insert & ~bright_mask
     sil_level, gel_level = (bright, dark) if silicone_brighter else (dark, bright)
     fraction = (corrected - np.float32(gel_level)) / np.float32(sil_level - gel_level)
-    pillar, inclusion, more, shapes = split_silicone(silicone, insert, spacing, params.pillar_max_diameter_mm,
+    pillar, inclusion, more, shapes, base = split_silicone(silicone, insert, spacing, params.pillar_max_diameter_mm,
                                              params.skin_max_thickness_mm, fraction, params.inclusion_shape)
     labels = np.full(arr.shape, BACKGROUND, dtype=np.uint8)
     labels[insert] = INSERT
@@ -285,4 +288,4 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     labels[inclusion] = INCLUSION
     levels = {"air": air, "silicone": sil_level, "hydrogel": gel_level}
     return Segmentation(labels, spacing, silicone_brighter, levels, (t_air, t_tissue), corrected.astype(np.float32),
-                        silicone, warnings + more, shapes)
+                        silicone, warnings + more, shapes, base)

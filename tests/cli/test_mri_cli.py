@@ -55,12 +55,25 @@ def test_synth_label_metrics_roundtrip(run_less, synth_files, tmp_path):
     assert abs(shape[0]["ball_diameter_mm"] - 12.0) < 1.0 and 0.0 < shape[0]["ball_misfit"] < 10.0
     assert np.linalg.norm(np.subtract(shape[0]["centre_mm"], inclusions[0]["centroid_mm"])) < 1.0
     assert not [r for r in rows if r["row"] == "warning"]
+    (base,) = [r for r in rows if r["row"] == "base_surface"]
     assert (tmp_path / "qc.png").stat().st_size > 1000
     out, ref = nib.load(tmp_path / "labels.nii.gz"), nib.load(scan)
     np.testing.assert_allclose(out.affine, ref.affine)
     assert out.shape == ref.shape
     pred, true = load_nifti_labels(str(tmp_path / "labels.nii.gz")), load_nifti_labels(str(truth))
     assert dice(pred.data == INCLUSION, true.data == INCLUSION) > 0.93
+    # the base surface in the scan's world frame: square to the insert's axis (its least spread), and the
+    # true pillar ends on it, on the filling's side
+    from lesscli.io.labels import PILLAR
+    from lesscli.mri.frame import voxel_to_world
+
+    normal, truth_img = np.asarray(base["normal"]), nib.load(truth)
+    codes = np.asarray(truth_img.dataobj)                   # the NIfTI's own axes, as its affine maps them
+    whole = voxel_to_world(np.argwhere(codes > 0), truth_img.affine)
+    axis = np.linalg.svd(whole - whole.mean(axis=0), full_matrices=False)[2][2]
+    assert abs(np.linalg.norm(normal) - 1.0) < 1e-4 and abs(axis @ normal) > 0.99
+    height = (voxel_to_world(np.argwhere(codes == PILLAR), truth_img.affine) - base["point_mm"]) @ normal
+    assert -1.0 < height.max() < 0.0                    # the post's last voxel centres within a voxel of it
     metrics = run_less("metrics", "--truth", truth, "--pred", "labels.nii.gz", "--format", "jsonl", check=True)
     first = json.loads(metrics.stdout.decode().splitlines()[0])
     assert first["f1_3d"] > 0.93

@@ -15,7 +15,7 @@ import json
 import nibabel as nib
 import numpy as np
 import pytest
-from mri_family import PILLAR, Case, generate, inclusion_scores, pillar_voxels_wide, scores
+from mri_family import PILLAR, Case, base_error_mm, generate, inclusion_scores, pillar_voxels_wide, scores
 
 from lesscli.mri.segment import segment
 
@@ -81,6 +81,17 @@ def test_contrast_found_and_no_warnings(results, name):
         assert len(seg.warnings) == 1 and "no pillar found under the inclusion" in seg.warnings[0], PILLAR_NOT_FOUND[name]
     else:
         assert seg.warnings == []
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_base_surface_is_found_within_a_quarter_slice(results, name):
+    """The base's surface found under the posts (`Segmentation.base_surface`): its normal along the insert
+    axis, pointing into the base, and the plane within a quarter of a slice of the true one."""
+    vol, seg = results[name]
+    base = seg.base_surface
+    assert base is not None and abs(abs(base.normal[0]) - 1.0) < 1e-3
+    assert np.sign(base.normal[0]) == (1 if vol.case.base_up else -1)
+    assert abs(base_error_mm(base, vol)) < 0.25 * vol.spacing_mm[0]
 
 
 def test_inclusion_thinner_than_the_ball_voxel_for_voxel_is_found():
@@ -305,3 +316,35 @@ def test_box_partial_volume_keeps_a_thin_posts_silicone_and_the_ramp_adds_to_it(
         excess[pv] = area / (np.pi * diameter ** 2 / 4) - 1
     assert abs(excess["box"]) < 0.02
     assert excess["ramp"] > 0.05
+
+
+@pytest.mark.parametrize("offset, same", [(0.05, True), (0.08, False)])
+def test_box_partial_volume_leaves_a_flat_surface_near_a_voxel_centre_undecided(offset, same):
+    """The family's generator itself: a flat surface within half the box's sub-voxel step (1/16 of a voxel
+    at 8 points) of a plane of voxel centres gives the same shares on either side of it, though the
+    truth, which classifies the centres, differs; a little further out they differ too. This is the band
+    `Volume.undecided_slices` leaves out of `dice_pillar_decided`."""
+    import mri_family
+
+    shape, centre = (9, 3, 3), 4.0
+    grid = [np.arange(n, dtype=float) for n in shape]
+    a0 = np.broadcast_to(grid[0][:, None, None], shape)
+
+    def shares(level):
+        def at(p0, p1, p2):
+            return -np.ones(np.shape(p0)), p0 - level         # inside the body; silicone up to ``level``
+        return mri_family._box_fills(-np.ones(shape), a0 - level, grid, np.ones(3), at)[0]
+
+    below, above = shares(centre - offset), shares(centre + offset)
+    assert (a0[:, 0, 0] <= centre - offset).sum() != (a0[:, 0, 0] <= centre + offset).sum()   # the truth moves
+    assert np.array_equal(below, above) == same
+    assert 0.05 < 0.5 / mri_family.BOX_POINTS < 0.08          # the two offsets bracket the band
+
+
+@pytest.mark.parametrize("base_up", [False, True])
+def test_volume_base_index_is_where_the_truths_pillar_starts(base_up):
+    """`Volume.base_index`: the pillar's truth holds the slices on the filling's side of it and none past it."""
+    vol = generate(Case(seed=7, spacing_mm=(0.83, 0.9, 0.9), pillar_height_mm=(4.0,), base_up=base_up, noise=0.0))
+    rows = np.nonzero((vol.truth == PILLAR).any(axis=(1, 2)))[0]
+    nearest = rows.max() if base_up else rows.min()                 # the pillar's slice next to the base
+    assert 0.0 < (vol.base_index - nearest) * (1 if base_up else -1) < 1.0

@@ -78,7 +78,7 @@ def test_split_silicone_separates_skin_inclusion_and_pillar():
     column = ((y - 15) ** 2 + (x - 15) ** 2 <= 1.25 ** 2) & (z <= 12) & insert
     stray = ((y - 6) ** 2 + (x - 30) ** 2 <= 1.25 ** 2) & (z > 3) & (z < 10)   # a column touching nothing
     lying = ((z - 8) ** 2 + (y - 30) ** 2 <= 1.25 ** 2) & (x > 20) & (x < 30)  # across the axis: not a pillar
-    pillar, inclusion, warnings, _shapes = split_silicone(skin | ball | column | stray | lying, insert, SPACING, 4.5, 3.0)
+    pillar, inclusion, warnings, _shapes, _base = split_silicone(skin | ball | column | stray | lying, insert, SPACING, 4.5, 3.0)
     assert dice(inclusion, ball) > 0.98
     assert (pillar & column).sum() >= 0.85 * (column & ~ball).sum()      # a short 7 mm column
     assert not (pillar & (skin | lying | stray)).any() and not (inclusion & (skin | lying | stray)).any()
@@ -92,7 +92,7 @@ def test_split_silicone_warns_once_for_an_inclusion_without_pillar():
     insert[2:-2, 2:-2, 2:-2] = True
     skin = insert & (z >= 19.0)
     ball = (z - 10) ** 2 + (y - 15) ** 2 + (x - 15) ** 2 <= 4.0 ** 2          # floating: no pillar
-    pillar, inclusion, warnings, _shapes = split_silicone(skin | ball, insert, SPACING, 4.5, 3.0)
+    pillar, inclusion, warnings, _shapes, _base = split_silicone(skin | ball, insert, SPACING, 4.5, 3.0)
     assert dice(inclusion, ball) > 0.98 and not pillar.any()
     assert len(warnings) == 1 and "no pillar found under the inclusion near voxel [20, 30, 30]" in warnings[0]
 
@@ -120,7 +120,7 @@ def test_split_silicone_warns_without_inclusion():
     insert = np.ones(shape, bool)
     skin = np.zeros(shape, bool)
     skin[-5:] = True
-    pillar, inclusion, warnings, _shapes = split_silicone(skin, insert, SPACING, 4.5, 3.0)
+    pillar, inclusion, warnings, _shapes, _base = split_silicone(skin, insert, SPACING, 4.5, 3.0)
     assert not inclusion.any() and not pillar.any()
     assert "no inclusion found" in warnings
 
@@ -265,7 +265,7 @@ def _post_under_ball(spacing, post_radius, gap_mm, shift_voxels, noise, seed):
 def _post_dice(spacing, post_radius, gap_mm, shift_voxels, noise, seed) -> float:
     """Pillar Dice of :func:`split_silicone` on :func:`_post_under_ball`'s scan (which must warn of nothing)."""
     fraction, insert, post = _post_under_ball(spacing, post_radius, gap_mm, shift_voxels, noise, seed)
-    pillar, _inclusion, warnings, _shapes = split_silicone(fraction > 0.5, insert, spacing, 4.5, 3.0,
+    pillar, _inclusion, warnings, _shapes, _base = split_silicone(fraction > 0.5, insert, spacing, 4.5, 3.0,
                                                           fraction=fraction)
     assert warnings == []
     return dice(pillar, post)
