@@ -6,7 +6,8 @@ voxels 0.4-1.2 mm, both contrasts, Rician noise 0.02-0.1, bias 0.1-0.4), labels 
 ``lesscli.mri.segment.segment`` and scores it against the truth: insert Dice per volume, inclusion and
 pillar Dice per inclusion (in the cell of voxels nearer to it than to the others). Prints the markdown
 table of min / median per parameter band (pillar Dice only where the pillar is at least 2 voxels wide);
-``--out`` keeps the rows as JSON lines. ``--partial-volume box`` draws the same volumes with each
+``--out`` keeps the rows as JSON lines (each case's ``base_error_mm``: how far past the true base surface,
+into the base, the one found lies). ``--partial-volume box`` draws the same volumes with each
 voxel's share of each tissue (the family's default is a ramp of the signed distance, which adds
 tissue around thin posts; tests/mri_family.py), sampled at ``--box-points`` points per axis (8).
 

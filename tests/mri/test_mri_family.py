@@ -348,3 +348,19 @@ def test_volume_base_index_is_where_the_truths_pillar_starts(base_up):
     rows = np.nonzero((vol.truth == PILLAR).any(axis=(1, 2)))[0]
     nearest = rows.max() if base_up else rows.min()                 # the pillar's slice next to the base
     assert 0.0 < (vol.base_index - nearest) * (1 if base_up else -1) < 1.0
+
+
+def test_family_script_rows_and_footer(tmp_path):
+    """`examples/mri_family.py` (README's table and counts): one box volume, its rows and the footer."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "examples" / "mri_family.py"
+    proc = subprocess.run([sys.executable, str(script), "--seeds", "2001", "--partial-volume", "box", "--out",
+                           str(tmp_path / "rows.jsonl")], capture_output=True, text=True, check=True)
+    rows = [json.loads(line) for line in (tmp_path / "rows.jsonl").read_text().splitlines()]
+    (case,) = [r for r in rows if r["row"] == "case"]
+    assert abs(case["base_error_mm"]) < 0.25 * case["spacing_mm"][0]
+    assert all(0.0 <= r["dice_pillar_decided"] <= 1.0 for r in rows if r["row"] == "inclusion")
+    assert "Volumes meeting all three targets:" in proc.stdout and "of 1" in proc.stdout
