@@ -12,7 +12,7 @@
 - Each inclusion's surface is re-thresholded with its local contrast, at the level where a blurred
   ball's surface lies (below half-way on a curved surface: the blur spreads a small body's silicone
   outwards), with the blur and radius fitted to the body's own profile, away from the pillars and
-  from the base's silicone (:func:`lesscli.mri.pillar.find_pillars`'s base zone); where the pillar
+  from the base's silicone (past :class:`lesscli.mri.pillar.BaseSurface`); where the pillar
   meets the inclusion, the inclusion takes back the pillar's voxels inside its sphere.
 - Everything else (the skin, partial-volume speckle) stays insert.
 

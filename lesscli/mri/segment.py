@@ -281,7 +281,8 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     sil_level, gel_level = (bright, dark) if silicone_brighter else (dark, bright)
     fraction = (corrected - np.float32(gel_level)) / np.float32(sil_level - gel_level)
     pillar, inclusion, more, shapes, base = split_silicone(silicone, insert, spacing, params.pillar_max_diameter_mm,
-                                             params.skin_max_thickness_mm, fraction, params.inclusion_shape)
+                                                           params.skin_max_thickness_mm, fraction,
+                                                           params.inclusion_shape)
     labels = np.full(arr.shape, BACKGROUND, dtype=np.uint8)
     labels[insert] = INSERT
     labels[pillar] = PILLAR
