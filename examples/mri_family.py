@@ -7,13 +7,20 @@ voxels 0.4-1.2 mm, both contrasts, Rician noise 0.02-0.1, bias 0.1-0.4), labels 
 pillar Dice per inclusion (in the cell of voxels nearer to it than to the others). Prints the markdown
 table of min / median per parameter band (pillar Dice only where the pillar is at least 2 voxels wide);
 ``--out`` keeps the rows as JSON lines (each case's ``base_error_mm``: how far past the true base surface,
-into the base, the one found lies). ``--partial-volume box`` draws the same volumes with each
+into the base, the one found lies; each inclusion's ``post_diameter_error_mm`` and ``post_height_error_mm``,
+the post found under it against the truth, and ``post_offset_mm``, its foot's distance from the true axis). ``--partial-volume box`` draws the same volumes with each
 voxel's share of each tissue (the family's default is a ramp of the signed distance, which adds
 tissue around thin posts; tests/mri_family.py), sampled at ``--box-points`` points per axis (8).
+
+``--margins 0.025,0.05,0.1`` segments nothing: it scores the truth itself, drawn again with each post
+wider and narrower by each radius (mm) and with the base's surface that far up and down (the spheres
+where they were), against the truth as drawn, and prints how many volumes that alone takes below the
+pillar target: how close to its knife edge the target puts each volume.
 
     python examples/mri_family.py --seeds 1000-1059 --out results/mri_family.jsonl
     python examples/mri_family.py --seeds 1000-1059 --partial-volume box
     python examples/mri_family.py --seeds 5081,3017 --partial-volume box --box-points 24
+    python examples/mri_family.py --seeds 0-99 --margins 0.025,0.05,0.1
 """
 
 from __future__ import annotations
@@ -36,7 +43,9 @@ from mri_family import (
     draw_case,
     generate,
     inclusion_scores,
+    perturbed,
     pillar_voxels_wide,
+    post_errors,
     scores,
 )
 
@@ -68,7 +77,8 @@ def run_case(seed: int, partial_volume: str = "ramp") -> list[dict]:
     base = None if seg.base_surface is None else round(base_error_mm(seg.base_surface, volume), 4)
     rows = [{"row": "case", **common, "dice_insert": scores(seg.labels, volume.truth)["insert"],
              "base_error_mm": base, "seconds": round(time.perf_counter() - t0, 2), "warnings": seg.warnings}]
-    rows += [{"row": "inclusion", **common, **r} for r in inclusion_scores(seg.labels, volume)]
+    rows += [{"row": "inclusion", **common, **r, **{k: None if v is None else round(v, 4) for k, v in e.items()}}
+             for r, e in zip(inclusion_scores(seg.labels, volume), post_errors(seg.posts, volume))]
     return rows
 
 
@@ -79,6 +89,42 @@ def shortfalls(case: dict, inclusions: list[dict]) -> list[str]:
     fails += [f"pillar {r['dice_pillar']:.3f} ({r['pillar_voxels']} voxels)" for r in inclusions
               if r["dice_pillar"] < ACCEPT["pillar"] and r["pillar_voxels"] >= MIN_PILLAR_VOXELS]
     return fails
+
+
+PERTURBATIONS = {"radius": lambda d: {"radius_mm": d}, "base": lambda d: {"base_mm": d}}
+
+
+def margin_row(seed: int, deltas: list[float]) -> dict:
+    """Pillar Dice per inclusion of the truth drawn with each perturbation (``perturbed``: a post's radius,
+    the base's surface) of +- each delta (mm), scored against the truth as drawn: key ``radius+0.05`` etc."""
+    case = draw_case(seed)
+    truth = generate(case)
+    row = {"row": "margin", "seed": seed, "pillar_voxels": round(pillar_voxels_wide(case), 2)}
+    for delta in deltas:
+        for name, change in PERTURBATIONS.items():
+            for sign in ("+", "-"):
+                moved = generate(perturbed(case, **change(delta if sign == "+" else -delta)))
+                row[f"{name}{sign}{delta:g}"] = [r["dice_pillar"] for r in inclusion_scores(moved.truth, truth)]
+    return row
+
+
+def margin_table(rows: list[dict], deltas: list[float]) -> str:
+    """Markdown: per delta, the volumes (with pillars at least 2 voxels wide) that a perturbation of the
+    truth by it alone takes below the pillar target, per perturbation and in all, with their seeds."""
+    wide = [r for r in rows if r["pillar_voxels"] >= MIN_PILLAR_VOXELS]
+
+    def below(delta, names):
+        return [r["seed"] for r in wide if any(min(r[f"{n}{s}{delta:g}"]) < ACCEPT["pillar"]
+                                               for n in names for s in "+-")]
+
+    lines = [(f"Volumes with pillars at least 2 voxels wide: {len(wide)} of {len(rows)}. Below the pillar target "
+              f"({ACCEPT['pillar']}) with the truth itself moved by:"), "",
+             "| perturbation (mm) | post radius +- | base surface +- | either | seeds |", "|---|---|---|---|---|"]
+    for delta in deltas:
+        both = below(delta, PERTURBATIONS)
+        lines.append(f"| {delta:g} | {len(below(delta, ['radius']))} | {len(below(delta, ['base']))} | "
+                     f"{len(both)} | {', '.join(map(str, both))} |")
+    return "\n".join(lines)
 
 
 BANDS = [
@@ -141,19 +187,32 @@ def main() -> None:
                         help="the family's partial volume: ramp (default) or box")
     parser.add_argument("--box-points", type=int, default=mri_family.BOX_POINTS,
                         help="sub-voxel points per axis of the box partial volume")
+    parser.add_argument("--margins", default=None,
+                        help="perturbations of the truth, mm (e.g. 0.025,0.05,0.1): segment nothing, count the "
+                             "volumes each takes below the pillar target")
     args = parser.parse_args()
     mri_family.BOX_POINTS = args.box_points
     rows = []
+    if args.margins:
+        deltas = [float(d) for d in args.margins.split(",")]
+        rows = [margin_row(seed, deltas) for seed in _seeds(args.seeds)]
+        _write(rows, args.out)
+        print(margin_table(rows, deltas))
+        return
     for seed in _seeds(args.seeds):
         new = run_case(seed, args.partial_volume)
         rows += new
         fails = shortfalls(new[0], new[1:])
         print(f"seed {seed}: {new[0]['seconds']} s" + (f"  below: {', '.join(fails)}" if fails else ""),
               file=sys.stderr, flush=True)
-    if args.out:
-        with open(args.out, "w") as fh:
-            fh.writelines(json.dumps(r) + "\n" for r in rows)
+    _write(rows, args.out)
     print(table(rows))
+
+
+def _write(rows: list[dict], path: str | None) -> None:
+    if path:
+        with open(path, "w") as fh:
+            fh.writelines(json.dumps(r) + "\n" for r in rows)
 
 
 if __name__ == "__main__":

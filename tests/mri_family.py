@@ -26,7 +26,7 @@ hydrogel cavity (its foot in the base stays insert), insert inside the octagonal
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -262,6 +262,14 @@ def draw_case(seed: int) -> Case:
                 bias=float(np.round(rng.uniform(*RANGES["bias"]), 3)))
 
 
+def perturbed(case: Case, radius_mm: float = 0.0, base_mm: float = 0.0) -> Case:
+    """``case`` with each post ``radius_mm`` wider and the base's surface under the filling ``base_mm``
+    further from the insert's outer surface (the posts that much shorter), all else as drawn: the same
+    layout, rotation, levels, bias and noise draws (the spheres stay where they are)."""
+    return replace(case, pillar_mm=case.pillar_mm + 2.0 * radius_mm, base_mm=case.base_mm + base_mm,
+                   pillar_height_mm=tuple(h - base_mm for h in case.pillar_height_mm))
+
+
 def pillar_voxels_wide(case: Case) -> float:
     """The pillar's diameter in voxels of the coarser in-plane spacing (axes 1 and 2)."""
     return case.pillar_mm / max(case.spacing_mm[1], case.spacing_mm[2])
@@ -287,6 +295,25 @@ def base_error_mm(base, volume: Volume) -> float:
     lateral = (np.asarray(volume.truth.shape) - 1) / 2 * spacing
     at = (base.offset_mm - base.normal[1] * lateral[1] - base.normal[2] * lateral[2]) / base.normal[0]
     return float((at - volume.base_index * spacing[0]) * np.sign(base.normal[0]))
+
+
+def post_errors(posts: list, volume: Volume, reach_mm: float = 3.0) -> list[dict]:
+    """Per inclusion, how the post found under it (:class:`lesscli.mri.pillar.Post`, the one whose foot lies
+    nearest its axis, within ``reach_mm``) differs from the truth: diameter and height (found minus true) and
+    the foot's distance from the true axis, mm; None where no post is that near."""
+    spacing = volume.spacing_mm
+    feet = np.array([p.foot_mm[1:] for p in posts]).reshape(-1, 2)
+    rows = []
+    for k, centre in enumerate(volume.centres_index):
+        off = np.linalg.norm(feet - centre[1:] * spacing[1:], axis=1)
+        if not len(off) or off.min() > reach_mm:
+            rows.append({"post_diameter_error_mm": None, "post_height_error_mm": None, "post_offset_mm": None})
+            continue
+        post = posts[int(np.argmin(off))]
+        rows.append({"post_diameter_error_mm": 2.0 * post.radius_mm - volume.case.pillar_mm,
+                     "post_height_error_mm": post.height_mm - volume.case.pillar_height_mm[k],
+                     "post_offset_mm": float(off.min())})
+    return rows
 
 
 def inclusion_scores(labels: np.ndarray, volume: Volume) -> list[dict]:

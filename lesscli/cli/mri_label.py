@@ -99,6 +99,7 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
     if report:
         rows += rep.shape_rows(seg.inclusion_shapes, scan.affine)
         rows += rep.base_rows(seg.base_surface, seg.spacing_mm, seg.labels.shape, scan.affine)
+        rows += rep.post_rows(seg.posts, seg.spacing_mm, scan.affine)
         emit_records(rows + rep.warning_rows(seg.warnings), fmt)
 
 

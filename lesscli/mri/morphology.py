@@ -351,8 +351,8 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     Returns:
         (pillar mask, inclusion mask, warnings, one dict per inclusion on how its surface was drawn
         (:func:`_local_surface`; centres in the input's voxel indices), the base's surface found under the
-        pillars on the input's grid (:class:`lesscli.mri.pillar.BaseSurface`, None without a pillar)), masks
-        of the input's shape.
+        pillars on the input's grid (:class:`lesscli.mri.pillar.BaseSurface`, None without a pillar), the
+        posts drawn on the input's grid (:class:`lesscli.mri.pillar.Post`)), masks of the input's shape.
     """
     from scipy import ndimage
 
@@ -360,7 +360,7 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     pillar_full = np.zeros(insert.shape, dtype=bool)
     inclusion_full = np.zeros(insert.shape, dtype=bool)
     if not silicone.any():
-        return pillar_full, inclusion_full, ["no inclusion found (no silicone inside the insert)"], [], None
+        return pillar_full, inclusion_full, ["no inclusion found (no silicone inside the insert)"], [], None, []
     box = crop_box(insert, 2)
     # one voxel of padding: the distance transforms must see air beyond a scan's border too
     sil, ins = np.pad(silicone[box], 1), np.pad(insert[box], 1)
@@ -378,8 +378,8 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     inc_ids, n_inclusions = ndimage.label(bodies)
     warnings = [] if n_inclusions else ["no inclusion found"]
     deep = ins & (depth > shell_mm)
-    pillar, missing, _side, base = find_pillars(frac, ins, inc_ids, n_inclusions, spacing,
-                                                insert_axis(ins, spacing), pillar_max_diameter_mm, deep)
+    pillar, missing, _side, base, posts = find_pillars(frac, ins, inc_ids, n_inclusions, spacing,
+                                                       insert_axis(ins, spacing), pillar_max_diameter_mm, deep)
     inclusion, shapes = _local_surface(bodies, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm, inclusion_shape,
                                        None if base is None else base.beyond(spacing, ins.shape))
     inclusion |= _junctions(inclusion, pillar, spacing, shapes)
@@ -391,4 +391,5 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     pillar_full[box], inclusion_full[box] = pillar[inner], inclusion[inner]
     for row in shapes:
         row["centre_index"] = [float(c + o) for c, o in zip(row["centre_index"], offset)]
-    return pillar_full, inclusion_full, warnings, shapes, None if base is None else base.shifted(-offset, spacing)
+    return (pillar_full, inclusion_full, warnings, shapes, None if base is None else base.shifted(-offset, spacing),
+            [post.shifted(-offset, spacing) for post in posts])

@@ -524,12 +524,13 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
 
     Returns:
         (pillar mask, labels of the inclusions without a pillar, base side: +1 along ``axis``, -1 against,
-        the base's surface (:class:`BaseSurface`), None where no pillar was found).
+        the base's surface (:class:`BaseSurface`), None where no pillar was found), the posts drawn
+        (:class:`Post`, in the order of the inclusions' labels).
     """
     spacing = np.asarray(spacing_mm, dtype=np.float64)
     pillar = np.zeros(insert.shape, dtype=bool)
     if n_inclusions == 0:
-        return pillar, [], 1, None
+        return pillar, [], 1, None, []
     from scipy import ndimage
 
     voxel = float(spacing.max())
@@ -609,7 +610,40 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
     if found:                               # one cast plane: the median of where the posts met it
         base = BaseSurface(side * axis, float(np.median([side * float(centres[label - 1] @ axis) + end
                                                          for label, (_line, _radius, end) in found.items()])))
-    return pillar, sorted(missing), side, base
+    posts = [_post(*found[label], centres[label - 1], axis, side,
+                   columns[label].start[side] if balls[label] is None
+                   else _ball_surface(balls[label], centres[label - 1], axis, side)) for label in sorted(found)]
+    return pillar, sorted(missing), side, base, posts
+
+
+def _post(line: np.ndarray, radius: float, end: float, centre: np.ndarray, axis: np.ndarray, side: int,
+          start: float) -> Post:
+    """The :class:`Post` drawn around ``line`` (lateral offset and slope against the distance ``st`` from
+    ``centre`` towards the base, :func:`_trace`'s frame) from ``start`` (the inclusion's surface) to ``end``
+    (the base's)."""
+    e1, e2 = _basis(axis)
+
+    def at(st):
+        u, v = line[0] + st * line[1]
+        return centre + side * st * axis + u * e1 + v * e2
+
+    up = at(0.0) - at(1.0)
+    return Post(at(end), up / np.linalg.norm(up), radius, end - start)
+
+
+@dataclass
+class Post:
+    """One pillar as drawn: a straight cylinder standing on the base's surface. Points in millimetres along
+    the array axes from the first voxel's centre (index times spacing)."""
+
+    foot_mm: np.ndarray             # the centre of its end on the base (where its own trace met the base)
+    direction: np.ndarray           # unit, from the foot towards its inclusion
+    radius_mm: float
+    height_mm: float                # from the base's surface to the inclusion's, along the insert axis
+
+    def shifted(self, origin_index: np.ndarray, spacing: np.ndarray) -> Post:
+        """The same post on a grid (of the same spacing) whose index 0 lies at this one's ``origin_index``."""
+        return replace(self, foot_mm=self.foot_mm - np.asarray(origin_index) * spacing)
 
 
 @dataclass

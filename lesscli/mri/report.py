@@ -1,4 +1,5 @@
-"""Records about a segmentation (class volumes, inclusions, base surface, frame, warnings) and a QC figure."""
+"""Records about a segmentation (class volumes, inclusions, base surface, pillars, frame, warnings) and a QC
+figure."""
 
 from __future__ import annotations
 
@@ -79,6 +80,23 @@ def base_rows(base, spacing_mm, shape: tuple, affine: np.ndarray) -> list[dict]:
     return [{"row": "base_surface", "point_mm": [round(float(v), 3) for v in voxel_to_world(point[None] / spacing,
                                                                                             affine)[0]],
              "normal": [round(float(v), 5) for v in normal / np.linalg.norm(normal)]}]
+
+
+def post_rows(posts: list, spacing_mm, affine: np.ndarray) -> list[dict]:
+    """One row per pillar drawn (:class:`lesscli.mri.pillar.Post`) in the affine's world frame: its foot
+    (the centre of its end on the base), the unit direction up its axis, its diameter and its height from
+    the base's surface to its inclusion's along the insert axis."""
+    from lesscli.mri.frame import voxel_to_world
+
+    spacing = np.asarray(spacing_mm, dtype=np.float64)
+    rows = []
+    for post in posts:
+        up = np.asarray(affine)[:3, :3] @ (post.direction / spacing)
+        rows.append({"row": "pillar",
+                     "foot_mm": [round(float(v), 3) for v in voxel_to_world(post.foot_mm[None] / spacing, affine)[0]],
+                     "direction": [round(float(v), 5) for v in up / np.linalg.norm(up)],
+                     "diameter_mm": round(2.0 * post.radius_mm, 3), "height_mm": round(post.height_mm, 3)})
+    return rows
 
 
 def frame_row(frame) -> dict:

@@ -27,7 +27,7 @@ import numpy as np
 
 from lesscli.errors import DataError
 from lesscli.io.labels import BACKGROUND, INCLUSION, INSERT, PILLAR
-from lesscli.mri.pillar import MAD_TO_SIGMA, BaseSurface
+from lesscli.mri.pillar import MAD_TO_SIGMA, BaseSurface, Post
 
 NORM_PERCENTILE = 99.5
 MIN_SHAPE = 8                   # voxels per axis
@@ -81,6 +81,8 @@ class Segmentation:
             ``centre_index``, ``ball_diameter_mm``, ``ball_misfit``; see ``SegmentParams.inclusion_shape``).
         base_surface: the base's surface under the filling, found under the pillars
             (:class:`lesscli.mri.pillar.BaseSurface`, on the input's grid); None without a pillar.
+        posts: the pillars drawn, each a straight cylinder on the base's surface
+            (:class:`lesscli.mri.pillar.Post`, on the input's grid).
     """
 
     labels: np.ndarray
@@ -93,6 +95,7 @@ class Segmentation:
     warnings: list[str] = field(default_factory=list)
     inclusion_shapes: list[dict] = field(default_factory=list)
     base_surface: BaseSurface | None = None
+    posts: list[Post] = field(default_factory=list)
 
 
 def validate(image: np.ndarray, where: str) -> np.ndarray:
@@ -280,13 +283,14 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     silicone = bright_mask if silicone_brighter else insert & ~bright_mask
     sil_level, gel_level = (bright, dark) if silicone_brighter else (dark, bright)
     fraction = (corrected - np.float32(gel_level)) / np.float32(sil_level - gel_level)
-    pillar, inclusion, more, shapes, base = split_silicone(silicone, insert, spacing, params.pillar_max_diameter_mm,
-                                                           params.skin_max_thickness_mm, fraction,
-                                                           params.inclusion_shape)
+    pillar, inclusion, more, shapes, base, posts = split_silicone(silicone, insert, spacing,
+                                                                  params.pillar_max_diameter_mm,
+                                                                  params.skin_max_thickness_mm, fraction,
+                                                                  params.inclusion_shape)
     labels = np.full(arr.shape, BACKGROUND, dtype=np.uint8)
     labels[insert] = INSERT
     labels[pillar] = PILLAR
     labels[inclusion] = INCLUSION
     levels = {"air": air, "silicone": sil_level, "hydrogel": gel_level}
     return Segmentation(labels, spacing, silicone_brighter, levels, (t_air, t_tissue), corrected.astype(np.float32),
-                        silicone, warnings + more, shapes, base)
+                        silicone, warnings + more, shapes, base, posts)

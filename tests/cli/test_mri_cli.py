@@ -74,6 +74,17 @@ def test_synth_label_metrics_roundtrip(run_less, synth_files, tmp_path):
     assert abs(np.linalg.norm(normal) - 1.0) < 1e-4 and abs(axis @ normal) > 0.99
     height = (voxel_to_world(np.argwhere(codes == PILLAR), truth_img.affine) - base["point_mm"]) @ normal
     assert -1.0 < height.max() < 0.0                    # the post's last voxel centres within a voxel of it
+    # the post drawn: up the insert's axis from its foot on that surface, on the true post's axis, as wide
+    from lesscli.phantom.catalogue import PILLAR_RADIUS_MM
+
+    (post,) = [r for r in rows if r["row"] == "pillar"]
+    up, foot = np.asarray(post["direction"]), np.asarray(post["foot_mm"])
+    assert abs(up @ axis) > 0.99 and up @ normal < 0.0
+    assert abs((foot - base["point_mm"]) @ normal) < 0.01
+    true_post = voxel_to_world(np.argwhere(codes == PILLAR), truth_img.affine).mean(axis=0)
+    lateral = (true_post - foot) - ((true_post - foot) @ up) * up
+    assert np.linalg.norm(lateral) < 0.5 * 0.7
+    assert abs(post["diameter_mm"] - 2 * PILLAR_RADIUS_MM) < 0.25 * 0.7 and post["height_mm"] > 0.0
     metrics = run_less("metrics", "--truth", truth, "--pred", "labels.nii.gz", "--format", "jsonl", check=True)
     first = json.loads(metrics.stdout.decode().splitlines()[0])
     assert first["f1_3d"] > 0.93

@@ -15,7 +15,17 @@ import json
 import nibabel as nib
 import numpy as np
 import pytest
-from mri_family import PILLAR, Case, base_error_mm, generate, inclusion_scores, pillar_voxels_wide, scores
+from mri_family import (
+    PILLAR,
+    Case,
+    base_error_mm,
+    generate,
+    inclusion_scores,
+    perturbed,
+    pillar_voxels_wide,
+    post_errors,
+    scores,
+)
 
 from lesscli.mri.segment import segment
 
@@ -92,6 +102,32 @@ def test_base_surface_is_found_within_a_quarter_slice(results, name):
     assert base is not None and abs(abs(base.normal[0]) - 1.0) < 1e-3
     assert np.sign(base.normal[0]) == (1 if vol.case.base_up else -1)
     assert abs(base_error_mm(base, vol)) < 0.25 * vol.spacing_mm[0]
+
+
+# Posts whose measures miss those bounds today, with why (strict).
+POST_OFF: dict[str, str] = {
+    "coarse-1.2mm-4mm-pillar-1mm-tall-16mm-bright": "a 4 mm post 1 mm tall in 1.2 mm slices is measured 3.56 mm "
+    "wide: no slab of its own, its radius fitted to the silicone the blur spreads into the ball's and the base's "
+    "(its Dice meets the target: its truth is one slice, 8 voxels)",
+}
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=POST_OFF[n]))
+                                  if n in POST_OFF else n for n in CASES])
+def test_each_post_is_found_on_its_axis_as_wide_and_as_tall(results, name):
+    """The posts drawn (`Segmentation.posts`): one under each inclusion, standing along the insert axis
+    towards it, the foot within half an in-plane voxel of the true axis, the diameter within a quarter of
+    one (where the post is at least 2 voxels wide; the thinner ones within half) and the height within
+    half a slice."""
+    vol, seg = results[name]
+    voxel = max(vol.spacing_mm[1:])
+    assert len(seg.posts) == len(vol.case.inclusion_mm)
+    wide = pillar_voxels_wide(vol.case) >= MIN_PILLAR_VOXELS
+    for post, err in zip(seg.posts, post_errors(seg.posts, vol)):
+        assert post.direction[0] * (-1 if vol.case.base_up else 1) > 0.99
+        assert err["post_offset_mm"] < 0.5 * voxel
+        assert abs(err["post_diameter_error_mm"]) < (0.25 if wide else 0.5) * voxel
+        assert abs(err["post_height_error_mm"]) < 0.5 * vol.spacing_mm[0]
 
 
 def test_inclusion_thinner_than_the_ball_voxel_for_voxel_is_found():
@@ -364,3 +400,36 @@ def test_family_script_rows_and_footer(tmp_path):
     assert abs(case["base_error_mm"]) < 0.25 * case["spacing_mm"][0]
     assert all(0.0 <= r["dice_pillar_decided"] <= 1.0 for r in rows if r["row"] == "inclusion")
     assert "Volumes meeting all three targets:" in proc.stdout and "of 1" in proc.stdout
+
+
+@pytest.mark.parametrize("base_up", [False, True])
+def test_perturbed_case_moves_only_the_post_and_the_base(base_up):
+    """`perturbed`: the same layout and draws; the base's surface moves by the given mm into the filling, the
+    posts widen by the given radius; with no change the truth is the same array."""
+    case = Case(seed=11, spacing_mm=(0.8, 0.7, 0.7), inclusion_mm=(10.0, 7.0), pillar_height_mm=(5.0, 9.0),
+                base_up=base_up, noise=0.0)
+    vol = generate(case)
+    assert np.array_equal(generate(perturbed(case)).truth, vol.truth)
+    up = generate(perturbed(case, base_mm=0.4))
+    assert np.allclose(up.centres_index, vol.centres_index)
+    assert (up.base_index - vol.base_index) * (-1 if base_up else 1) == pytest.approx(0.4 / 0.8)
+    wide = generate(perturbed(case, radius_mm=0.3))
+    assert np.allclose(wide.centres_index, vol.centres_index)
+    assert (wide.truth == PILLAR).sum() > (vol.truth == PILLAR).sum()
+
+
+def test_family_script_margins(tmp_path):
+    """`examples/mri_family.py --margins`: zero perturbation leaves every pillar's Dice 1; the table counts
+    the volumes a perturbation takes below the target (seed 4058: a ring of voxel centres lies within
+    0.025 mm outside its first post)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "examples" / "mri_family.py"
+    proc = subprocess.run([sys.executable, str(script), "--seeds", "4058", "--margins", "0,0.025", "--out",
+                           str(tmp_path / "rows.jsonl")], capture_output=True, text=True, check=True)
+    (row,) = [json.loads(line) for line in (tmp_path / "rows.jsonl").read_text().splitlines()]
+    assert all(d == 1.0 for key in ("radius+0", "radius-0", "base+0", "base-0") for d in row[key])
+    assert min(row["radius+0.025"]) < 0.8 <= min(row["radius-0.025"])
+    assert "| 0 | 0 | 0 | 0 |  |" in proc.stdout and "| 0.025 | 1 | 0 | 1 | 4058 |" in proc.stdout

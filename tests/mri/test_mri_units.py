@@ -78,11 +78,16 @@ def test_split_silicone_separates_skin_inclusion_and_pillar():
     column = ((y - 15) ** 2 + (x - 15) ** 2 <= 1.25 ** 2) & (z <= 12) & insert
     stray = ((y - 6) ** 2 + (x - 30) ** 2 <= 1.25 ** 2) & (z > 3) & (z < 10)   # a column touching nothing
     lying = ((z - 8) ** 2 + (y - 30) ** 2 <= 1.25 ** 2) & (x > 20) & (x < 30)  # across the axis: not a pillar
-    pillar, inclusion, warnings, _shapes, _base = split_silicone(skin | ball | column | stray | lying, insert, SPACING, 4.5, 3.0)
+    pillar, inclusion, warnings, _shapes, _base, posts = split_silicone(skin | ball | column | stray | lying, insert,
+                                                                         SPACING, 4.5, 3.0)
     assert dice(inclusion, ball) > 0.98
     assert (pillar & column).sum() >= 0.85 * (column & ~ball).sum()      # a short 7 mm column
     assert not (pillar & (skin | lying | stray)).any() and not (inclusion & (skin | lying | stray)).any()
     assert warnings == []
+    (post,) = posts         # on the insert's outer surface (between the voxels at z 0.5 and 1 mm), up to z 8 mm
+    assert post.direction[0] > 0.99
+    np.testing.assert_allclose(post.foot_mm, [0.75, 15.0, 15.0], atol=0.1)
+    assert post.radius_mm == pytest.approx(1.25, abs=0.1) and post.height_mm == pytest.approx(7.25, abs=0.1)
 
 
 def test_split_silicone_warns_once_for_an_inclusion_without_pillar():
@@ -92,7 +97,7 @@ def test_split_silicone_warns_once_for_an_inclusion_without_pillar():
     insert[2:-2, 2:-2, 2:-2] = True
     skin = insert & (z >= 19.0)
     ball = (z - 10) ** 2 + (y - 15) ** 2 + (x - 15) ** 2 <= 4.0 ** 2          # floating: no pillar
-    pillar, inclusion, warnings, _shapes, _base = split_silicone(skin | ball, insert, SPACING, 4.5, 3.0)
+    pillar, inclusion, warnings, _shapes, _base, _posts = split_silicone(skin | ball, insert, SPACING, 4.5, 3.0)
     assert dice(inclusion, ball) > 0.98 and not pillar.any()
     assert len(warnings) == 1 and "no pillar found under the inclusion near voxel [20, 30, 30]" in warnings[0]
 
@@ -120,7 +125,7 @@ def test_split_silicone_warns_without_inclusion():
     insert = np.ones(shape, bool)
     skin = np.zeros(shape, bool)
     skin[-5:] = True
-    pillar, inclusion, warnings, _shapes, _base = split_silicone(skin, insert, SPACING, 4.5, 3.0)
+    pillar, inclusion, warnings, _shapes, _base, _posts = split_silicone(skin, insert, SPACING, 4.5, 3.0)
     assert not inclusion.any() and not pillar.any()
     assert "no inclusion found" in warnings
 
@@ -265,7 +270,7 @@ def _post_under_ball(spacing, post_radius, gap_mm, shift_voxels, noise, seed):
 def _post_dice(spacing, post_radius, gap_mm, shift_voxels, noise, seed) -> float:
     """Pillar Dice of :func:`split_silicone` on :func:`_post_under_ball`'s scan (which must warn of nothing)."""
     fraction, insert, post = _post_under_ball(spacing, post_radius, gap_mm, shift_voxels, noise, seed)
-    pillar, _inclusion, warnings, _shapes, _base = split_silicone(fraction > 0.5, insert, spacing, 4.5, 3.0,
+    pillar, _inclusion, warnings, _shapes, _base, _posts = split_silicone(fraction > 0.5, insert, spacing, 4.5, 3.0,
                                                           fraction=fraction)
     assert warnings == []
     return dice(pillar, post)
@@ -284,3 +289,28 @@ def test_post_one_slice_tall_under_a_lone_inclusion_keeps_its_width(shift_voxels
     true partial volume: pillar Dice >= 0.85 wherever its axis lies within a voxel. Such a post's radius
     is fitted to all its silicone, which the blur spreads into the inclusion's and the base's slices."""
     assert _post_dice((1.1, 0.8, 0.8), 1.5, 1.2, shift_voxels, 0.05, 3) >= 0.85
+
+
+def test_report_puts_the_base_and_the_posts_in_the_scans_world_frame():
+    """`base_rows` and `post_rows` on an oblique scan of anisotropic voxels: array-axis millimetres map to the
+    world by the affine's rotation (and shift); a direction or normal turns with it, its length kept."""
+    from scipy.spatial.transform import Rotation
+
+    from lesscli.mri.pillar import BaseSurface, Post
+    from lesscli.mri.report import base_rows, post_rows
+
+    spacing, shift = np.array([1.2, 0.5, 0.8]), np.array([-40.0, 12.0, 3.5])
+    turn = Rotation.from_euler("zyx", [25.0, -40.0, 70.0], degrees=True).as_matrix()
+    affine = np.eye(4)
+    affine[:3, :3], affine[:3, 3] = turn @ np.diag(spacing), shift
+    up = np.array([0.9, 0.3, -0.1]) / np.linalg.norm([0.9, 0.3, -0.1])
+    post = Post(np.array([3.0, 20.0, 14.0]), up, 1.1, 6.5)
+    (row,) = post_rows([post], spacing, affine)
+    np.testing.assert_allclose(row["foot_mm"], turn @ post.foot_mm + shift, atol=2e-3)
+    np.testing.assert_allclose(row["direction"], turn @ up, atol=2e-5)
+    assert row["diameter_mm"] == 2.2 and row["height_mm"] == 6.5
+    normal = np.array([-1.0, 0.2, 0.1]) / np.linalg.norm([-1.0, 0.2, 0.1])
+    (base,) = base_rows(BaseSurface(normal, -2.0), spacing, (30, 60, 40), affine)
+    np.testing.assert_allclose(base["normal"], turn @ normal, atol=2e-5)
+    point = np.linalg.solve(turn, np.asarray(base["point_mm"]) - shift)      # back to array-axis mm
+    assert float(normal @ point) == pytest.approx(-2.0, abs=2e-3)
