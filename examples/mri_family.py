@@ -7,10 +7,11 @@ voxels 0.4-1.2 mm, both contrasts, Rician noise 0.02-0.1, bias 0.1-0.4), labels 
 pillar Dice per inclusion (in the cell of voxels nearer to it than to the others). Prints the markdown
 table of min / median per parameter band (pillar Dice only where the pillar is at least 2 voxels wide);
 ``--out`` keeps the rows as JSON lines (each case's ``base_error_mm``: how far past the true base surface,
-into the base, the one found lies; each inclusion's ``post_diameter_error_mm`` and ``post_height_error_mm``,
-the post found under it against the truth, and ``post_offset_mm``, its foot's distance from the true axis). ``--partial-volume box`` draws the same volumes with each
-voxel's share of each tissue (the family's default is a ramp of the signed distance, which adds
-tissue around thin posts; tests/mri_family.py), sampled at ``--box-points`` points per axis (8).
+into the base, the one found lies; each inclusion's ``post_diameter_error_mm`` and
+``post_height_error_mm``, the post found under it against the truth, and ``post_offset_mm``, its foot's
+distance from the true axis). ``--partial-volume box`` draws the same volumes with each voxel's share of
+each tissue (the family's default is a ramp of the signed distance, which adds tissue around thin posts;
+tests/mri_family.py), sampled at ``--box-points`` points per axis (8).
 
 ``--margins 0.025,0.05,0.1`` segments nothing: it scores the truth itself, drawn again with each post
 wider and narrower by each radius (mm) and with the base's surface that far up and down (the spheres
