@@ -8,7 +8,9 @@ boundaries through voxel centres would split each slice between two slabs). Per 
 (``fraction``: 0 hydrogel, 1 silicone):
 
 - the ring (an annulus around the core) gives the local background: hydrogel between the inclusion
-  and the base, silicone once the ring enters the base or the skin. The trace ends there, or where
+  and the base, silicone once the ring enters the base or the skin (its level a median clipped of the
+  voxels far from it, :func:`_ring_level`, so that the skin of a nearby wall, in part of the ring, does
+  not raise it). The trace ends there, or where
   the ring leaves the insert (a pillar standing on the insert's outer surface): that is the base
   surface, placed where the ring crosses half-way between the hydrogel and the base's own level (the
   ring level in the base away from the insert's outer surface: a base of a few millimetres reads below
@@ -77,6 +79,8 @@ MAX_TILT = math.tan(math.radians(30.0))
 SHORT_GAP_SLABS = 2.5           # a closer base leaves too few slabs to measure a cross-section
 GAP_AXIS_MM = 0.75              # the voxels this close to the line decide whether a short gap holds a post
 MAD_TO_SIGMA = 1.4826
+OUTLIER_SIGMAS = 3.0            # a ring's voxels further than this from its median are other structures
+RING_LEVEL_ROUNDS = 5           # ... median and spread taken again over the rest, at most this often
 MEDIAN_SE = 1.2533              # standard error of a median / (sigma / sqrt(n)) for normal scatter
 SCALE_EPS = 1e-3
 MIN_LINE_SLABS = 3              # fewer slabs do not place a line against noise: the inclusion's axis
@@ -175,6 +179,22 @@ def _blur_mm(ball, step_mm: float) -> float:
     return ball.sigma_mm if ball is not None else 0.5 * step_mm
 
 
+def _ring_level(values: np.ndarray) -> float:
+    """The level of a ring's voxels: their median, taken again over those within OUTLIER_SIGMAS robust
+    standard deviations of it (the spread read again from those too) until none more is left out. A ring that passes through the skin beside an inclusion near the insert's
+    wall holds some silicone, which moves a plain median up by a fraction of the noise; summed over the
+    few dozen voxels of a core, that offset is as large as a thin post's cross-section."""
+    kept = values
+    for _ in range(RING_LEVEL_ROUNDS):
+        level = float(np.median(kept))
+        spread = MAD_TO_SIGMA * float(np.median(np.abs(kept - level)))
+        near = np.abs(values - level) <= OUTLIER_SIGMAS * spread
+        if spread <= 0 or not near.any() or near.sum() == len(kept):
+            break
+        kept = values[near]
+    return float(np.median(kept))
+
+
 def _crossing(t: np.ndarray, level: np.ndarray, k: int) -> float:
     """Where ``level`` crosses HALF between slab k-1 and slab k (linear), else slab k's centre."""
     if k == 0 or level[k] == level[k - 1]:
@@ -207,7 +227,7 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
         ring_free = ring_here & col.free
         if not ring_here.any() or not ring_free.any():
             break
-        level = float(np.median(value[ring_free]))
+        level = _ring_level(value[ring_free])
         cover.append(float(col.inside[ring_here].mean()))
         levels.append(level)
         ts.append(float(st[here].mean()))
@@ -247,7 +267,7 @@ def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndar
         deep = (slab == k) & ring & col.free & col.deep
         if not deep.any():
             break
-        base.append(float(np.median(col.value[deep])))
+        base.append(_ring_level(col.value[deep]))
     if len(base) >= BASE_PLATEAU_SLABS:
         plateau = float(np.mean(base[1:]))
     else:
@@ -259,7 +279,7 @@ def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndar
     inclusion_side = (slab == -1) & ring & col.free          # the inclusion's last slice
     if j == 0 and inclusion_side.any():
         t = np.array([float(st[inclusion_side].mean()), ts[0]])
-        norm = np.array([(float(np.median(col.value[inclusion_side])) - contrast[0]) / scale, norm[0]])
+        norm = np.array([(_ring_level(col.value[inclusion_side]) - contrast[0]) / scale, norm[0]])
     return _crossing(t, norm, len(t) - 1), j
 
 
@@ -347,7 +367,7 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
         background = (slab == k) & ring & col.free
         if background.any():
             here = np.flatnonzero((slab == k) & core & col.inside & ~col.other)
-            excess.append((value[here] - np.median(value[background])) / contrast[1])
+            excess.append((value[here] - _ring_level(value[background])) / contrast[1])
             at.append(here)
     if not excess:
         return 0.0
@@ -490,7 +510,7 @@ def _contrast(fraction: np.ndarray, inc_ids: np.ndarray, label: int, col: _Colum
     silicone = float(np.median(fraction[sl][interior]))
     rho = np.linalg.norm(col.uv, axis=1)
     ring = col.free & (rho > ring_mm[0]) & (rho <= ring_mm[1])
-    hydrogel = float(np.median(col.value[ring])) if ring.any() else 0.0
+    hydrogel = _ring_level(col.value[ring]) if ring.any() else 0.0
     return hydrogel, max(silicone - hydrogel, SCALE_EPS)
 
 

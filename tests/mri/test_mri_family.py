@@ -130,6 +130,21 @@ def test_each_post_is_found_on_its_axis_as_wide_and_as_tall(results, name):
         assert abs(err["post_height_error_mm"]) < 0.5 * vol.spacing_mm[0]
 
 
+def test_a_thin_post_beside_the_skin_is_found():
+    """Family seed 35: a 1.7 mm post (1.5 voxels of 1.11 mm) 14 mm tall under a 6.2 mm inclusion, its axis
+    6.4 mm from the skin on the insert's wall, which (with its blur) takes part of the ring around the
+    post, 4.5-7 mm out. The ring's level is the hydrogel's, not pulled up by the skin (a plain median was,
+    by enough over the core to cancel the post's whole cross-section: no post found, one warning)."""
+    from mri_family import draw_case
+
+    vol = generate(draw_case(35))
+    seg = segment(vol.image, vol.spacing_mm, where="seed 35")
+    voxel = max(vol.spacing_mm[1:])
+    assert seg.warnings == [] and len(seg.posts) == 2
+    for err in post_errors(seg.posts, vol):
+        assert err["post_offset_mm"] < 0.5 * voxel and abs(err["post_diameter_error_mm"]) < 0.5 * voxel
+
+
 def test_inclusion_thinner_than_the_ball_voxel_for_voxel_is_found():
     """A 6 mm inclusion at 1 mm voxels: the ball that removes a 4.5 mm pillar does not fit its voxels."""
     from scipy import ndimage
