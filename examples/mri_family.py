@@ -13,6 +13,9 @@ distance from the true axis). ``--partial-volume box`` draws the same volumes wi
 each tissue (the family's default is a ramp of the signed distance, which adds tissue around thin posts;
 tests/mri_family.py), sampled at ``--box-points`` points per axis (8).
 
+``--floating`` draws the same volumes without posts: the footer counts those where a pillar voxel is
+drawn or an inclusion lacks its "no pillar found" warning (each case row has ``pillar_voxels_drawn``).
+
 ``--margins 0.025,0.05,0.1`` segments nothing: it scores the truth itself, drawn again with each post
 wider and narrower by each radius (mm) and with the base's surface that far up and down (the spheres
 where they were), against the truth as drawn, and prints how many volumes that alone takes below the
@@ -40,6 +43,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import mri_family
 from mri_family import (
     PARTIAL_VOLUMES,
+    PILLAR,
     base_error_mm,
     draw_case,
     generate,
@@ -62,11 +66,14 @@ def _seeds(text: str) -> list[int]:
     return out
 
 
-def run_case(seed: int, partial_volume: str = "ramp") -> list[dict]:
-    """One volume: a case row (insert Dice) and one row per inclusion, each with the case's parameters."""
+def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False) -> list[dict]:
+    """One volume: a case row (insert Dice, pillar voxels drawn, warnings) and one row per inclusion, each with
+    the case's parameters; ``floating``: the volume drawn without posts."""
     from lesscli.mri.segment import segment
 
     case = dataclasses.replace(draw_case(seed), partial_volume=partial_volume)
+    if floating:
+        case = dataclasses.replace(case, pillar_mm=0.0)
     volume = generate(case)
     t0 = time.perf_counter()
     seg = segment(volume.image, volume.spacing_mm, where=f"seed {seed}")
@@ -77,7 +84,8 @@ def run_case(seed: int, partial_volume: str = "ramp") -> list[dict]:
               "inclusions": len(case.inclusion_mm)}
     base = None if seg.base_surface is None else round(base_error_mm(seg.base_surface, volume), 4)
     rows = [{"row": "case", **common, "dice_insert": scores(seg.labels, volume.truth)["insert"],
-             "base_error_mm": base, "seconds": round(time.perf_counter() - t0, 2), "warnings": seg.warnings}]
+             "base_error_mm": base, "pillar_voxels_drawn": int((seg.labels == PILLAR).sum()),
+             "seconds": round(time.perf_counter() - t0, 2), "warnings": seg.warnings}]
     rows += [{"row": "inclusion", **common, **r, **{k: None if v is None else round(v, 4) for k, v in e.items()}}
              for r, e in zip(inclusion_scores(seg.labels, volume), post_errors(seg.posts, volume))]
     return rows
@@ -165,13 +173,19 @@ def table(rows: list[dict]) -> str:
                          f"{_stat([r['dice_insert'] for r in cases if r['seed'] in {i['seed'] for i in inc}])} | "
                          f"{_stat([r['dice_inclusion'] for r in inc])} | {_stat(pil)} |")
     pil = [r["dice_pillar"] for r in incs if r["pillar_voxels"] >= MIN_PILLAR_VOXELS]
-    thin = [r["dice_pillar"] for r in incs if r["pillar_voxels"] < MIN_PILLAR_VOXELS]
+    thin = [r["dice_pillar"] for r in incs if 0 < r["pillar_voxels"] < MIN_PILLAR_VOXELS]
     lines.append(f"| all | - | {len(cases)} | {len(incs)} | {_stat([r['dice_insert'] for r in cases])} | "
                  f"{_stat([r['dice_inclusion'] for r in incs])} | {_stat(pil)} |")
     lines.append("")
     meeting = sum(1 for c in cases if not shortfalls(c, [r for r in incs if r["seed"] == c["seed"]]))
     decided = sum(1 for c in cases if not shortfalls(c, [{**r, "dice_pillar": r["dice_pillar_decided"]}
                                                          for r in incs if r["seed"] == c["seed"]]))
+    floating = [c for c in cases if c["pillar_mm"] == 0]
+    if floating:
+        silent = sum(1 for c in floating if c["pillar_voxels_drawn"] or sum(
+            "no pillar found under the inclusion" in w for w in c["warnings"]) != c["inclusions"])
+        lines.append(f"Without posts: {len(floating)} volumes, {silent} with a pillar voxel drawn or an inclusion "
+                     "without its warning.")
     lines.append(f"Pillars under 2 voxels wide (not in the acceptance): {len(thin)}, Dice min / median {_stat(thin)}. "
                  f"Volumes with warnings: {sum(1 for r in cases if r['warnings'])}. "
                  f"Volumes meeting all three targets: {meeting} of {len(cases)}"
@@ -188,6 +202,8 @@ def main() -> None:
                         help="the family's partial volume: ramp (default) or box")
     parser.add_argument("--box-points", type=int, default=mri_family.BOX_POINTS,
                         help="sub-voxel points per axis of the box partial volume")
+    parser.add_argument("--floating", action="store_true",
+                        help="draw the volumes without posts: no pillar may be drawn, one warning per inclusion")
     parser.add_argument("--margins", default=None,
                         help="perturbations of the truth, mm (e.g. 0.025,0.05,0.1): segment nothing, count the "
                              "volumes each takes below the pillar target")
@@ -201,7 +217,7 @@ def main() -> None:
         print(margin_table(rows, deltas))
         return
     for seed in _seeds(args.seeds):
-        new = run_case(seed, args.partial_volume)
+        new = run_case(seed, args.partial_volume, args.floating)
         rows += new
         fails = shortfalls(new[0], new[1:])
         print(f"seed {seed}: {new[0]['seconds']} s" + (f"  below: {', '.join(fails)}" if fails else ""),
