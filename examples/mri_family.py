@@ -107,12 +107,12 @@ def margin_row(seed: int, deltas: list[float]) -> dict:
     """Pillar Dice per inclusion of the truth drawn with each perturbation (``perturbed``: a post's radius,
     the base's surface) of +- each delta (mm), scored against the truth as drawn: key ``radius+0.05`` etc."""
     case = draw_case(seed)
-    truth = generate(case)
+    truth = generate(case, image=False)
     row = {"row": "margin", "seed": seed, "pillar_voxels": round(pillar_voxels_wide(case), 2)}
     for delta in deltas:
         for name, change in PERTURBATIONS.items():
             for sign in ("+", "-"):
-                moved = generate(perturbed(case, **change(delta if sign == "+" else -delta)))
+                moved = generate(perturbed(case, **change(delta if sign == "+" else -delta)), image=False)
                 row[f"{name}{sign}{delta:g}"] = [r["dice_pillar"] for r in inclusion_scores(moved.truth, truth)]
     return row
 

@@ -65,7 +65,7 @@ BOX_POINTS = 8                 # sub-voxel points per axis of the box partial vo
 class Volume:
     """A generated scan: image and truth (array axes 0, 1, 2), spacing, and the drawn layout."""
 
-    image: np.ndarray
+    image: np.ndarray | None        # None: drawn without it (`generate(case, image=False)`)
     truth: np.ndarray
     spacing_mm: np.ndarray
     centres_index: np.ndarray       # (n, 3) inclusion centres as (fractional) array indices
@@ -169,8 +169,9 @@ def _box_fills(body: np.ndarray, silicone: np.ndarray, grid: list[np.ndarray], s
     return f_both, f_body
 
 
-def generate(case: Case) -> Volume:
-    """Generate the scan and truth of ``case`` (deterministic in ``case.seed``)."""
+def generate(case: Case, image: bool = True) -> Volume:
+    """Generate the scan and truth of ``case`` (deterministic in ``case.seed``); ``image`` False: the truth and
+    layout alone (``Volume.image`` None), as drawn with it."""
     from scipy import ndimage
 
     rng = np.random.default_rng(case.seed)
@@ -214,30 +215,31 @@ def generate(case: Case) -> Volume:
     if pillars:
         truth[(np.minimum.reduce(pillars) <= 0) & (cavity <= 0) & (body <= 0)] = PILLAR
     truth[(np.minimum.reduce(spheres) <= 0) & (body <= 0)] = INCLUSION
+    sign = -1.0 if case.base_up else 1.0
+    world = np.column_stack([(centres[:, 2] - 0.5 * height) * sign + shift[0],
+                             s * centres[:, 0] + c * centres[:, 1] + shift[1],
+                             c * centres[:, 0] - s * centres[:, 1] + shift[2]])
+    base = ((case.base_mm - 0.5 * height) * sign + shift[0]) / spacing[0] + (shape[0] - 1) / 2
+    volume = Volume(None, truth, spacing, world / spacing + (np.asarray(shape) - 1) / 2, height, case, float(base))
+    if not image:
+        return volume
     if case.silicone_brighter:
         sil_level, gel_level = 1.0, float(rng.uniform(0.4, 0.6))
     else:
         sil_level, gel_level = float(rng.uniform(0.4, 0.6)), 1.0
     if case.partial_volume == "box":
         f_sil_body, f_body = _box_fills(body, silicone, grid, spacing, body_and_silicone)
-        image = sil_level * f_sil_body + gel_level * (f_body - f_sil_body)
+        clean = sil_level * f_sil_body + gel_level * (f_body - f_sil_body)
     elif case.partial_volume == "ramp":
         f_body, f_sil = _fill(body, spacing), _fill(silicone, spacing)
-        image = f_body * (sil_level * f_sil + gel_level * (1.0 - f_sil))
+        clean = f_body * (sil_level * f_sil + gel_level * (1.0 - f_sil))
     else:
         raise ValueError(f"partial_volume must be one of {PARTIAL_VOLUMES}, got {case.partial_volume!r}")
-    image = ndimage.gaussian_filter(image, sigma=0.5)
-    image = image * _bias([a0, a1, a2], case.bias, rng)
+    clean = ndimage.gaussian_filter(clean, sigma=0.5) * _bias([a0, a1, a2], case.bias, rng)
     sigma = case.noise * max(sil_level, gel_level)
-    real = image + rng.normal(0.0, sigma, shape)
+    real = clean + rng.normal(0.0, sigma, shape)
     imag = rng.normal(0.0, sigma, shape)
-    image = np.sqrt(real * real + imag * imag).astype(np.float32)
-    sign = -1.0 if case.base_up else 1.0
-    world = np.column_stack([(centres[:, 2] - 0.5 * height) * sign + shift[0],
-                             s * centres[:, 0] + c * centres[:, 1] + shift[1],
-                             c * centres[:, 0] - s * centres[:, 1] + shift[2]])
-    base = ((case.base_mm - 0.5 * height) * sign + shift[0]) / spacing[0] + (shape[0] - 1) / 2
-    return Volume(image, truth, spacing, world / spacing + (np.asarray(shape) - 1) / 2, height, case, float(base))
+    return replace(volume, image=np.sqrt(real * real + imag * imag).astype(np.float32))
 
 
 # Bands of the family: each parameter is drawn uniformly from its full range.

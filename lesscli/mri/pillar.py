@@ -183,15 +183,18 @@ def _blur_mm(ball, step_mm: float) -> float:
 
 def _ring_level(values: np.ndarray) -> float:
     """The level of a ring's voxels: their median, taken again over those within OUTLIER_SIGMAS robust
-    standard deviations of it (the spread read again from those too) until none more is left out. A ring that passes through the skin beside an inclusion near the insert's
-    wall holds some silicone, which moves a plain median up by a fraction of the noise; summed over the
-    few dozen voxels of a core, that offset is as large as a thin post's cross-section."""
+    standard deviations of it (the spread read again from those too) until none more is left out. A ring
+    that passes through the skin beside an inclusion near the insert's wall holds some silicone, which
+    moves a plain median up by a fraction of the noise; summed over the few dozen voxels of a core, that
+    offset is as large as a thin post's cross-section."""
     kept = values
     for _ in range(RING_LEVEL_ROUNDS):
         level = float(np.median(kept))
         spread = MAD_TO_SIGMA * float(np.median(np.abs(kept - level)))
+        if spread <= 0:
+            break
         near = np.abs(values - level) <= OUTLIER_SIGMAS * spread
-        if spread <= 0 or not near.any() or near.sum() == len(kept):
+        if near.sum() in (0, len(kept)):
             break
         kept = values[near]
     return float(np.median(kept))

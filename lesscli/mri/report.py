@@ -65,20 +65,24 @@ def shape_rows(shapes: list[dict], affine: np.ndarray) -> list[dict]:
              "ball_diameter_mm": s["ball_diameter_mm"], "ball_misfit": s["ball_misfit"]} for s in shapes]
 
 
+def _world_mm(point_mm: np.ndarray, spacing: np.ndarray, affine: np.ndarray) -> list[float]:
+    """A point in array-axis millimetres (index times spacing) in the affine's world frame, rounded."""
+    from lesscli.mri.frame import voxel_to_world
+
+    return [round(float(v), 3) for v in voxel_to_world(np.asarray(point_mm)[None] / spacing, affine)[0]]
+
+
 def base_rows(base, spacing_mm, shape: tuple, affine: np.ndarray) -> list[dict]:
     """The base's surface under the filling (:class:`lesscli.mri.pillar.BaseSurface`, found under the
     pillars; no row without one) in the affine's world frame: the plane's point nearest the scan's centre
     and its unit normal, pointing into the base."""
-    from lesscli.mri.frame import voxel_to_world
-
     if base is None:
         return []
     spacing = np.asarray(spacing_mm, dtype=np.float64)
     centre = (np.asarray(shape) - 1) / 2 * spacing
     point = centre - (float(base.normal @ centre) - base.offset_mm) * base.normal
     normal = np.linalg.solve(np.asarray(affine)[:3, :3].T, base.normal * spacing)
-    return [{"row": "base_surface", "point_mm": [round(float(v), 3) for v in voxel_to_world(point[None] / spacing,
-                                                                                            affine)[0]],
+    return [{"row": "base_surface", "point_mm": _world_mm(point, spacing, affine),
              "normal": [round(float(v), 5) for v in normal / np.linalg.norm(normal)]}]
 
 
@@ -86,14 +90,11 @@ def post_rows(posts: list, spacing_mm, affine: np.ndarray) -> list[dict]:
     """One row per pillar drawn (:class:`lesscli.mri.pillar.Post`) in the affine's world frame: its foot
     (the centre of its end on the base), the unit direction up its axis, its diameter and its height from
     the base's surface to its inclusion's along the insert axis."""
-    from lesscli.mri.frame import voxel_to_world
-
     spacing = np.asarray(spacing_mm, dtype=np.float64)
     rows = []
     for post in posts:
         up = np.asarray(affine)[:3, :3] @ (post.direction / spacing)
-        rows.append({"row": "pillar",
-                     "foot_mm": [round(float(v), 3) for v in voxel_to_world(post.foot_mm[None] / spacing, affine)[0]],
+        rows.append({"row": "pillar", "foot_mm": _world_mm(post.foot_mm, spacing, affine),
                      "direction": [round(float(v), 5) for v in up / np.linalg.norm(up)],
                      "diameter_mm": round(2.0 * post.radius_mm, 3), "height_mm": round(post.height_mm, 3)})
     return rows
