@@ -57,7 +57,9 @@ its warning missing). Short pillars are measured over few slabs, each as noisy a
 
 - with fewer than ``MIN_LINE_SLABS`` slabs a line is not told apart from noise, and the pillar stands
   under its inclusion's centre, as the phantoms are built (one pillar under each sphere's centre,
-  :func:`lesscli.phantom.catalogue.hanging`) and as a gap too short to measure already assumes;
+  :func:`lesscli.phantom.catalogue.hanging`) and as a gap too short to measure already assumes: under
+  the fitted ball's centre (:func:`_ball_axis`; the body's where no ball was fitted), which the post's
+  stub and partial volume at the body's surface do not move as they move the body's;
 - with fewer than ``MIN_OWN_SLABS`` slabs the cross-section is the median over the slabs of all the
   scan's pillars (the posts of one insert are cast alike); longer pillars keep their own. Where the
   scan has no other pillar's slabs (a lone inclusion, or every post short), the radius is fitted to
@@ -179,11 +181,11 @@ def _ball_surface(ball, centre_mm: np.ndarray, axis: np.ndarray, sign: int) -> f
     return sign * float((ball.centre_mm - centre_mm) @ axis) + ball.radius_mm
 
 
-def _ball_axis(ball, centre_mm: np.ndarray, axis: np.ndarray) -> np.ndarray | None:
+def _ball_axis(ball, centre_mm: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """The line (lateral offset, slope) along ``axis`` through the fitted ball's centre, in the frame of
-    the column around ``centre_mm``; None without a ball."""
+    the column around ``centre_mm``; without a ball (None), through ``centre_mm`` (the body's)."""
     if ball is None:
-        return None
+        return np.zeros((2, 2))
     e1, e2 = _basis(axis)
     d = ball.centre_mm - centre_mm
     return np.array([[d @ e1, d @ e2], [0.0, 0.0]])
@@ -649,7 +651,8 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         core = min(core0, math.sqrt(first.median_area() / math.pi) + CORE_MARGIN_VOXELS * voxel)
         second = _trace(col, side, line, core, rings(core), step, voxel_mm3, contrasts[label], balls[label])
         final = _inner(second) if len(second.area_mm2) else first
-        line = _fit_line(final, line) if len(final.area_mm2) >= MIN_LINE_SLABS else np.zeros((2, 2))
+        line = (_fit_line(final, line) if len(final.area_mm2) >= MIN_LINE_SLABS
+                else _ball_axis(balls[label], centres[label - 1], axis))
         found[label], finals[label] = (line, final.area_mm2, core, second.end_mm), final
     cores = {label: core for label, (_line, _areas, core, _end) in found.items()}
 
@@ -665,7 +668,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
             line, radius, end = found[label]
             line, fitted = _fit_cylinder(columns[label], side, final, line, radius, cores[label], step,
                                          contrasts[label], balls[label],
-                                         _ball_axis(balls[label], centres[label - 1], axis))
+                                         None if balls[label] is None else _ball_axis(balls[label], centres[label - 1], axis))
             found[label] = (line, fitted if len(final.area_mm2) >= MIN_OWN_SLABS else radius, end)
     for label in [k for k, (_line, radius, _end) in found.items() if radius < MIN_RADIUS_MM]:
         del found[label]                # measured thinner than noise tells apart: no post after all
@@ -676,7 +679,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         if radius is None:
             missing.append(label)
         else:
-            found[label] = (np.zeros((2, 2)), radius, end)
+            found[label] = (_ball_axis(balls[label], centres[label - 1], axis), radius, end)
     for label, (line, radius, end) in found.items():
         col = columns[label]
         st = side * col.t
