@@ -630,10 +630,11 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         columns[label], contrasts[label] = col, contrast
         traces[label, 1], traces[label, -1] = both
     side = _base_side(traces, columns, contrasts, labels, core0, step, voxel_mm3)
-    balls = {}
+    balls, under = {}, {}                   # under: the line through each fitted ball's centre (the body's)
     for label, centre in zip(labels, centres):
         ball = balls[label] = _ball(fraction, insert if deep is None else deep, inc_ids, label, columns[label],
                                     side, core0, spacing)
+        under[label] = _ball_axis(ball, centre, axis)
         col = columns[label]
         if ball is not None and _short_gap(traces[label, side], col, side, step):
             col = _past_ball(col, side, ball, centre, axis)
@@ -652,7 +653,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         second = _trace(col, side, line, core, rings(core), step, voxel_mm3, contrasts[label], balls[label])
         final = _inner(second) if len(second.area_mm2) else first
         line = (_fit_line(final, line) if len(final.area_mm2) >= MIN_LINE_SLABS
-                else _ball_axis(balls[label], centres[label - 1], axis))
+                else under[label])
         found[label], finals[label] = (line, final.area_mm2, core, second.end_mm), final
     cores = {label: core for label, (_line, _areas, core, _end) in found.items()}
 
@@ -667,8 +668,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         if len(final.area_mm2) >= MIN_LINE_SLABS:
             line, radius, end = found[label]
             line, fitted = _fit_cylinder(columns[label], side, final, line, radius, cores[label], step,
-                                         contrasts[label], balls[label],
-                                         None if balls[label] is None else _ball_axis(balls[label], centres[label - 1], axis))
+                                         contrasts[label], balls[label], None if balls[label] is None else under[label])
             found[label] = (line, fitted if len(final.area_mm2) >= MIN_OWN_SLABS else radius, end)
     for label in [k for k, (_line, radius, _end) in found.items() if radius < MIN_RADIUS_MM]:
         del found[label]                # measured thinner than noise tells apart: no post after all
@@ -679,7 +679,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         if radius is None:
             missing.append(label)
         else:
-            found[label] = (_ball_axis(balls[label], centres[label - 1], axis), radius, end)
+            found[label] = (under[label], radius, end)
     for label, (line, radius, end) in found.items():
         col = columns[label]
         st = side * col.t
