@@ -63,8 +63,8 @@ its warning missing). Short pillars are measured over few slabs, each as noisy a
 - with fewer than ``MIN_OWN_SLABS`` slabs the cross-section is the median over the slabs of all the
   scan's pillars (the posts of one insert are cast alike); longer pillars keep their own. Where the
   scan has no other pillar's slabs (a lone inclusion, or every post short), the radius is fitted to
-  the post's whole silicone (:func:`_post_radius`): the blur carries much of a post a slab or two tall
-  into the inclusion's and the base's slabs.
+  the post's whole silicone (:func:`_post_radius`) around the line it stands on: the blur carries much
+  of a post a slab or two tall into the inclusion's and the base's slabs.
 """
 
 from __future__ import annotations
@@ -152,6 +152,13 @@ def _basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(axis, e1)
 
 
+def _off_line(col: _Column, line: np.ndarray | None = None, st: np.ndarray | None = None) -> np.ndarray:
+    """Each column voxel's distance (mm) from ``line`` = (lateral offset (2,), slope (2,) along ``st``, the
+    voxels' distance along the axis towards the side walked); None: from the column's centre line."""
+    uv = col.uv if line is None else col.uv - line[0] - st[:, None] * line[1]
+    return np.linalg.norm(uv, axis=1)
+
+
 def _column(fraction, insert, deep, inc_ids, label, centre_mm, axis, spacing, reach_mm) -> _Column:
     grids = [np.arange(n, dtype=np.float32) * np.float32(s) - np.float32(c)
              for n, s, c in zip(fraction.shape, spacing, centre_mm)]
@@ -236,7 +243,7 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
     st = sign * col.t
     slab = np.floor((st - col.start[sign]) / step_mm - 0.5).astype(np.int64)    # slab k centred k + 1 steps out
     beyond = slab >= 0
-    rho = np.linalg.norm(col.uv - line[0] - st[:, None] * line[1], axis=1)
+    rho = _off_line(col, line, st)
     core, ring = rho <= core_mm, (rho > ring_mm[0]) & (rho <= ring_mm[1])
     ts, areas, cents = [], [], []
     levels, cover = [], []
@@ -310,7 +317,7 @@ def _ball(fraction, allowed, inc_ids, label, col: _Column, side: int, core_mm: f
     from lesscli.mri.morphology import RIM_VOXELS, fitted_ball
 
     sl = ndimage.find_objects(inc_ids, max_label=label)[label - 1]
-    rho = np.linalg.norm(col.uv, axis=1)
+    rho = _off_line(col)
     shut = np.zeros(inc_ids.shape, dtype=bool)
     cut = (rho <= core_mm) & (side * col.t > col.start[side])
     shut[tuple(i[cut] for i in col.index)] = True
@@ -348,13 +355,13 @@ def _short_gap(trace: Trace, col: _Column, sign: int, step_mm: float) -> bool:
 
 
 def _gap_area(col: _Column, sign: int, end_mm: float, contrast: tuple[float, float], core_mm: float,
-              step_mm: float, voxel_mm3: float) -> float | None:
+              step_mm: float, voxel_mm3: float, line: np.ndarray | None = None) -> float | None:
     """Cross-section (mm^2) of the core's silicone across a short gap between an inclusion and the
-    base, or None where the gap holds no post: along the line it is hydrogel (the inclusion seen
-    reaching the base counts as silicone)."""
+    base, or None where the gap holds no post: along the line (``line``, :func:`_ball_axis`; None: the
+    column's centre) it is hydrogel (the inclusion seen reaching the base counts as silicone)."""
     st = sign * col.t
     gap = col.free & (st > col.start[sign]) & (st <= end_mm)
-    rho = np.linalg.norm(col.uv, axis=1)
+    rho = _off_line(col, line, st)
     axis_voxels = gap & (rho <= GAP_AXIS_MM)
     half = contrast[0] + HALF * contrast[1]
     if axis_voxels.any() and float(np.median(col.value[axis_voxels])) <= half:
@@ -364,12 +371,14 @@ def _gap_area(col: _Column, sign: int, end_mm: float, contrast: tuple[float, flo
 
 
 def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, contrast: tuple[float, float],
-                 core_mm: float, ring_mm: tuple[float, float], step_mm: float, voxel_mm3: float) -> float:
+                 core_mm: float, ring_mm: tuple[float, float], step_mm: float, voxel_mm3: float,
+                 line: np.ndarray) -> float:
     """Radius of a short post, from ``start_mm`` (the inclusion's surface) to ``end_mm`` (the base's), fitted
     by least squares to all its silicone: the core's excess over each slab's ring level (the inclusion's
     blurred ball taken out first, in units of the inclusion's contrast) from the blur's reach (two sigmas
     of the ball's blur) inside the inclusion to as far past the base surface, against a cylinder under the
-    inclusion's centre blurred like the inclusion (:func:`disc_profile` across, a normal's integral along).
+    post's ``line`` (:func:`_ball_axis`, where it is drawn) blurred like the inclusion (:func:`disc_profile`
+    across, a normal's integral along), the core and ring centred on that line.
     The blur carries much of a post a slab or two tall into the inclusion's and the base's slabs, so its
     own slabs read it too thin; the start is the radius of the whole excess over the gap's length."""
     from scipy.optimize import least_squares
@@ -378,7 +387,7 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
     value = _clear_of_ball(col, ball)
     st = sign * col.t
     slab = np.floor((st - start_mm) / step_mm).astype(np.int64)
-    rho = np.linalg.norm(col.uv, axis=1)
+    rho = _off_line(col, line, st)
     core, ring = rho <= core_mm, (rho > ring_mm[0]) & (rho <= ring_mm[1])
     sigma = _blur_mm(ball, step_mm)
     reach = math.ceil(2.0 * sigma / step_mm)
@@ -401,10 +410,10 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
 
 
 def _gap_radius(col: _Column, sign: int, end_mm: float, contrast: tuple[float, float], core_mm: float,
-                step_mm: float, voxel_mm3: float, found: dict) -> float | None:
-    """Radius of the post across a short gap between an inclusion and the base, or None (no post):
-    the median of the scan's measured pillars, else that of the core's silicone in the gap."""
-    area = _gap_area(col, sign, end_mm, contrast, core_mm, step_mm, voxel_mm3)
+                step_mm: float, voxel_mm3: float, found: dict, line: np.ndarray) -> float | None:
+    """Radius of the post across a short gap between an inclusion and the base along ``line``, or None
+    (no post): the median of the scan's measured pillars, else that of the core's silicone in the gap."""
+    area = _gap_area(col, sign, end_mm, contrast, core_mm, step_mm, voxel_mm3, line)
     if area is None:
         return None
     if found:
@@ -543,7 +552,7 @@ def _fit_cylinder(col: _Column, sign: int, trace: Trace, line: np.ndarray, radiu
     value = _clear_of_ball(col, ball)
     st = sign * col.t
     lo_t, hi_t = trace.t_mm[0] - 0.5 * step_mm, trace.t_mm[-1] + 0.5 * step_mm
-    rho0 = np.linalg.norm(col.uv - line[0] - st[:, None] * line[1], axis=1)
+    rho0 = _off_line(col, line, st)
     sel = col.free & (st >= lo_t) & (st < hi_t) & (rho0 <= core_mm)
     if sel.sum() < 8:
         return line, radius
@@ -563,7 +572,7 @@ def _contrast(fraction: np.ndarray, inc_ids: np.ndarray, label: int, col: _Colum
     depth = ndimage.distance_transform_edt(own, sampling=spacing)[1:-1, 1:-1, 1:-1]
     interior = (depth > float(spacing.max())) if (depth > float(spacing.max())).any() else own[1:-1, 1:-1, 1:-1]
     silicone = float(np.median(fraction[sl][interior]))
-    rho = np.linalg.norm(col.uv, axis=1)
+    rho = _off_line(col)
     ring = col.free & (rho > ring_mm[0]) & (rho <= ring_mm[1])
     hydrogel = _ring_level(col.value[ring]) if ring.any() else 0.0
     return hydrogel, max(silicone - hydrogel, SCALE_EPS)
@@ -661,7 +670,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         ball = balls[label]                 # from the inclusion's fitted surface under its centre
         start = columns[label].start[side] if ball is None else _ball_surface(ball, centres[label - 1], axis, side)
         return _post_radius(columns[label], side, start, end, ball, contrasts[label], core, rings(core), step,
-                            voxel_mm3)
+                            voxel_mm3, under[label])
 
     found = _pooled_radii(found, short_radius)
     for label, final in finals.items():     # line, radius and blur refined together: one blurred cylinder
@@ -675,7 +684,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         missing.append(label)
     for label in short:                 # too close to the base to measure: silicone across the gap, or none
         col, end = columns[label], traces[label, side].end_mm
-        radius = _gap_radius(col, side, end, contrasts[label], core0, step, voxel_mm3, found)
+        radius = _gap_radius(col, side, end, contrasts[label], core0, step, voxel_mm3, found, under[label])
         if radius is None:
             missing.append(label)
         else:
@@ -683,7 +692,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
     for label, (line, radius, end) in found.items():
         col = columns[label]
         st = side * col.t
-        rho = np.linalg.norm(col.uv - line[0] - st[:, None] * line[1], axis=1)
+        rho = _off_line(col, line, st)
         sel = col.inside & ~col.other & (rho <= radius) & (st >= 0) & (st <= end)
         pillar[tuple(i[sel] for i in col.index)] = True
     base = None

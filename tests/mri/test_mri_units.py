@@ -322,6 +322,31 @@ def test_post_one_slice_tall_under_a_lone_inclusion_keeps_its_width(shift_voxels
     assert _post_dice((1.1, 0.8, 0.8), 1.5, 1.2, shift_voxels, 0.05, 3) >= 0.85
 
 
+@pytest.mark.parametrize("shift_voxels", [(0.14, -0.23), (-0.46, -0.48), (0.31, 0.41), (0.11, 0.23)])
+def test_a_short_posts_radius_is_measured_on_the_line_it_is_drawn_on(shift_voxels):
+    """`_post_radius` of a 3 mm post 1.2 mm tall under a 10 mm ball (as in the test above, the ball's blur
+    taken as 0.55 mm): fitted on the line through the ball's centre (`_ball_axis`, where the post is drawn),
+    the radius is the same within 0.03 mm whether the column around the inclusion is centred on the ball or
+    0.8 mm off it (the body mask's centre, which a post's stub moves), and within 0.1 mm of the truth."""
+    from lesscli.mri.morphology import Ball
+    from lesscli.mri.pillar import _ball_axis, _ball_surface, _column, _post_radius
+
+    spacing, gap, axis = np.array([1.1, 0.8, 0.8]), 1.2, np.array([1.0, 0.0, 0.0])
+    fraction, insert, _post = _post_under_ball(spacing, 1.5, gap, shift_voxels, 0.05, 3)
+    centre = np.array([4.0 + gap + 5.0, 24.0 + shift_voxels[0] * spacing[1], 24.0 + shift_voxels[1] * spacing[2]])
+    grid = np.meshgrid(*(np.arange(n) * s for n, s in zip(fraction.shape, spacing)), indexing="ij", sparse=True)
+    ball_ids = (sum((g - c) ** 2 for g, c in zip(grid, centre)) <= 5.0 ** 2).astype(np.int32)
+    ball = Ball(centre, 5.0, 0.55, 1.0, 0.0, 0.5, (), np.zeros((0, 0, 0)), spacing)
+    radii = []
+    for column_centre in (centre, centre + np.array([0.0, 0.6, -0.5])):
+        col = _column(fraction, insert, insert, ball_ids, 1, column_centre, axis, spacing, 7.0)
+        radii.append(_post_radius(col, -1, _ball_surface(ball, column_centre, axis, -1), 5.0 + gap, ball, (0.0, 1.0),
+                                  3.9, (4.45, 7.0), spacing[0], float(np.prod(spacing)),
+                                  _ball_axis(ball, column_centre, axis)))
+    assert abs(radii[0] - radii[1]) < 0.03
+    assert all(abs(r - 1.5) < 0.1 for r in radii)
+
+
 @pytest.mark.parametrize("silicone_share", [0.0, 0.1, 0.25])
 def test_ring_level_leaves_out_the_skin_a_ring_passes_through(silicone_share):
     """`_ring_level`: a ring of hydrogel in noise (sigma 0.2 of the contrast) whose voxels are partly skin
