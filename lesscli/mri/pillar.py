@@ -12,14 +12,17 @@ boundaries through voxel centres would split each slice between two slabs). Per 
   voxels far from it, :func:`_ring_level`, so that the skin of a nearby wall, in part of the ring, does
   not raise it). The trace ends there, or where
   the ring leaves the insert (a pillar standing on the insert's outer surface): that is the base
-  surface, placed where the ring crosses half-way between the hydrogel and the base's own level (the
-  ring level in the base away from the insert's outer surface: a base of a few millimetres reads below
-  an inclusion's interior, and half the inclusion's contrast would put the surface a fraction of a slab
-  too deep). That level is the mean over the base's slabs past the first (which straddles the surface);
-  the highest of them, which noise biases upwards, placed the surface up to a tenth of a millimetre
-  too deep. With fewer than ``BASE_PLATEAU_SLABS`` slabs in the base it is the highest. Where the
-  first slab already lies in the base, the crossing is found between the inclusion's last slice and
-  that slab;
+  surface. It is fitted to the ring levels of the slabs around it (:func:`_profile_crossing`): a few
+  slabs of hydrogel, the base and two slabs past the insert, each slab the mean over its width of the
+  profile hydrogel -> base -> what lies beyond (air) blurred by one Gaussian, the three levels, both
+  surfaces and the blur free. A base of a few millimetres has no plateau of its own in slabs of about
+  a millimetre: the air's blur moves its slabs up or down by the polarity, and the surface placed
+  half-way to a level read there was off by the same sign. The fit starts from, and where too few
+  slabs decide it keeps, that half-way crossing: between the hydrogel and the ring level in the base
+  away from the insert's outer surface (a base reads below or above an inclusion's interior), the
+  mean over the base's slabs past the first (which straddles the surface), with fewer than
+  ``BASE_PLATEAU_SLABS`` slabs the highest. Where the first slab already lies in the base, the
+  crossing is found between the inclusion's last slice and that slab;
 - the core's silicone in excess of the ring level, summed over the slab and divided by the contrast
   of the inclusion's interior over that ring level, is the pillar's cross-section (mm^2). A sum is
   unchanged by partial volume and blur, so a pillar 1-2 voxels wide is measured as well as a wide one,
@@ -92,6 +95,11 @@ SCALE_EPS = 1e-3
 MIN_LINE_SLABS = 3              # fewer slabs do not place a line against noise: the inclusion's axis
 MIN_OWN_SLABS = 4               # fewer slabs take the cross-section pooled over the scan's pillars
 BASE_PLATEAU_SLABS = 3          # from this many slabs in the base, its level is their mean past the first
+PROFILE_GEL_SLABS = 4           # the base surface's profile fit reads this many hydrogel slabs before it
+PROFILE_AIR_SLABS = 2           # ... and this many slabs past the insert beyond the base
+PROFILE_BLUR_SLABS = (0.2, 2.0)  # ... with its blur within this range, in slabs
+PROFILE_MOVE_SLABS = 0.5        # ... moving the half-way crossing by less than this (at it: the crossing kept)
+PROFILE_SPARE_SLABS = 2         # ... from this many slabs more than it has unknowns
 BLUR_RANGE = (0.5, 2.0)         # a post's fitted blur, in units of the inclusion's it starts from
 OWN_LINE_P = 0.01               # a post leaves its inclusion's axis where its own line fits better at this level
 
@@ -282,10 +290,13 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
 
 def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndarray, ts: list, levels: list,
                    contrast: tuple[float, float], last: int) -> tuple[float, int]:
-    """(base surface t, slabs before it) where the ring levels ``levels`` (of the slabs at ``ts``, the
-    last one in the base) cross half-way between the hydrogel and the base's own level.
+    """(base surface t, slabs before it) from the ring levels ``levels`` of the slabs at ``ts`` (the last
+    one in the base): fitted to them and to the ring levels of the slabs past them, through the base and
+    PROFILE_AIR_SLABS slabs past the insert (:func:`_profile_crossing`, the hydrogel level fitted too from
+    two slabs before the base on); where too few slabs decide that fit, where the levels cross half-way
+    between the hydrogel and the base's own level.
 
-    The base's level is read from the medians over the ring's voxels away from the insert's outer surface
+    That level is read from the medians over the ring's voxels away from the insert's outer surface
     in the slabs from the last one on, as long as the ring has such voxels: their mean past the first
     (from BASE_PLATEAU_SLABS slabs on), else the highest, else the inclusion's.
     """
@@ -303,11 +314,85 @@ def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndar
     norm = (np.asarray(levels) - contrast[0]) / scale
     j = int(np.argmax(norm > HALF)) if (norm > HALF).any() else len(ts) - 1
     t, norm = np.asarray(ts[:j + 1]), norm[:j + 1]
+    before_t, before = list(ts[max(j - PROFILE_GEL_SLABS, 0):j]), list(levels[max(j - PROFILE_GEL_SLABS, 0):j])
     inclusion_side = (slab == -1) & ring & col.free          # the inclusion's last slice
     if j == 0 and inclusion_side.any():
-        t = np.array([float(st[inclusion_side].mean()), ts[0]])
-        norm = np.array([(_ring_level(col.value[inclusion_side]) - contrast[0]) / scale, norm[0]])
-    return _crossing(t, norm, len(t) - 1), j
+        before_t, before = [float(st[inclusion_side].mean())], [_ring_level(col.value[inclusion_side])]
+        t = np.array(before_t + [ts[0]])
+        norm = np.array([(before[0] - contrast[0]) / scale, norm[0]])
+    linear = _crossing(t, norm, len(t) - 1)
+    after_t, after, air = list(ts[j:]), list(levels[j:]), []
+    for k in range(len(ts), last):      # through the base and into what lies beyond it (not the crop's edge)
+        sel = (slab == k) & ring & ~(col.inside & ~col.free)
+        if not sel.any() or len(air) >= PROFILE_AIR_SLABS:
+            break
+        after_t.append(float(st[sel].mean()))
+        after.append(_ring_level(col.value[sel]))
+        if float(col.inside[(slab == k) & ring].mean()) < HALF:
+            air.append(after_t[-1])
+    step = float(np.median(np.diff(after_t))) if len(after_t) > 1 else 0.0
+    fitted = _profile_crossing(np.asarray(before_t + after_t), np.asarray(before + after),
+                               None if len(before) >= 2 else contrast[0], linear, step,
+                               air[0] - 0.5 * step if air else None)
+    return (linear if fitted is None else fitted), j
+
+
+def _slab_step(x: np.ndarray, sigma: float, width: float) -> np.ndarray:
+    """A unit step at 0 blurred by a Gaussian of ``sigma`` and averaged over slabs of ``width`` (the box
+    partial volume) centred at ``x``: 0 far before it, 1 far past it."""
+    from scipy.special import ndtr
+
+    def g(z):
+        return z * ndtr(z) + np.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
+
+    return (g((x + 0.5 * width) / sigma) - g((x - 0.5 * width) / sigma)) * sigma / width
+
+
+def _profile_crossing(t: np.ndarray, v: np.ndarray, hydrogel: float | None, start: float, step_mm: float,
+                      beyond: float | None) -> float | None:
+    """The base surface along a column, fitted to the ring levels ``v`` of the slabs at ``t`` (hydrogel
+    before it, then the base and, where ``beyond`` (where the insert ends past the base, roughly) is
+    given, what lies past the base: air, a container): each slab the mean over its width of the profile
+    hydrogel -> base -> beyond blurred by one Gaussian; the three levels (the hydrogel's given as
+    ``hydrogel`` where the slabs before the base are too few for it), both surfaces and the blur fitted.
+    None where too few slabs decide them or the base reads no brighter than the hydrogel in silicone.
+
+    A base of 3 mm in slabs of about a millimetre shows no plateau of its own: the blur of what lies
+    beyond it moves every slab in it, up where that reads above the silicone (air when the silicone is
+    the darker tissue) and down where below, so a level read in the base misplaces a crossing half-way to
+    it; and a linear crossing between two slabs of a blurred boxed step errs by up to a tenth of a slab,
+    depending on where the surface falls within a slab. ``start``: the linear crossing, from which the
+    surface moves by less than PROFILE_MOVE_SLABS slabs (a fit that reaches that is not taken: a base of
+    two or three slabs leaves its level, its blur and both its surfaces free to trade)."""
+    from scipy.optimize import least_squares
+
+    unknowns = (2 if beyond is None else 3) + (1 if beyond is None else 2) + (hydrogel is None)
+    if len(t) < unknowns + PROFILE_SPARE_SLABS or step_mm <= 0:
+        return None
+
+    def levels(p):
+        a = _slab_step(t - p[0], math.exp(p[-1]), step_mm)
+        b = _slab_step(t - p[1], math.exp(p[-1]), step_mm) if beyond is not None else np.zeros_like(t)
+        columns = [a - b] + ([b] if beyond is not None else []) + ([1.0 - a] if hydrogel is None else [])
+        design = np.column_stack(columns)
+        target = v if hydrogel is None else v - hydrogel * (1.0 - a)
+        coef = np.linalg.lstsq(design, target, rcond=None)[0]
+        base_over_gel = coef[0] - (coef[-1] if hydrogel is None else hydrogel)
+        return design @ coef - target, base_over_gel
+
+    blur = [math.log(f * step_mm) for f in PROFILE_BLUR_SLABS]
+    reach = PROFILE_MOVE_SLABS * step_mm
+    if beyond is None:
+        x0, lo, hi = [start, math.log(0.5 * step_mm)], [start - reach, blur[0]], [start + reach, blur[1]]
+    else:
+        far = float(t[-1]) + step_mm
+        x0 = [start, min(max(beyond, start + step_mm), far - 1e-3), math.log(0.5 * step_mm)]
+        lo, hi = [start - reach, start, blur[0]], [start + reach, far, blur[1]]
+    fit = least_squares(lambda p: levels(p)[0], x0, bounds=(lo, hi))
+    at_bound = abs(fit.x[0] - start) > 0.99 * reach
+    if not fit.success or at_bound or levels(fit.x)[1] <= SCALE_EPS:
+        return None
+    return float(fit.x[0])
 
 
 def _ball(fraction, allowed, inc_ids, label, col: _Column, side: int, core_mm: float, spacing):
@@ -410,15 +495,18 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
 
 
 def _gap_radius(col: _Column, sign: int, end_mm: float, contrast: tuple[float, float], core_mm: float,
-                step_mm: float, voxel_mm3: float, found: dict, line: np.ndarray) -> float | None:
+                step_mm: float, voxel_mm3: float, found: dict, line: np.ndarray, widest_mm: float) -> float | None:
     """Radius of the post across a short gap between an inclusion and the base along ``line``, or None
-    (no post): the median of the scan's measured pillars, else that of the core's silicone in the gap."""
+    (no post): the median of the scan's measured pillars, else that of the core's silicone in the gap,
+    which must lie between a disc of MIN_RADIUS_MM and one of the widest pillar's radius (``widest_mm``
+    across: more is the base's or the inclusion's silicone, not a post's)."""
     area = _gap_area(col, sign, end_mm, contrast, core_mm, step_mm, voxel_mm3, line)
     if area is None:
         return None
     if found:
         return float(np.median([r for _line, r, _end in found.values()]))
-    return math.sqrt(area / math.pi) if area >= math.pi * MIN_RADIUS_MM ** 2 else None
+    radius = math.sqrt(area / math.pi)
+    return radius if MIN_RADIUS_MM <= radius <= 0.5 * widest_mm else None
 
 
 def _past_ball(col: _Column, sign: int, ball, centre_mm: np.ndarray, axis: np.ndarray) -> _Column:
@@ -684,7 +772,8 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         missing.append(label)
     for label in short:                 # too close to the base to measure: silicone across the gap, or none
         col, end = columns[label], traces[label, side].end_mm
-        radius = _gap_radius(col, side, end, contrasts[label], core0, step, voxel_mm3, found, under[label])
+        radius = _gap_radius(col, side, end, contrasts[label], core0, step, voxel_mm3, found, under[label],
+                             max_diameter_mm)
         if radius is None:
             missing.append(label)
         else:

@@ -347,6 +347,53 @@ def test_a_short_posts_radius_is_measured_on_the_line_it_is_drawn_on(shift_voxel
     assert all(abs(r - 1.5) < 0.1 for r in radii)
 
 
+def test_silicone_across_a_short_gap_wider_than_the_widest_pillar_is_no_post():
+    """`_gap_radius` across a 1.2 mm gap under a 10 mm ball (no other post in the scan): a 3 mm post reads a
+    radius within 0.3 mm of its 1.5; a 6.4 mm column of silicone there (the base's or the inclusion's, as a
+    misplaced base surface takes in) is no post where the widest pillar is 4.5 mm, and is one where 8 mm."""
+    from lesscli.mri.pillar import _column, _gap_radius
+
+    spacing, gap, axis = np.array([1.1, 0.8, 0.8]), 1.2, np.array([1.0, 0.0, 0.0])
+    for radius, widest, expect in [(1.5, 4.5, 1.5), (3.2, 4.5, None), (3.2, 8.0, 3.2)]:
+        fraction, insert, _post = _post_under_ball(spacing, radius, gap, (0.2, -0.1), 0.05, 3)
+        centre = np.array([4.0 + gap + 5.0, 24.0 + 0.2 * spacing[1], 24.0 - 0.1 * spacing[2]])
+        grid = np.meshgrid(*(np.arange(n) * s for n, s in zip(fraction.shape, spacing)), indexing="ij", sparse=True)
+        ball_ids = (sum((g - c) ** 2 for g, c in zip(grid, centre)) <= 5.0 ** 2).astype(np.int32)
+        col = _column(fraction, insert, insert, ball_ids, 1, centre, axis, spacing, 7.5)
+        found = _gap_radius(col, -1, 5.0 + gap, (0.0, 1.0), 0.5 * widest + 1.65, spacing[0], float(np.prod(spacing)),
+                            {}, np.zeros((2, 2)), widest)
+        assert (found is None) if expect is None else abs(found - expect) < 0.3
+
+
+@pytest.mark.parametrize("beyond_level", [2.0, -1.0])
+@pytest.mark.parametrize("phase", [0.0, 0.2, 0.45, 0.7])
+def test_the_base_surface_is_fitted_through_a_thin_base_and_what_lies_beyond_it(beyond_level, phase):
+    """`_profile_crossing` on ring levels across a 3 mm base (silicone fraction 1.3, the hydrogel 0.05)
+    with air beyond it reading +2 (silicone the darker tissue) or -1 (the brighter), blurred by a Gaussian
+    of 0.6 mm and averaged over 1.1 mm slabs (drawn here by brute force over 200 points per slab), the
+    surface anywhere within a slab, four hydrogel slabs before it and two past the base as the trace reads
+    them: found within 0.02 mm from a start 0.3 slab off; with noise of 0.02 on each slab's level, 0.02
+    mm off on average over 50 draws (a base level read in the base, which the air's blur moves up or down,
+    misplaces a crossing half-way to it) with a spread under 0.08 mm."""
+    from scipy.special import ndtr
+
+    from lesscli.mri.pillar import _profile_crossing
+
+    step, blur, surface, thickness = 1.1, 0.6, 10.0 + phase * 1.1, 3.0
+    t = np.arange(5.0, 17.0, step)
+    t = t[(t > surface - 4.6 * step) & (t < surface + thickness + 2.5 * step)]
+    inside = (np.arange(200) + 0.5) / 200 * step - 0.5 * step
+    x = t[:, None] + inside[None, :]
+    levels = (0.05 + 1.25 * ndtr((x - surface) / blur)
+              + (beyond_level - 1.3) * ndtr((x - surface - thickness) / blur)).mean(axis=1)
+    start, beyond = surface + 0.3 * step, surface + thickness
+    assert abs(_profile_crossing(t, levels, None, start, step, beyond) - surface) < 0.02
+    rng = np.random.default_rng(int(phase * 10))
+    errors = np.array([_profile_crossing(t, levels + rng.normal(0.0, 0.02, len(t)), None, start, step, beyond)
+                       for _ in range(50)]) - surface
+    assert abs(errors.mean()) < 0.02 and errors.std() < 0.08
+
+
 @pytest.mark.parametrize("silicone_share", [0.0, 0.1, 0.25])
 def test_ring_level_leaves_out_the_skin_a_ring_passes_through(silicone_share):
     """`_ring_level`: a ring of hydrogel in noise (sigma 0.2 of the contrast) whose voxels are partly skin
