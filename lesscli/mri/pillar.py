@@ -12,17 +12,10 @@ boundaries through voxel centres would split each slice between two slabs). Per 
   voxels far from it, :func:`_ring_level`, so that the skin of a nearby wall, in part of the ring, does
   not raise it). The trace ends there, or where
   the ring leaves the insert (a pillar standing on the insert's outer surface): that is the base
-  surface. It is fitted to the ring levels of the slabs around it (:func:`_profile_crossing`): a few
-  slabs of hydrogel, the base and two slabs past the insert, each slab the mean over its width of the
-  profile hydrogel -> base -> what lies beyond (air) blurred by one Gaussian, the three levels, both
-  surfaces and the blur free. A base of a few millimetres has no plateau of its own in slabs of about
-  a millimetre: the air's blur moves its slabs up or down by the polarity, and the surface placed
-  half-way to a level read there was off by the same sign. The fit starts from, and where too few
-  slabs decide it keeps, that half-way crossing: between the hydrogel and the ring level in the base
-  away from the insert's outer surface (a base reads below or above an inclusion's interior), the
-  mean over the base's slabs past the first (which straddles the surface), with fewer than
-  ``BASE_PLATEAU_SLABS`` slabs the highest. Where the first slab already lies in the base, the
-  crossing is found between the inclusion's last slice and that slab;
+  surface, fitted to the ring levels of a few slabs of hydrogel, the base and two slabs past the
+  insert (:func:`_profile_crossing`: a thin base has no level of its own, the blur of the air beyond
+  it moves every slab), from the crossing half-way between the hydrogel and the base's level read in
+  it (:func:`_base_crossing`), which stands where too few slabs decide the fit;
 - the core's silicone in excess of the ring level, summed over the slab and divided by the contrast
   of the inclusion's interior over that ring level, is the pillar's cross-section (mm^2). A sum is
   unchanged by partial volume and blur, so a pillar 1-2 voxels wide is measured as well as a wide one,
@@ -160,11 +153,11 @@ def _basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(axis, e1)
 
 
-def _off_line(col: _Column, line: np.ndarray | None = None, st: np.ndarray | None = None) -> np.ndarray:
-    """Each column voxel's distance (mm) from ``line`` = (lateral offset (2,), slope (2,) along ``st``, the
-    voxels' distance along the axis towards the side walked); None: from the column's centre line."""
-    uv = col.uv if line is None else col.uv - line[0] - st[:, None] * line[1]
-    return np.linalg.norm(uv, axis=1)
+def _from_line(uv: np.ndarray, line: np.ndarray | None = None, st: np.ndarray | None = None) -> np.ndarray:
+    """Each point's distance (mm) from ``line`` = (lateral offset (2,), slope (2,) along ``st``, the points'
+    distance along the axis towards the side walked) in the lateral positions ``uv`` (n, 2) of a column;
+    None: from the column's centre line."""
+    return np.linalg.norm(uv if line is None else uv - line[0] - st[:, None] * line[1], axis=1)
 
 
 def _column(fraction, insert, deep, inc_ids, label, centre_mm, axis, spacing, reach_mm) -> _Column:
@@ -251,7 +244,7 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
     st = sign * col.t
     slab = np.floor((st - col.start[sign]) / step_mm - 0.5).astype(np.int64)    # slab k centred k + 1 steps out
     beyond = slab >= 0
-    rho = _off_line(col, line, st)
+    rho = _from_line(col.uv, line, st)
     core, ring = rho <= core_mm, (rho > ring_mm[0]) & (rho <= ring_mm[1])
     ts, areas, cents = [], [], []
     levels, cover = [], []
@@ -278,7 +271,7 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
     if not ts:
         end = col.start[sign]
     elif levels[-1] > half:
-        end, n = _base_crossing(col, st, slab, ring, ts, levels, contrast, last)
+        end, n = _base_crossing(col, st, slab, ring, ts, levels, contrast, last, step_mm)
         n = min(n, len(areas))
     elif cover[-1] < HALF:
         end = _crossing(np.asarray(ts), 1.0 - np.asarray(cover), len(ts) - 1)
@@ -289,7 +282,7 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
 
 
 def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndarray, ts: list, levels: list,
-                   contrast: tuple[float, float], last: int) -> tuple[float, int]:
+                   contrast: tuple[float, float], last: int, step_mm: float) -> tuple[float, int]:
     """(base surface t, slabs before it) from the ring levels ``levels`` of the slabs at ``ts`` (the last
     one in the base): fitted to them and to the ring levels of the slabs past them, through the base and
     PROFILE_AIR_SLABS slabs past the insert (:func:`_profile_crossing`, the hydrogel level fitted too from
@@ -298,7 +291,9 @@ def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndar
 
     That level is read from the medians over the ring's voxels away from the insert's outer surface
     in the slabs from the last one on, as long as the ring has such voxels: their mean past the first
-    (from BASE_PLATEAU_SLABS slabs on), else the highest, else the inclusion's.
+    (from BASE_PLATEAU_SLABS slabs on), else the highest (noise biases it up), else the inclusion's.
+    Where the first slab already lies in the base, the crossing is found between the inclusion's last
+    slice and that slab.
     """
     base = []
     for k in range(len(ts) - 1, last + 1):
@@ -330,10 +325,9 @@ def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndar
         after.append(_ring_level(col.value[sel]))
         if float(col.inside[(slab == k) & ring].mean()) < HALF:
             air.append(after_t[-1])
-    step = float(np.median(np.diff(after_t))) if len(after_t) > 1 else 0.0
     fitted = _profile_crossing(np.asarray(before_t + after_t), np.asarray(before + after),
-                               None if len(before) >= 2 else contrast[0], linear, step,
-                               air[0] - 0.5 * step if air else None)
+                               None if len(before) >= 2 else contrast[0], linear, step_mm,
+                               air[0] - 0.5 * step_mm if air else None)
     return (linear if fitted is None else fitted), j
 
 
@@ -402,7 +396,7 @@ def _ball(fraction, allowed, inc_ids, label, col: _Column, side: int, core_mm: f
     from lesscli.mri.morphology import RIM_VOXELS, fitted_ball
 
     sl = ndimage.find_objects(inc_ids, max_label=label)[label - 1]
-    rho = _off_line(col)
+    rho = _from_line(col.uv)
     shut = np.zeros(inc_ids.shape, dtype=bool)
     cut = (rho <= core_mm) & (side * col.t > col.start[side])
     shut[tuple(i[cut] for i in col.index)] = True
@@ -446,7 +440,7 @@ def _gap_area(col: _Column, sign: int, end_mm: float, contrast: tuple[float, flo
     column's centre) it is hydrogel (the inclusion seen reaching the base counts as silicone)."""
     st = sign * col.t
     gap = col.free & (st > col.start[sign]) & (st <= end_mm)
-    rho = _off_line(col, line, st)
+    rho = _from_line(col.uv, line, st)
     axis_voxels = gap & (rho <= GAP_AXIS_MM)
     half = contrast[0] + HALF * contrast[1]
     if axis_voxels.any() and float(np.median(col.value[axis_voxels])) <= half:
@@ -472,7 +466,7 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
     value = _clear_of_ball(col, ball)
     st = sign * col.t
     slab = np.floor((st - start_mm) / step_mm).astype(np.int64)
-    rho = _off_line(col, line, st)
+    rho = _from_line(col.uv, line, st)
     core, ring = rho <= core_mm, (rho > ring_mm[0]) & (rho <= ring_mm[1])
     sigma = _blur_mm(ball, step_mm)
     reach = math.ceil(2.0 * sigma / step_mm)
@@ -576,8 +570,7 @@ def disc_profile(rho_mm: np.ndarray, radius_mm: float, sigma_mm: float) -> np.nd
 def _cylinder_misfit(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line: np.ndarray, radius: float,
                      sigma: float) -> np.ndarray:
     """The blurred cylinder around ``line`` (:func:`fit_blurred_cylinder`) minus ``excess``, per voxel."""
-    rho = np.linalg.norm(uv - line[0] - t[:, None] * line[1], axis=1)
-    return disc_profile(rho, radius, sigma) - excess
+    return disc_profile(_from_line(uv, line, t), radius, sigma) - excess
 
 
 def fit_blurred_cylinder(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line: np.ndarray, radius: float,
@@ -640,7 +633,7 @@ def _fit_cylinder(col: _Column, sign: int, trace: Trace, line: np.ndarray, radiu
     value = _clear_of_ball(col, ball)
     st = sign * col.t
     lo_t, hi_t = trace.t_mm[0] - 0.5 * step_mm, trace.t_mm[-1] + 0.5 * step_mm
-    rho0 = _off_line(col, line, st)
+    rho0 = _from_line(col.uv, line, st)
     sel = col.free & (st >= lo_t) & (st < hi_t) & (rho0 <= core_mm)
     if sel.sum() < 8:
         return line, radius
@@ -660,7 +653,7 @@ def _contrast(fraction: np.ndarray, inc_ids: np.ndarray, label: int, col: _Colum
     depth = ndimage.distance_transform_edt(own, sampling=spacing)[1:-1, 1:-1, 1:-1]
     interior = (depth > float(spacing.max())) if (depth > float(spacing.max())).any() else own[1:-1, 1:-1, 1:-1]
     silicone = float(np.median(fraction[sl][interior]))
-    rho = _off_line(col)
+    rho = _from_line(col.uv)
     ring = col.free & (rho > ring_mm[0]) & (rho <= ring_mm[1])
     hydrogel = _ring_level(col.value[ring]) if ring.any() else 0.0
     return hydrogel, max(silicone - hydrogel, SCALE_EPS)
@@ -749,8 +742,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         core = min(core0, math.sqrt(first.median_area() / math.pi) + CORE_MARGIN_VOXELS * voxel)
         second = _trace(col, side, line, core, rings(core), step, voxel_mm3, contrasts[label], balls[label])
         final = _inner(second) if len(second.area_mm2) else first
-        line = (_fit_line(final, line) if len(final.area_mm2) >= MIN_LINE_SLABS
-                else under[label])
+        line = _fit_line(final, line) if len(final.area_mm2) >= MIN_LINE_SLABS else under[label]
         found[label], finals[label] = (line, final.area_mm2, core, second.end_mm), final
     cores = {label: core for label, (_line, _areas, core, _end) in found.items()}
 
@@ -781,7 +773,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
     for label, (line, radius, end) in found.items():
         col = columns[label]
         st = side * col.t
-        rho = _off_line(col, line, st)
+        rho = _from_line(col.uv, line, st)
         sel = col.inside & ~col.other & (rho <= radius) & (st >= 0) & (st <= end)
         pillar[tuple(i[sel] for i in col.index)] = True
     base = None
