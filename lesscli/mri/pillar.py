@@ -35,7 +35,9 @@ silicone, else every trace's median cross-section (:func:`_base_side`). An inclu
 past its fitted blurred ball towards the base holds pillar there (under a pillar a slice or two tall
 the opening keeps the pillar's slice); those voxels are the trace's from then on. On that side an
 inclusion has a pillar when the median cross-section exceeds a disc of ``MIN_RADIUS_MM`` and
-``NOISE_Z`` standard errors of the slab-to-slab scatter. The pillar is then the cylinder of the
+``NOISE_Z`` standard errors of the slab-to-slab scatter, read over all the scan's traces each about its
+own median (:func:`_pooled_scatter`: a post's own three or four slabs read it too poorly to test
+against). The pillar is then the cylinder of the
 measured area from the inclusion down to the base surface, around the straight line
 fitted to the slab centroids of a second trace (a core fitted to the pillar, so less noise in the
 centroids). That line and radius start a least-squares fit of a straight blurred cylinder
@@ -59,8 +61,10 @@ its warning missing). Short pillars are measured over few slabs, each as noisy a
 - with fewer than ``MIN_OWN_SLABS`` slabs the cross-section is the median over the slabs of all the
   scan's pillars (the posts of one insert are cast alike); longer pillars keep their own. Where the
   scan has no other pillar's slabs (a lone inclusion, or every post short), the radius is fitted to
-  the post's whole silicone (:func:`_post_radius`) around the line it stands on: the blur carries much
-  of a post a slab or two tall into the inclusion's and the base's slabs.
+  the post's whole silicone (:func:`_post_radius`) around the line it stands on, from the ball's
+  surface to the base's: the blur carries much of a post a slab or two tall into the inclusion's and
+  the base's slabs. A gap too short to hold a slab takes the median radius of the scan's measured
+  pillars, else that fit too (:func:`_gap_radius`).
 """
 
 from __future__ import annotations
@@ -68,6 +72,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
@@ -118,16 +123,33 @@ class Trace:
     def median_area(self) -> float:
         return float(np.median(self.area_mm2)) if len(self.area_mm2) else 0.0
 
-    def significant(self) -> bool:
-        """The median cross-section is a post, not noise."""
+    def deviations(self) -> np.ndarray:
+        """The slabs' cross-sections' absolute deviations from their median, the median's own slab (a zero)
+        left out where the slabs are odd in number; none under 3 slabs."""
+        n = len(self.area_mm2)
+        if n < 3:
+            return np.zeros(0)
+        return np.sort(np.abs(self.area_mm2 - self.median_area()))[n % 2:]
+
+    def significant(self, scatter: float | None = None) -> bool:
+        """The median cross-section is a post, not noise: NOISE_Z standard errors of the slab-to-slab
+        ``scatter`` (a standard deviation; None: read from this trace's own slabs)."""
         n = len(self.area_mm2)
         med = self.median_area()
         if med < math.pi * MIN_RADIUS_MM ** 2:
             return False
         if n < 3:
             return True
-        scatter = MAD_TO_SIGMA * float(np.median(np.abs(self.area_mm2 - med)))
+        if scatter is None:
+            scatter = MAD_TO_SIGMA * float(np.median(self.deviations()))
         return med >= NOISE_Z * MEDIAN_SE * scatter / math.sqrt(n)
+
+
+def _pooled_scatter(traces) -> float | None:
+    """The slab-to-slab scatter of cross-sections (robust standard deviation) over all ``traces`` (measured
+    in one core's size) of at least 3 slabs, each about its own median; None where none has 3."""
+    dev = np.concatenate([np.zeros(0)] + [t.deviations() for t in traces])
+    return MAD_TO_SIGMA * float(np.median(dev)) if len(dev) else None
 
 
 @dataclass
@@ -459,7 +481,10 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
     post's ``line`` (:func:`_ball_axis`, where it is drawn) blurred like the inclusion (:func:`disc_profile`
     across, a normal's integral along), the core and ring centred on that line.
     The blur carries much of a post a slab or two tall into the inclusion's and the base's slabs, so its
-    own slabs read it too thin; the start is the radius of the whole excess over the gap's length."""
+    own slabs read it too thin; the start is the radius of the whole excess over the gap's length. The
+    post fills the ball's curve: at each voxel's distance from the line it starts at the ball's surface,
+    not at the plane through its lowest point (which left the silicone between them, pi r^4 / (4 R), to
+    widen the post: by about 0.1 mm in diameter for a 3 mm post 1.5 mm tall under a 10 mm ball)."""
     from scipy.optimize import least_squares
     from scipy.special import ndtr
 
@@ -480,7 +505,9 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
     if not excess:
         return 0.0
     excess, at = np.concatenate(excess), np.concatenate(at)
-    axial = ndtr((st[at] - start_mm) / sigma) - ndtr((st[at] - end_mm) / sigma)
+    top = start_mm if ball is None else start_mm - ball.radius_mm + np.sqrt(np.maximum(
+        ball.radius_mm ** 2 - rho[at] ** 2, 0.0))                 # the ball's surface above each voxel
+    axial = ndtr((st[at] - top) / sigma) - ndtr((st[at] - end_mm) / sigma)
     whole = float(excess.sum()) * voxel_mm3 / max(end_mm - start_mm, step_mm)
     start = min(math.sqrt(max(whole, 0.0) / math.pi), core_mm)
     fit = least_squares(lambda p: disc_profile(rho[at], p[0], sigma) * axial - excess, [max(start, 0.1 * core_mm)],
@@ -489,17 +516,19 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
 
 
 def _gap_radius(col: _Column, sign: int, end_mm: float, contrast: tuple[float, float], core_mm: float,
-                step_mm: float, voxel_mm3: float, found: dict, line: np.ndarray, widest_mm: float) -> float | None:
+                step_mm: float, voxel_mm3: float, found: dict, line: np.ndarray, widest_mm: float,
+                fitted: Callable[[], float] | None = None) -> float | None:
     """Radius of the post across a short gap between an inclusion and the base along ``line``, or None
-    (no post): the median of the scan's measured pillars, else that of the core's silicone in the gap,
-    which must lie between a disc of MIN_RADIUS_MM and one of the widest pillar's radius (``widest_mm``
-    across: more is the base's or the inclusion's silicone, not a post's)."""
+    (no post): the median of the scan's measured pillars, else ``fitted()`` (:func:`_post_radius`, given
+    where the inclusion's ball was fitted), else that of the core's silicone in the gap; the last two must
+    lie between a disc of MIN_RADIUS_MM and one of the widest pillar's radius (``widest_mm`` across: more
+    is the base's or the inclusion's silicone, not a post's)."""
     area = _gap_area(col, sign, end_mm, contrast, core_mm, step_mm, voxel_mm3, line)
     if area is None:
         return None
     if found:
         return float(np.median([r for _line, r, _end in found.values()]))
-    radius = math.sqrt(area / math.pi)
+    radius = fitted() if fitted is not None else math.sqrt(area / math.pi)
     return radius if MIN_RADIUS_MM <= radius <= 0.5 * widest_mm else None
 
 
@@ -525,8 +554,9 @@ def _base_side(traces: dict, columns: dict, contrasts: dict, labels: list[int], 
     cross-sections of every trace summed per side.
     """
     inner = {key: _inner(trace) for key, trace in traces.items()}
+    scatter = _pooled_scatter(inner.values())
     strong = sum(sign * inner[k, sign].median_area() for k in labels for sign in (1, -1)
-                 if inner[k, sign].significant())
+                 if inner[k, sign].significant(scatter))
     gaps = sum(sign for k in labels for sign in (1, -1)
                if _short_gap(traces[k, sign], columns[k], sign, step_mm)
                and _gap_area(columns[k], sign, traces[k, sign].end_mm, contrasts[k], core_mm, step_mm,
@@ -733,9 +763,10 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
             traces[label, side] = _trace(col, side, np.zeros((2, 2)), core0, rings(core0), step, voxel_mm3,
                                          contrasts[label])
     found, finals, short, missing = {}, {}, [], []
+    scatter = _pooled_scatter(_inner(trace) for trace in traces.values())
     for label in labels:
         first = _inner(traces[label, side])
-        if not first.significant():
+        if not first.significant(scatter):
             (short if _short_gap(traces[label, side], columns[label], side, step) else missing).append(label)
             continue
         col, line = columns[label], _fit_line(first, np.zeros((2, 2)))
@@ -765,7 +796,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
     for label in short:                 # too close to the base to measure: silicone across the gap, or none
         col, end = columns[label], traces[label, side].end_mm
         radius = _gap_radius(col, side, end, contrasts[label], core0, step, voxel_mm3, found, under[label],
-                             max_diameter_mm)
+                             max_diameter_mm, None if balls[label] is None else partial(short_radius, label, core0, end))
         if radius is None:
             missing.append(label)
         else:

@@ -106,9 +106,10 @@ def test_base_surface_is_found_within_a_quarter_slice(results, name):
 
 # Posts whose measures miss those bounds today, with why (strict).
 POST_OFF: dict[str, str] = {
-    "coarse-1.2mm-4mm-pillar-1mm-tall-16mm-bright": "a 4 mm post 1 mm tall in 1.2 mm slices is measured 3.56 mm "
-    "wide: no slab of its own, its radius fitted to the silicone the blur spreads into the ball's and the base's "
-    "(its Dice meets the target: its truth is one slice, 8 voxels)",
+    "coarse-1.2mm-4mm-pillar-1mm-tall-16mm-bright": "a 4 mm post 1 mm tall in 1.2 mm slices is measured 3.17 mm "
+    "wide: no slab of its own, its radius fitted to the silicone the blur spreads into the ball's and the base's, "
+    "the base's surface found 0.14 mm short of it (3.56 mm while the fit started at the plane under the ball, whose "
+    "excess made up for that; its Dice meets the target: its truth is one slice, 8 voxels)",
 }
 
 
@@ -224,6 +225,55 @@ def test_post_one_slice_tall_under_large_inclusions_leaves_them_balls(seed):
     seg = segment(vol.image, vol.spacing_mm, where="short posts")
     assert seg.warnings == [] and [row["shape"] for row in seg.inclusion_shapes] == ["ball", "ball"]
     assert all(row["dice_pillar"] >= MIN_DICE["pillar"] for row in inclusion_scores(seg.labels, vol))
+
+
+LONE_SHORT_POSTS = [(voxel, post, tall) for voxel in (0.6, 0.95) for post in (2.0, 3.0) for tall in (1.2, 2.0)]
+
+
+def test_a_lone_short_posts_diameter_holds_no_excess_from_the_balls_curve():
+    """No noise, bias 0.1, isotropic voxels of 0.6 and 0.95 mm: posts 2 and 3 mm wide, 1.2 and 2 mm tall,
+    each under the scan's only inclusion (8 mm, where the ball curves most), are drawn within 0.05 mm of
+    their diameter on average over the 8 scans, and each within 0.3 of a voxel.
+
+    Such a post's radius is fitted to all its silicone (`_post_radius`); from the plane through the
+    ball's lowest point, the silicone between that plane and the ball's surface (pi r^4 / (4 R)) widened
+    these posts by 0.135 mm on average (up to 0.37 mm, 0.38 of a voxel); the post now starts at the ball's
+    surface. Where no slab lies between the inclusion and the base (0.95 mm voxels, 1.2 mm tall), its
+    silicone across the gap was counted voxel by voxel; that post is now fitted alike."""
+    errors = []
+    for k, (voxel, post, tall) in enumerate(LONE_SHORT_POSTS):
+        vol = generate(Case(seed=640 + k, spacing_mm=(voxel,) * 3, inclusion_mm=(8.0,), pillar_mm=post,
+                            pillar_height_mm=(tall,), noise=0.0, bias=0.1, partial_volume="box"))
+        seg = segment(vol.image, vol.spacing_mm, where="lone short post")
+        assert seg.warnings == []
+        errors.append(post_errors(seg.posts, vol)[0]["post_diameter_error_mm"])
+    voxels = np.array([voxel for voxel, _post, _tall in LONE_SHORT_POSTS])
+    assert abs(np.mean(errors)) < 0.05 and np.abs(np.array(errors) / voxels).max() < 0.3
+
+
+ONE_MM_POSTS = [(slices, post, inclusion) for slices in (0.95, 1.15) for post in (2.5, 3.5) for inclusion in (9.0, 14.0)]
+
+
+def test_a_lone_post_1mm_tall_is_found_and_fitted_across_its_gap():
+    """Noise 0.02, slices 0.95 and 1.15 mm (0.8 mm across): posts 2.5 and 3.5 mm wide and 1 mm tall under
+    the scan's only inclusion (9 or 14 mm): each is found, and their diameters are drawn within 0.15 mm
+    (median of the absolute errors over the 8 scans).
+
+    Six of them leave no slab between the inclusion and the base. Such a post's silicone across the gap
+    was counted voxel by voxel over half-way: the blur of the ball's cap and the base's widened three
+    (by 0.31-0.35 mm), and two were left unlabelled with a warning (one gap held no voxel centre, the other
+    read 5.3 mm wide, past the widest pillar); it is now fitted as the posts a slab or two tall are
+    (`_post_radius`). The worst of the 8 is the 3.5 mm
+    post under the 9 mm inclusion at 1.15 mm slices: the ball fitted to that inclusion lies 0.2 mm too low
+    and takes in part of the post, drawn 0.6 mm too thin."""
+    errors = []
+    for k, (slices, post, inclusion) in enumerate(ONE_MM_POSTS):
+        vol = generate(Case(seed=660 + k, spacing_mm=(slices, 0.8, 0.8), inclusion_mm=(inclusion,), pillar_mm=post,
+                            pillar_height_mm=(1.0,), noise=0.02, bias=0.1, partial_volume="box"))
+        seg = segment(vol.image, vol.spacing_mm, where="1 mm post")
+        assert seg.warnings == []
+        errors.append(post_errors(seg.posts, vol)[0]["post_diameter_error_mm"])
+    assert np.median(np.abs(errors)) < 0.15
 
 
 BENT_FIELD = ("the bias field, fitted with the voxels at the tissue boundaries (skin, base, inclusions), bends near "
