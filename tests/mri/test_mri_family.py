@@ -238,8 +238,7 @@ def test_a_lone_short_posts_diameter_holds_no_excess_from_the_balls_curve():
     Such a post's radius is fitted to all its silicone (`_post_radius`); from the plane through the
     ball's lowest point, the silicone between that plane and the ball's surface (pi r^4 / (4 R)) widened
     these posts by 0.135 mm on average (up to 0.37 mm, 0.38 of a voxel); the post now starts at the ball's
-    surface. Where no slab lies between the inclusion and the base (0.95 mm voxels, 1.2 mm tall), its
-    silicone across the gap was counted voxel by voxel; that post is now fitted alike."""
+    surface."""
     errors = []
     for k, (voxel, post, tall) in enumerate(LONE_SHORT_POSTS):
         vol = generate(Case(seed=640 + k, spacing_mm=(voxel,) * 3, inclusion_mm=(8.0,), pillar_mm=post,
@@ -263,9 +262,9 @@ def test_a_lone_post_1mm_tall_is_found_and_fitted_across_its_gap():
     was counted voxel by voxel over half-way: the blur of the ball's cap and the base's widened three
     (by 0.31-0.35 mm), and two were left unlabelled with a warning (one gap held no voxel centre, the other
     read 5.3 mm wide, past the widest pillar); it is now fitted as the posts a slab or two tall are
-    (`_post_radius`). The worst of the 8 is the 3.5 mm
-    post under the 9 mm inclusion at 1.15 mm slices: the ball fitted to that inclusion lies 0.2 mm too low
-    and takes in part of the post, drawn 0.6 mm too thin."""
+    (`_post_radius`). The worst of the 8 is the 3.5 mm post under the 9 mm inclusion at 1.15 mm slices:
+    the ball fitted to that inclusion reaches 0.2 mm too low and takes in part of the post, drawn 0.6 mm too
+    thin."""
     errors = []
     for k, (slices, post, inclusion) in enumerate(ONE_MM_POSTS):
         vol = generate(Case(seed=660 + k, spacing_mm=(slices, 0.8, 0.8), inclusion_mm=(inclusion,), pillar_mm=post,
