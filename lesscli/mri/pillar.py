@@ -131,17 +131,16 @@ class Trace:
             return np.zeros(0)
         return np.sort(np.abs(self.area_mm2 - self.median_area()))[n % 2:]
 
-    def significant(self, scatter: float | None = None) -> bool:
+    def significant(self, scatter: float | None) -> bool:
         """The median cross-section is a post, not noise: NOISE_Z standard errors of the slab-to-slab
-        ``scatter`` (a standard deviation; None: read from this trace's own slabs)."""
+        ``scatter`` (:func:`_pooled_scatter` over the traces that include this one; None only where none
+        has 3 slabs, this one neither: its median alone decides)."""
         n = len(self.area_mm2)
         med = self.median_area()
         if med < math.pi * MIN_RADIUS_MM ** 2:
             return False
         if n < 3:
             return True
-        if scatter is None:
-            scatter = MAD_TO_SIGMA * float(np.median(self.deviations()))
         return med >= NOISE_Z * MEDIAN_SE * scatter / math.sqrt(n)
 
 

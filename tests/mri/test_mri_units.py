@@ -458,8 +458,9 @@ def test_a_posts_significance_reads_the_slab_scatter_of_all_the_scans_traces():
         post, *noise = [trace(rng.normal(mean, sigma, n)) for mean, n in ((3.0 * sigma, 3), (0.0, 3), (0.0, 6),
                                                                            (0.0, 12))]
         scatter = _pooled_scatter([post, *noise])
-        rows.append((post.significant(scatter), post.significant(), noise[0].significant(scatter),
-                     noise[0].significant(), scatter / sigma))
+        rows.append((post.significant(scatter), post.significant(_pooled_scatter([post])),
+                     noise[0].significant(scatter), noise[0].significant(_pooled_scatter([noise[0]])),
+                     scatter / sigma))
     pooled, own, noise_pooled, noise_own, ratio = np.mean(rows, axis=0)
     assert pooled >= 0.85 and pooled >= own + 0.2
     assert noise_pooled <= min(0.015, noise_own)
