@@ -152,7 +152,8 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
     voxels near the body as well as the scan's noise allows (:attr:`Ball.misfit` at most
     ``BALL_MISFIT``: the noise, not the shape, is then what separates them) and the image's surface
     elsewhere (a body that is not a ball fits worse). ``unfitted``: voxels no ball is fitted to (the base's
-    silicone), None: none.
+    silicone), None: none; neither a body's nor its image's surface takes them (a body can run on through a
+    short post into the base).
 
     Returns:
         (inclusion mask, one dict per body: ``shape`` "ball" or "image", ``centre_index`` (the fitted
@@ -163,9 +164,10 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
 
     comps, _n = ndimage.label(bodies)
     out = np.zeros(bodies.shape, dtype=bool)
+    base = np.zeros(bodies.shape, dtype=bool) if unfitted is None else unfitted
     shapes = []
     for i, sl in enumerate(ndimage.find_objects(comps), start=1):
-        own = comps == i
+        own = (comps == i) & ~base
         fit = fitted_ball(own, fraction, allowed, spacing, sl, reach_mm, unfitted)
         if fit is None:
             out |= own
@@ -173,7 +175,7 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
                            "ball_diameter_mm": None, "ball_misfit": None})
             continue
         ball = fit.radius_mm > 0 and (shape == "ball" or (shape == "auto" and fit.misfit <= BALL_MISFIT))
-        out[fit.box] |= fit.near & (fit.inside() if ball else fraction[fit.box] > fit.level)
+        out[fit.box] |= fit.near & (fit.inside() if ball else (fraction[fit.box] > fit.level) & ~base[fit.box])
         shapes.append({"shape": "ball" if ball else "image", "centre_index": list(fit.centre_mm / spacing),
                        "ball_diameter_mm": 2 * fit.radius_mm if fit.radius_mm > 0 else None,
                        "ball_misfit": fit.misfit if math.isfinite(fit.misfit) else None})
@@ -378,10 +380,10 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     inc_ids, n_inclusions = ndimage.label(bodies)
     warnings = [] if n_inclusions else ["no inclusion found"]
     deep = ins & (depth > shell_mm)
-    pillar, missing, _side, base, posts = find_pillars(frac, ins, inc_ids, n_inclusions, spacing,
-                                                       insert_axis(ins, spacing), pillar_max_diameter_mm, deep)
-    inclusion, shapes = _local_surface(bodies, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm, inclusion_shape,
-                                       None if base is None else base.beyond(spacing, ins.shape))
+    pillar, missing, base, posts, run_on = find_pillars(frac, ins, inc_ids, n_inclusions, spacing,
+                                                        insert_axis(ins, spacing), pillar_max_diameter_mm, deep)
+    inclusion, shapes = _local_surface(bodies & ~run_on, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm,
+                                       inclusion_shape, None if base is None else base.beyond(spacing, ins.shape))
     inclusion |= _junctions(inclusion, pillar, spacing, shapes)
     pillar &= ~inclusion
     for i in missing:

@@ -30,8 +30,9 @@ The hydrogel level that places the half-way crossing is the median ring level of
 either side (a ring over the whole column would also take in the skin and the base).
 
 The base is on the side where the inclusions together show more excess silicone (on the skin side
-there is none): the significant posts' cross-sections decide, else the short gaps to the base that hold
-silicone, else every trace's median cross-section (:func:`_base_side`). An inclusion found reaching
+there is none): the cross-sections of the significant posts and of the posts across short gaps to the base
+(a gap that holds silicone is where its inclusion's post is) decide, else every trace's median
+cross-section (:func:`_base_side`). An inclusion found reaching
 past its fitted blurred ball towards the base holds pillar there (under a pillar a slice or two tall
 the opening keeps the pillar's slice); those voxels are the trace's from then on. On that side an
 inclusion has a pillar when the median cross-section exceeds a disc of ``MIN_RADIUS_MM`` and
@@ -410,19 +411,37 @@ def _profile_crossing(t: np.ndarray, v: np.ndarray, hydrogel: float | None, star
     return float(fit.x[0])
 
 
-def _ball(fraction, allowed, inc_ids, label, col: _Column, side: int, core_mm: float, spacing):
-    """The inclusion's blurred ball, fitted away from other inclusions and from the column on the base side."""
+def _own(col: _Column) -> np.ndarray:
+    """The column's voxels of its own inclusion's body."""
+    return col.inside & ~col.free & ~col.other
+
+
+def _run_on(col: _Column, side: int, step_mm: float) -> bool:
+    """The inclusion's body reaches more than a slab further towards the base than away from it: over a
+    post a slab or so tall the opening that finds it keeps the post's slab and some of the base's."""
+    return col.start[side] - col.start[-side] > step_mm
+
+
+def _ball(fraction, allowed, inc_ids, label, col: _Column, side: int, core_mm: float, step_mm: float, spacing):
+    """The inclusion's blurred ball, fitted away from other inclusions and from the column on the base side.
+
+    Where the body runs on through a short post into the base (:func:`_run_on`), its own voxels past the
+    other side's reach are not the ball's: taken as its, they put the base's silicone within the profile
+    fitted, and the ball a fifth of a millimetre into the post."""
     from scipy import ndimage
 
     from lesscli.mri.morphology import RIM_VOXELS, fitted_ball
 
     sl = ndimage.find_objects(inc_ids, max_label=label)[label - 1]
     rho = _from_line(col.uv)
+    st = side * col.t
+    reach = col.start[-side] if _run_on(col, side, step_mm) else col.start[side]
+    own = inc_ids == label
     shut = np.zeros(inc_ids.shape, dtype=bool)
-    cut = (rho <= core_mm) & (side * col.t > col.start[side])
-    shut[tuple(i[cut] for i in col.index)] = True
-    ok = allowed & ~shut & ((inc_ids == 0) | (inc_ids == label))
-    fit = fitted_ball(inc_ids == label, fraction, ok, spacing, sl, RIM_VOXELS * float(spacing.max()))
+    shut[tuple(i[(rho <= core_mm) & (st > reach)] for i in col.index)] = True
+    own[tuple(i[_own(col) & (st > reach)] for i in col.index)] = False
+    ok = allowed & ~shut & ((inc_ids == 0) | own)
+    fit = fitted_ball(own, fraction, ok, spacing, sl, RIM_VOXELS * float(spacing.max()))
     return fit if fit is not None and fit.radius_mm > 0 else None
 
 
@@ -458,11 +477,12 @@ def _gap_area(col: _Column, sign: int, end_mm: float, contrast: tuple[float, flo
               step_mm: float, voxel_mm3: float, line: np.ndarray | None = None) -> float | None:
     """Cross-section (mm^2) of the core's silicone across a short gap between an inclusion and the
     base, or None where the gap holds no post: along the line (``line``, :func:`_ball_axis`; None: the
-    column's centre) it is hydrogel (the inclusion seen reaching the base counts as silicone)."""
+    column's centre) it is hydrogel (the inclusion seen reaching the base counts as silicone; a voxel in
+    partial volume with the air past the insert, half silicone, reads as hydrogel and decides nothing)."""
     st = sign * col.t
     gap = col.free & (st > col.start[sign]) & (st <= end_mm)
     rho = _from_line(col.uv, line, st)
-    axis_voxels = gap & (rho <= GAP_AXIS_MM)
+    axis_voxels = gap & col.deep & (rho <= GAP_AXIS_MM)
     half = contrast[0] + HALF * contrast[1]
     if axis_voxels.any() and float(np.median(col.value[axis_voxels])) <= half:
         return None
@@ -538,8 +558,7 @@ def _past_ball(col: _Column, sign: int, ball, centre_mm: np.ndarray, axis: np.nd
     surface = _ball_surface(ball, centre_mm, axis, sign)
     if surface >= col.start[sign]:
         return col
-    own = col.inside & ~col.free & ~col.other
-    past = own & (sign * col.t > surface)
+    past = _own(col) & (sign * col.t > surface)
     return replace(col, free=col.free | past, start={**col.start, sign: surface})
 
 
@@ -547,21 +566,25 @@ def _base_side(traces: dict, columns: dict, contrasts: dict, labels: list[int], 
                voxel_mm3: float) -> int:
     """+1 or -1: the side of the inclusions where the base lies, from the excess silicone beyond them.
 
-    In order, the first that decides: the significant posts' median cross-sections summed per side; the
-    number of inclusions whose base is within a short gap that holds silicone (a pillar shorter than two
-    slabs leaves no slab to measure, and the other side's noise would decide); the median
-    cross-sections of every trace summed per side.
+    In order, the first that decides: the cross-sections summed per side of the significant posts (their
+    medians) and of the posts across short gaps to the base (:func:`_gap_area`, at least a disc of
+    MIN_RADIUS_MM: the body may reach the base and leave the gap no voxel); the median cross-sections of
+    every trace summed per side. A pillar shorter than two slabs leaves no slab to measure, and a short gap
+    that holds silicone along the inclusion's axis is where its post is: its other side is not counted. A
+    bias field curved across the column raises a wide core over its ring by a millimetre squared or so,
+    which a long trace of hydrogel on the skin side then passes as a post.
     """
     inner = {key: _inner(trace) for key, trace in traces.items()}
     scatter = _pooled_scatter(inner.values())
-    strong = sum(sign * inner[k, sign].median_area() for k in labels for sign in (1, -1)
-                 if inner[k, sign].significant(scatter))
-    gaps = sum(sign for k in labels for sign in (1, -1)
-               if _short_gap(traces[k, sign], columns[k], sign, step_mm)
-               and _gap_area(columns[k], sign, traces[k, sign].end_mm, contrasts[k], core_mm, step_mm,
-                             voxel_mm3) is not None)
+    strong = 0.0
+    for k in labels:
+        gaps = {sign: _gap_area(columns[k], sign, traces[k, sign].end_mm, contrasts[k], core_mm, step_mm, voxel_mm3)
+                for sign in (1, -1) if _short_gap(traces[k, sign], columns[k], sign, step_mm)}
+        gaps = {sign: max(area, math.pi * MIN_RADIUS_MM ** 2) for sign, area in gaps.items() if area is not None}
+        strong += sum(sign * area for sign, area in gaps.items()) if gaps else sum(
+            sign * inner[k, sign].median_area() for sign in (1, -1) if inner[k, sign].significant(scatter))
     weak = sum(sign * inner[k, sign].median_area() for k in labels for sign in (1, -1))
-    for evidence in (strong, gaps, weak):
+    for evidence in (strong, weak):
         if evidence:
             return 1 if evidence > 0 else -1
     return 1
@@ -717,14 +740,15 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
             None: the insert.
 
     Returns:
-        (pillar mask, labels of the inclusions without a pillar, base side: +1 along ``axis``, -1 against,
-        the base's surface (:class:`BaseSurface`), None where no pillar was found), the posts drawn
-        (:class:`Post`, in the order of the inclusions' labels).
+        (pillar mask, labels of the inclusions without a pillar, the base's surface (:class:`BaseSurface`),
+        None where no pillar was found), the posts drawn (:class:`Post`, in the order of the inclusions'
+        labels), the inclusions' voxels past their fitted balls where a body runs on through a short post
+        into the base (:func:`_run_on`: not the inclusion's)).
     """
     spacing = np.asarray(spacing_mm, dtype=np.float64)
     pillar = np.zeros(insert.shape, dtype=bool)
     if n_inclusions == 0:
-        return pillar, [], 1, None, []
+        return pillar, [], None, [], pillar.copy()
     from scipy import ndimage
 
     voxel = float(spacing.max())
@@ -750,11 +774,15 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         traces[label, 1], traces[label, -1] = both
     side = _base_side(traces, columns, contrasts, labels, core0, step, voxel_mm3)
     balls, under = {}, {}                   # under: the line through each fitted ball's centre (the body's)
+    run_on = np.zeros(insert.shape, dtype=bool)
     for label, centre in zip(labels, centres):
         ball = balls[label] = _ball(fraction, insert if deep is None else deep, inc_ids, label, columns[label],
-                                    side, core0, spacing)
+                                    side, core0, step, spacing)
         under[label] = _ball_axis(ball, centre, axis)
         col = columns[label]
+        if ball is not None and _run_on(col, side, step):
+            sel = _own(col) & (side * col.t > _ball_surface(ball, centre, axis, side))
+            run_on[tuple(i[sel] for i in col.index)] = True
         if ball is not None and _short_gap(traces[label, side], col, side, step):
             col = _past_ball(col, side, ball, centre, axis)
         if col is not columns[label]:
@@ -813,7 +841,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
     posts = [_post(*found[label], centres[label - 1], axis, side,
                    columns[label].start[side] if balls[label] is None
                    else _ball_surface(balls[label], centres[label - 1], axis, side)) for label in sorted(found)]
-    return pillar, sorted(missing), side, base, posts
+    return pillar, sorted(missing), base, posts, run_on
 
 
 def _post(line: np.ndarray, radius: float, end: float, centre: np.ndarray, axis: np.ndarray, side: int,
