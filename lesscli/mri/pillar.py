@@ -38,7 +38,9 @@ the opening keeps the pillar's slice); those voxels are the trace's from then on
 inclusion has a pillar when the median cross-section exceeds a disc of ``MIN_RADIUS_MM`` and
 ``NOISE_Z`` standard errors of the slab-to-slab scatter, read over all the scan's traces each about its
 own median (:func:`_pooled_scatter`: a post's own three or four slabs read it too poorly to test
-against). The pillar is then the cylinder of the
+against), in the first core (as wide as the widest pillar) or else in one half as wide, whose fewer
+voxels of noise let a thin post in strong noise pass (each core against its own traces' scatter; a
+trace of noise alone may pass either, at most twice as often as one). The pillar is then the cylinder of the
 measured area from the inclusion down to the base surface, around the straight line
 fitted to the slab centroids of a second trace (a core fitted to the pillar, so less noise in the
 centroids). That line and radius start a least-squares fit of a straight blurred cylinder
@@ -791,9 +793,15 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
                                          contrasts[label])
     found, finals, short, missing = {}, {}, [], []
     scatter = _pooled_scatter(_inner(trace) for trace in traces.values())
+    thin_core = 0.25 * max_diameter_mm + CORE_MARGIN_VOXELS * voxel       # half the first: less noise around
+    thin = {key: _inner(_trace(columns[key[0]], key[1], np.zeros((2, 2)), thin_core, rings(thin_core), step,
+                               voxel_mm3, contrasts[key[0]])) for key in traces}
+    thin_scatter = _pooled_scatter(thin.values())
     for label in labels:
         first = _inner(traces[label, side])
         if not first.significant(scatter):
+            first = thin[label, side] if thin[label, side].significant(thin_scatter) else None
+        if first is None:
             (short if _short_gap(traces[label, side], columns[label], side, step) else missing).append(label)
             continue
         col, line = columns[label], _fit_line(first, np.zeros((2, 2)))
