@@ -38,8 +38,8 @@ the opening keeps the pillar's slice); those voxels are the trace's from then on
 inclusion has a pillar when the median cross-section exceeds a disc of ``MIN_RADIUS_MM`` and
 ``NOISE_Z`` standard errors of the slab-to-slab scatter, read over all the scan's traces each about its
 own median (:func:`_pooled_scatter`: a post's own three or four slabs read it too poorly to test
-against), in the first core (as wide as the widest pillar) or else in one half as wide, whose fewer
-voxels of noise let a thin post in strong noise pass (each core against its own traces' scatter; a
+against), in the first core (the widest pillar's radius and a margin) or else in one of half that
+radius and the same margin, whose fewer voxels of noise let a thin post in strong noise pass (each core against its own traces' scatter; a
 trace of noise alone may pass either, at most twice as often as one). The pillar is then the cylinder of the
 measured area from the inclusion down to the base surface, around the straight line
 fitted to the slab centroids of a second trace (a core fitted to the pillar, so less noise in the
@@ -553,6 +553,11 @@ def _gap_radius(col: _Column, sign: int, end_mm: float, contrast: tuple[float, f
     return radius if MIN_RADIUS_MM <= radius <= 0.5 * widest_mm else None
 
 
+def _beyond_ball(col: _Column, sign: int, ball, centre_mm: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """The column's voxels of the inclusion's body beyond its fitted ball's surface on side ``sign``."""
+    return _own(col) & (sign * col.t > _ball_surface(ball, centre_mm, axis, sign))
+
+
 def _past_ball(col: _Column, sign: int, ball, centre_mm: np.ndarray, axis: np.ndarray) -> _Column:
     """``col`` with the inclusion's own voxels beyond its fitted ball's surface on side ``sign`` freed
     and its start moved to that surface. Under a pillar a slice or two tall the body can hold the
@@ -560,8 +565,8 @@ def _past_ball(col: _Column, sign: int, ball, centre_mm: np.ndarray, axis: np.nd
     surface = _ball_surface(ball, centre_mm, axis, sign)
     if surface >= col.start[sign]:
         return col
-    past = _own(col) & (sign * col.t > surface)
-    return replace(col, free=col.free | past, start={**col.start, sign: surface})
+    return replace(col, free=col.free | _beyond_ball(col, sign, ball, centre_mm, axis),
+                   start={**col.start, sign: surface})
 
 
 def _base_side(traces: dict, columns: dict, contrasts: dict, labels: list[int], core_mm: float, step_mm: float,
@@ -783,8 +788,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         under[label] = _ball_axis(ball, centre, axis)
         col = columns[label]
         if ball is not None and _run_on(col, side, step):
-            sel = _own(col) & (side * col.t > _ball_surface(ball, centre, axis, side))
-            run_on[tuple(i[sel] for i in col.index)] = True
+            run_on[tuple(i[_beyond_ball(col, side, ball, centre, axis)] for i in col.index)] = True
         if ball is not None and _short_gap(traces[label, side], col, side, step):
             col = _past_ball(col, side, ball, centre, axis)
         if col is not columns[label]:
@@ -793,7 +797,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
                                          contrasts[label])
     found, finals, short, missing = {}, {}, [], []
     scatter = _pooled_scatter(_inner(trace) for trace in traces.values())
-    thin_core = 0.25 * max_diameter_mm + CORE_MARGIN_VOXELS * voxel       # half the first: less noise around
+    thin_core = 0.25 * max_diameter_mm + CORE_MARGIN_VOXELS * voxel       # half the widest pillar's, less noise
     thin = {key: _inner(_trace(columns[key[0]], key[1], np.zeros((2, 2)), thin_core, rings(thin_core), step,
                                voxel_mm3, contrasts[key[0]])) for key in traces}
     thin_scatter = _pooled_scatter(thin.values())
