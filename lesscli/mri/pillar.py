@@ -39,11 +39,11 @@ inclusion has a pillar when the median cross-section exceeds a disc of ``MIN_RAD
 ``NOISE_Z`` standard errors of the slab-to-slab scatter, read over all the scan's traces each about its
 own median (:func:`_pooled_scatter`: a post's own three or four slabs read it too poorly to test
 against), in the first core (the widest pillar's radius and a margin) or else in one of half that
-radius and the same margin, whose fewer voxels of noise let a thin post in strong noise pass (each core against its own traces' scatter; a
-trace of noise alone may pass either, at most twice as often as one). The pillar is then the cylinder of the
-measured area from the inclusion down to the base surface, around the straight line
-fitted to the slab centroids of a second trace (a core fitted to the pillar, so less noise in the
-centroids). That line and radius start a least-squares fit of a straight blurred cylinder
+radius and the same margin, whose fewer voxels of noise let a thin post in strong noise pass (each
+core against its own traces' scatter; a trace of noise alone may pass either, at most twice as often
+as one). The pillar is then the cylinder of the measured area from the inclusion down to the base
+surface, around the straight line fitted to the slab centroids of a second trace (a core fitted to
+the pillar, so less noise in the centroids). That line and radius start a least-squares fit of a straight blurred cylinder
 (:func:`disc_profile`) to the second trace's voxels, which gives the pillar drawn: a post
 two voxels wide shows a few noisy voxels per slab, whose weighted centroids placed it up to half a
 voxel off, and at that width half a voxel decides about a third of its voxels. The cylinder's blur is
@@ -798,12 +798,14 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
     found, finals, short, missing = {}, {}, [], []
     scatter = _pooled_scatter(_inner(trace) for trace in traces.values())
     thin_core = 0.25 * max_diameter_mm + CORE_MARGIN_VOXELS * voxel       # half the widest pillar's, less noise
-    thin = {key: _inner(_trace(columns[key[0]], key[1], np.zeros((2, 2)), thin_core, rings(thin_core), step,
-                               voxel_mm3, contrasts[key[0]])) for key in traces}
-    thin_scatter = _pooled_scatter(thin.values())
+    thin = {}                               # every trace again in the thin core, read once if one is needed
     for label in labels:
         first = _inner(traces[label, side])
         if not first.significant(scatter):
+            if not thin:
+                thin = {key: _inner(_trace(columns[key[0]], key[1], np.zeros((2, 2)), thin_core, rings(thin_core),
+                                           step, voxel_mm3, contrasts[key[0]])) for key in traces}
+                thin_scatter = _pooled_scatter(thin.values())
             first = thin[label, side] if thin[label, side].significant(thin_scatter) else None
         if first is None:
             (short if _short_gap(traces[label, side], columns[label], side, step) else missing).append(label)
