@@ -250,6 +250,41 @@ def test_a_lone_short_posts_diameter_holds_no_excess_from_the_balls_curve():
     assert abs(np.mean(errors)) < 0.05 and np.abs(np.array(errors) / voxels).max() < 0.3
 
 
+CLEAR_RING_POSTS = [(slices, tall, inclusion) for slices in (1.1, 1.2) for tall in (1.3, 1.8) for inclusion in (10.0, 14.0)]
+
+
+def test_a_short_posts_base_surface_is_read_clear_of_its_ball(monkeypatch):
+    """Noise 0.03, bias 0.2, slices 1.1 and 1.2 mm: a 2.5 mm post 1.3 or 1.8 mm tall under the scan's only
+    inclusion (10 or 14 mm), both contrasts. The post's own trace holds too few slabs for the base's profile
+    fit; its base surface, read in an annulus clear of the ball instead (`_clear_end`), lies nearer the truth
+    than the half-way crossing of the trace's ring levels that stood before (mean absolute error over the 8
+    scans), and is less biased.
+
+    (On 16 more such scans without noise: mean error -0.053 -> -0.007 mm, mean absolute 0.081 -> 0.058 mm.)"""
+    from lesscli.mri import pillar
+
+    def base_errors():
+        out = []
+        for k, (slices, tall, inclusion) in enumerate(CLEAR_RING_POSTS):
+            vol = generate(Case(seed=720 + k, spacing_mm=(slices, 0.9, 0.9), inclusion_mm=(inclusion,), pillar_mm=2.5,
+                                pillar_height_mm=(tall,), silicone_brighter=bool(k % 2), noise=0.03, bias=0.2,
+                                partial_volume="box"))
+            seg = segment(vol.image, vol.spacing_mm, where="short post")
+            assert seg.warnings == [] and seg.base_surface is not None
+            out.append(base_error_mm(seg.base_surface, vol))
+        return np.array(out)
+
+    calls = []
+    clear_end = pillar._clear_end
+    monkeypatch.setattr(pillar, "_clear_end", lambda *a: calls.append(clear_end(*a)) or calls[-1])
+    clear = base_errors()
+    assert len(calls) == len(CLEAR_RING_POSTS) and None not in calls
+    monkeypatch.setattr(pillar, "_clear_end", lambda *a: None)
+    crossing = base_errors()
+    assert np.abs(clear).mean() < np.abs(crossing).mean()
+    assert abs(clear.mean()) < abs(crossing.mean())
+
+
 ONE_MM_POSTS = [(slices, post, inclusion) for slices in (0.95, 1.15) for post in (2.5, 3.5) for inclusion in (9.0, 14.0)]
 
 
