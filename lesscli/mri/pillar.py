@@ -447,13 +447,12 @@ def _clear_end(fraction, insert, deep, inc_ids, label: int, centres: np.ndarray,
     inner = _clear_radius(ball, voxel)
     col = _column(fraction, insert, deep, inc_ids, label, centre, axis, spacing,
                   inner + CLEAR_RING_MM + float(np.linalg.norm(line[0])))
+    others = [ball for other, ball in balls.items() if other != label]
+    if None in others:
+        return None
     near_other = np.zeros(len(col.t), dtype=bool)
-    for other, other_ball in balls.items():
-        if other != label:
-            if other_ball is None:
-                return None
-            d = col.points - other_ball.centre_mm
-            near_other |= np.linalg.norm(d - np.outer(d @ axis, axis), axis=1) <= _clear_radius(other_ball, voxel)
+    for other in others:
+        near_other |= _from_line(col.uv, _ball_axis(other, centre, axis), col.t) <= _clear_radius(other, voxel)
     back = min(PROFILE_GEL_SLABS + 2, math.floor(col.start[side] / step_mm))
     col = replace(col, free=col.free & ~near_other, start={**col.start, side: col.start[side] - back * step_mm})
     trace = _trace(col, side, line, inner, (inner, inner + CLEAR_RING_MM), step_mm, voxel_mm3, contrast)
