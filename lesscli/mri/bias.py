@@ -3,6 +3,12 @@
 Inside the object (eroded away from partial-volume boundaries) the log intensity is a tissue level
 plus ``p``. Alternating between a two-class split of the corrected log intensities and a least-squares
 fit of ``p`` to the residuals (outliers trimmed) estimates the field, which is then divided out.
+
+The trimming leaves out the voxels that mix the two tissues only where the noise is low: its window is
+three robust standard deviations of the residuals, which the noise holds wide enough to keep them, and
+they bend the polynomial towards the other tissue's level where they gather (the skin, the base, the
+inclusions' surfaces). So the field is fitted again, from the first fit, to the voxels at least
+TISSUE_MARGIN_VOXELS from any boundary between the tissues that the first fit's split draws.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ MIN_FIT_VOXELS = 200
 LOG_EPS = 1e-6
 RIDGE = 1e-6                    # keeps the normal equations well posed
 SAMPLE_SEED = 0
+TISSUE_MARGIN_VOXELS = 2        # the refit leaves out voxels this close to the other tissue (Chebyshev, voxels)
 
 
 def _powers(degree: int) -> list[tuple[int, int, int]]:
@@ -55,9 +62,10 @@ def _matvec(a: np.ndarray, x: np.ndarray) -> np.ndarray:
     return np.einsum("ni,i->n", a, x)
 
 
-def fit_log_field(log_values: np.ndarray, design: np.ndarray) -> np.ndarray:
-    """Polynomial coefficients of the log bias from (n,) log intensities and the (n, k) design matrix."""
-    coef = np.zeros(design.shape[1])
+def fit_log_field(log_values: np.ndarray, design: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
+    """Polynomial coefficients of the log bias from (n,) log intensities and the (n, k) design matrix,
+    the rounds starting from the coefficients ``start`` (None: no field)."""
+    coef = np.zeros(design.shape[1]) if start is None else np.asarray(start, dtype=np.float64)
     for _ in range(ITERATIONS):
         corrected = log_values - _matvec(design, coef)
         cls = _split(corrected)
@@ -75,13 +83,39 @@ def fit_log_field(log_values: np.ndarray, design: np.ndarray) -> np.ndarray:
     return coef
 
 
-def correct_bias(smoothed: np.ndarray, spacing_mm: np.ndarray, degree: int = 3) -> tuple[np.ndarray, np.ndarray]:
+def _sample_fit(log_image: np.ndarray, mask: np.ndarray, axes, powers, rng, start=None) -> np.ndarray:
+    """:func:`fit_log_field` on up to FIT_SAMPLES voxels of ``mask`` drawn at random."""
+    idx = np.argwhere(mask)
+    if len(idx) > FIT_SAMPLES:
+        idx = idx[rng.choice(len(idx), FIT_SAMPLES, replace=False)]
+    return fit_log_field(log_image[tuple(idx.T)].astype(np.float64), _design(idx, axes, powers), start)
+
+
+def _away_from_boundaries(log_corrected: np.ndarray, fitted: np.ndarray, voxels: int, rng) -> np.ndarray:
+    """The voxels of ``fitted`` at least ``voxels`` (Chebyshev) from any voxel of the other class, the
+    classes split as the fit's rounds split them (Otsu on the corrected log intensities of its voxels;
+    the air falls with the darker tissue)."""
+    from scipy import ndimage
+    from skimage.filters import threshold_otsu
+
+    values = log_corrected[fitted]
+    if len(values) > 2 * FIT_SAMPLES:
+        values = values[rng.choice(len(values), 2 * FIT_SAMPLES, replace=False)]
+    upper = (log_corrected > threshold_otsu(values)).view(np.uint8)
+    size = 2 * voxels + 1
+    mixed = ndimage.maximum_filter(upper, size=size) != ndimage.minimum_filter(upper, size=size)
+    return fitted & ~mixed
+
+
+def correct_bias(smoothed: np.ndarray, spacing_mm: np.ndarray, degree: int = 3,
+                 margin_voxels: int = TISSUE_MARGIN_VOXELS) -> tuple[np.ndarray, np.ndarray]:
     """Divide a smooth multiplicative field out of ``smoothed``.
 
     Args:
         smoothed: (3D) denoised, normalised intensities.
         spacing_mm: (3,) voxel size per axis.
         degree: polynomial degree of the log field (0 disables the correction).
+        margin_voxels: the refit's distance from the tissues' boundaries (0: the first fit stands).
 
     Returns:
         (corrected image float32, foreground mask used for the fit (eroded object), bool).
@@ -100,12 +134,13 @@ def correct_bias(smoothed: np.ndarray, spacing_mm: np.ndarray, degree: int = 3) 
     inner = ndimage.distance_transform_edt(obj, sampling=spacing_mm) > ERODE_MM
     if degree <= 0 or inner.sum() < MIN_FIT_VOXELS:
         return smoothed.astype(np.float32), inner if inner.any() else obj
-    idx = np.argwhere(inner)
-    if len(idx) > FIT_SAMPLES:
-        idx = idx[rng.choice(len(idx), FIT_SAMPLES, replace=False)]
     axes = _unit_axes(smoothed.shape)
     powers = _powers(degree)
-    values = np.log(np.maximum(smoothed[tuple(idx.T)], LOG_EPS))
-    coef = fit_log_field(values, _design(idx, axes, powers))
+    log_image = np.log(np.maximum(smoothed, LOG_EPS, dtype=np.float32))
+    coef = _sample_fit(log_image, inner, axes, powers, rng)
+    if margin_voxels > 0:
+        clear = _away_from_boundaries(log_image - _evaluate(coef, axes, powers, degree), inner, margin_voxels, rng)
+        if clear.sum() >= MIN_FIT_VOXELS:
+            coef = _sample_fit(log_image, clear, axes, powers, rng, start=coef)
     field = np.exp(_evaluate(coef, axes, powers, degree))
     return (smoothed / field).astype(np.float32), inner
