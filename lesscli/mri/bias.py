@@ -98,13 +98,18 @@ def _away_from_boundaries(log_corrected: np.ndarray, fitted: np.ndarray, voxels:
     from scipy import ndimage
     from skimage.filters import threshold_otsu
 
-    values = log_corrected[fitted]
+    from lesscli.mri.morphology import crop_box
+
+    box = crop_box(fitted, voxels)              # the filters see every voxel within reach of the fitted ones
+    log_box, fitted_box = log_corrected[box], fitted[box]
+    values = log_box[fitted_box]
     if len(values) > 2 * FIT_SAMPLES:
         values = values[rng.choice(len(values), 2 * FIT_SAMPLES, replace=False)]
-    upper = (log_corrected > threshold_otsu(values)).view(np.uint8)
+    upper = (log_box > threshold_otsu(values)).view(np.uint8)
     size = 2 * voxels + 1
-    mixed = ndimage.maximum_filter(upper, size=size) != ndimage.minimum_filter(upper, size=size)
-    return fitted & ~mixed
+    clear = np.zeros_like(fitted)
+    clear[box] = fitted_box & (ndimage.maximum_filter(upper, size=size) == ndimage.minimum_filter(upper, size=size))
+    return clear
 
 
 def correct_bias(smoothed: np.ndarray, spacing_mm: np.ndarray, degree: int = 3,

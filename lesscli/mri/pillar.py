@@ -447,7 +447,7 @@ def _clear_end(fraction, insert, deep, inc_ids, label: int, centres: np.ndarray,
     inner = _clear_radius(ball, voxel)
     col = _column(fraction, insert, deep, inc_ids, label, centre, axis, spacing,
                   inner + CLEAR_RING_MM + float(np.linalg.norm(line[0])))
-    others = [ball for other, ball in balls.items() if other != label]
+    others = [fitted for other, fitted in balls.items() if other != label]
     if None in others:
         return None
     near_other = np.zeros(len(col.t), dtype=bool)

@@ -19,8 +19,16 @@ from lesscli.phantom.catalogue import single_insert
 SPACING = np.array([0.5, 0.5, 0.5])
 
 
-def _grid(shape):
-    return np.meshgrid(*(np.arange(n) * s for n, s in zip(shape, SPACING)), indexing="ij")
+def _grid(shape, spacing=SPACING, sparse=False):
+    return np.meshgrid(*(np.arange(n) * s for n, s in zip(shape, spacing)), indexing="ij", sparse=sparse)
+
+
+def _box_fill(solid, shape, spacing, sub=5) -> np.ndarray:
+    """Each voxel's share of ``solid`` (a function of z, y, x mm, bool), the mean of sub x sub x sub
+    points (true partial volume)."""
+    fine = [(np.arange(n * sub) + 0.5) / sub * s - 0.5 * s for n, s in zip(shape, spacing)]
+    inside = solid(*np.meshgrid(*fine, indexing="ij", sparse=True))
+    return inside.reshape(shape[0], sub, shape[1], sub, shape[2], sub).mean(axis=(1, 3, 5))
 
 
 def test_synth_truth_matches_geometry_and_contrast():
@@ -78,7 +86,7 @@ def test_bias_refit_away_from_the_tissue_boundaries_removes_what_the_noise_lets_
 
     spacing = np.array([1.0, 0.7, 0.7])
     shape = (34, 64, 64)
-    z, y, x = np.meshgrid(*(np.arange(n) * s for n, s in zip(shape, spacing)), indexing="ij")
+    z, y, x = _grid(shape, spacing)
     lo, hi = np.array([3.0, 4.0, 4.0]), np.array([31.0, 40.0, 40.0])
     outer = np.all([(c >= a) & (c <= b) for c, a, b in zip((z, y, x), lo, hi)], axis=0)
     filling = np.all([(c >= a) & (c <= b) for c, a, b in zip((z, y, x), lo + [3.0, 2.5, 2.5], hi - 2.5)], axis=0)
@@ -133,7 +141,7 @@ def test_a_small_inclusion_with_noise_pinholes_is_still_found():
     wherever the pinholes lie within it."""
     spacing = np.array([1.0, 1.0, 1.0])
     shape = (30, 40, 40)
-    z, y, x = np.meshgrid(*(np.arange(n) * s for n, s in zip(shape, spacing)), indexing="ij")
+    z, y, x = _grid(shape, spacing)
     insert = np.zeros(shape, bool)
     insert[1:-1, 1:-1, 1:-1] = True
     skin = insert & (z >= 26.0)
@@ -190,19 +198,13 @@ def test_an_inclusion_taken_as_its_ball_is_drawn_whole_however_small_its_opened_
 
     spacing = np.array([1.1, 1.0, 1.0])
     shape = (30, 32, 32)
-    z, y, x = np.meshgrid(*(np.arange(n) * s for n, s in zip(shape, spacing)), indexing="ij")
+    z, y, x = _grid(shape, spacing)
     centre, radius = np.array([16.2, 15.7, 16.4]), 3.8
     r2 = (z - centre[0]) ** 2 + (y - centre[1]) ** 2 + (x - centre[2]) ** 2
     sphere = r2 <= radius ** 2
-    fine = 5                                            # each voxel the mean of 5 x 5 x 5 points
-    offsets = (np.arange(fine) + 0.5) / fine - 0.5
-    fraction = np.zeros(shape)
-    for dz in offsets:
-        for dy in offsets:
-            for dx in offsets:
-                fraction += ((z + dz * spacing[0] - centre[0]) ** 2 + (y + dy * spacing[1] - centre[1]) ** 2
-                             + (x + dx * spacing[2] - centre[2]) ** 2 <= radius ** 2)
-    fraction = ndimage.gaussian_filter(fraction / fine ** 3, sigma=0.5)
+    fraction = _box_fill(lambda z, y, x: (z - centre[0]) ** 2 + (y - centre[1]) ** 2 + (x - centre[2]) ** 2
+                         <= radius ** 2, shape, spacing)
+    fraction = ndimage.gaussian_filter(fraction, sigma=0.5)
     fraction += np.random.default_rng(3).normal(0.0, 0.02, shape)
     body = r2 <= (radius - 1.6) ** 2                    # the opening's leftover, 1.6 mm inside all round
     allowed = np.ones(shape, bool)
@@ -386,7 +388,7 @@ def test_a_thin_posts_significance_is_read_in_a_narrow_core_too():
 
     def draws(post_radius):
         clean, insert, _ = _post_under_ball(spacing, post_radius, 5.0, (0.2, -0.3), 0.0, 0)
-        grid = np.meshgrid(*(np.arange(n) * s for n, s in zip(clean.shape, spacing)), indexing="ij", sparse=True)
+        grid = _grid(clean.shape, spacing, sparse=True)
         ball = (sum((g - c) ** 2 for g, c in zip(grid, centre)) <= 4.5 ** 2).astype(int)
         rows = []
         for _ in range(300):
@@ -414,7 +416,6 @@ def _post_under_ball(spacing, post_radius, gap_mm, shift_voxels, noise, seed):
 
     spacing, sub = np.asarray(spacing), 5
     shape = (30, 60, 60)                                     # wider than tall, like the phantoms
-    fine = [(np.arange(n * sub) + 0.5) / sub * s - 0.5 * s for n, s in zip(shape, spacing)]
     cy, cx = 24.0 + shift_voxels[0] * spacing[1], 24.0 + shift_voxels[1] * spacing[2]
     cz = 4.0 + gap_mm + 5.0
 
@@ -424,10 +425,9 @@ def _post_under_ball(spacing, post_radius, gap_mm, shift_voxels, noise, seed):
         post = ((y - cy) ** 2 + (x - cx) ** 2 <= post_radius ** 2) & (z <= cz)
         return base | skin | ball | post, post & ~ball & ~base
 
-    fine_solid, _ = solid(*np.meshgrid(*fine, indexing="ij", sparse=True))
-    fraction = fine_solid.reshape(shape[0], sub, shape[1], sub, shape[2], sub).mean(axis=(1, 3, 5))
+    fraction = _box_fill(lambda z, y, x: solid(z, y, x)[0], shape, spacing, sub)
     fraction = ndimage.gaussian_filter(fraction, 0.6) + np.random.default_rng(seed).normal(0.0, noise, shape)
-    _, post = solid(*np.meshgrid(*(np.arange(n) * s for n, s in zip(shape, spacing)), indexing="ij", sparse=True))
+    _, post = solid(*_grid(shape, spacing, sparse=True))
     insert = np.zeros(shape, bool)
     insert[1:-1, 2:-2, 2:-2] = True
     return np.where(insert, fraction, 0.0), insert, post & insert
@@ -469,7 +469,7 @@ def test_a_short_posts_radius_is_measured_on_the_line_it_is_drawn_on(shift_voxel
     spacing, gap, axis = np.array([1.1, 0.8, 0.8]), 1.2, np.array([1.0, 0.0, 0.0])
     fraction, insert, _post = _post_under_ball(spacing, 1.5, gap, shift_voxels, 0.05, 3)
     centre = np.array([4.0 + gap + 5.0, 24.0 + shift_voxels[0] * spacing[1], 24.0 + shift_voxels[1] * spacing[2]])
-    grid = np.meshgrid(*(np.arange(n) * s for n, s in zip(fraction.shape, spacing)), indexing="ij", sparse=True)
+    grid = _grid(fraction.shape, spacing, sparse=True)
     ball_ids = (sum((g - c) ** 2 for g, c in zip(grid, centre)) <= 5.0 ** 2).astype(np.int32)
     ball = Ball(centre, 5.0, 0.55, 1.0, 0.0, 0.5, (), np.zeros((0, 0, 0)), spacing)
     radii = []
@@ -492,7 +492,7 @@ def test_silicone_across_a_short_gap_wider_than_the_widest_pillar_is_no_post():
     for radius, widest, expect in [(1.5, 4.5, 1.5), (3.2, 4.5, None), (3.2, 8.0, 3.2)]:
         fraction, insert, _post = _post_under_ball(spacing, radius, gap, (0.2, -0.1), 0.05, 3)
         centre = np.array([4.0 + gap + 5.0, 24.0 + 0.2 * spacing[1], 24.0 - 0.1 * spacing[2]])
-        grid = np.meshgrid(*(np.arange(n) * s for n, s in zip(fraction.shape, spacing)), indexing="ij", sparse=True)
+        grid = _grid(fraction.shape, spacing, sparse=True)
         ball_ids = (sum((g - c) ** 2 for g, c in zip(grid, centre)) <= 5.0 ** 2).astype(np.int32)
         col = _column(fraction, insert, insert, ball_ids, 1, centre, axis, spacing, 7.5)
         found = _gap_radius(col, -1, 5.0 + gap, (0.0, 1.0), 0.5 * widest + 1.65, spacing[0], float(np.prod(spacing)),
