@@ -16,6 +16,11 @@ tests/mri_family.py), sampled at ``--box-points`` points per axis (8).
 ``--floating`` draws the same volumes without posts: the footer counts those where a pillar voxel is
 drawn or an inclusion lacks its "no pillar found" warning (each case row has ``pillar_voxels_drawn``).
 
+``--lone-short`` draws each seed's volume with its first inclusion alone, on a post 1-2.5 mm tall: the
+posts whose radius is fitted to all their silicone, below the blurred ball (no other post to pool with);
+the footer gives their diameter error. `lesscli.mri.pillar.CAP_SHUT_VOXELS` was chosen on seeds
+900-939 of it (box partial volume).
+
 ``--margins 0.025,0.05,0.1`` segments nothing: it scores the truth itself, drawn again with each post
 wider and narrower by each radius (mm) and with the base's surface that far up and down (the spheres
 where they were), against the truth as drawn, and prints how many volumes that alone takes below the
@@ -25,6 +30,7 @@ pillar target: how close to its knife edge the target puts each volume.
     python examples/mri_family.py --seeds 1000-1059 --partial-volume box
     python examples/mri_family.py --seeds 5081,3017 --partial-volume box --box-points 24
     python examples/mri_family.py --seeds 0-99 --margins 0.025,0.05,0.1
+    python examples/mri_family.py --seeds 900-939 --partial-volume box --lone-short
 """
 
 from __future__ import annotations
@@ -55,6 +61,7 @@ from mri_family import (
 )
 
 MIN_PILLAR_VOXELS = 2.0
+LONE_SHORT_MM = (1.0, 2.5)      # --lone-short: the post's height range
 ACCEPT = {"insert": 0.97, "inclusion": 0.93, "pillar": 0.80}
 
 
@@ -66,14 +73,22 @@ def _seeds(text: str) -> list[int]:
     return out
 
 
-def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False) -> list[dict]:
+def lone_short(case):
+    """``case`` with its first inclusion alone, on a post drawn 1-2.5 mm tall (seeded by the case)."""
+    tall = float(np.round(np.random.default_rng([46, case.seed]).uniform(*LONE_SHORT_MM), 1))
+    return dataclasses.replace(case, inclusion_mm=case.inclusion_mm[:1], pillar_height_mm=(tall,))
+
+
+def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lone: bool = False) -> list[dict]:
     """One volume: a case row (insert Dice, pillar voxels drawn, warnings) and one row per inclusion, each with
-    the case's parameters; ``floating``: the volume drawn without posts."""
+    the case's parameters; ``floating``: the volume drawn without posts; ``lone``: :func:`lone_short`."""
     from lesscli.mri.segment import segment
 
     case = dataclasses.replace(draw_case(seed), partial_volume=partial_volume)
     if floating:
         case = dataclasses.replace(case, pillar_mm=0.0)
+    if lone:
+        case = lone_short(case)
     volume = generate(case)
     t0 = time.perf_counter()
     seg = segment(volume.image, volume.spacing_mm, where=f"seed {seed}")
@@ -186,6 +201,10 @@ def table(rows: list[dict]) -> str:
             "no pillar found under the inclusion" in w for w in c["warnings"]) != c["inclusions"])
         lines.append(f"Without posts: {len(floating)} volumes, {silent} with a pillar voxel drawn or an inclusion "
                      "without its warning.")
+    diameters = [r["post_diameter_error_mm"] for r in incs if r.get("post_diameter_error_mm") is not None]
+    if diameters:
+        lines.append(f"Post diameter error: mean {np.mean(diameters):+.3f} mm, sd {np.std(diameters):.3f}, "
+                     f"mean absolute {np.mean(np.abs(diameters)):.3f} ({len(diameters)} posts).")
     lines.append(f"Pillars under 2 voxels wide (not in the acceptance): {len(thin)}, Dice min / median {_stat(thin)}. "
                  f"Volumes with warnings: {sum(1 for r in cases if r['warnings'])}. "
                  f"Volumes meeting all three targets: {meeting} of {len(cases)}"
@@ -204,6 +223,8 @@ def main() -> None:
                         help="sub-voxel points per axis of the box partial volume")
     parser.add_argument("--floating", action="store_true",
                         help="draw the volumes without posts: no pillar may be drawn, one warning per inclusion")
+    parser.add_argument("--lone-short", action="store_true",
+                        help="draw each volume's first inclusion alone, on a post 1-2.5 mm tall")
     parser.add_argument("--margins", default=None,
                         help="perturbations of the truth, mm (e.g. 0.025,0.05,0.1): segment nothing, count the "
                              "volumes each takes below the pillar target")
@@ -217,7 +238,7 @@ def main() -> None:
         print(margin_table(rows, deltas))
         return
     for seed in _seeds(args.seeds):
-        new = run_case(seed, args.partial_volume, args.floating)
+        new = run_case(seed, args.partial_volume, args.floating, args.lone_short)
         rows += new
         fails = shortfalls(new[0], new[1:])
         print(f"seed {seed}: {new[0]['seconds']} s" + (f"  below: {', '.join(fails)}" if fails else ""),
