@@ -43,7 +43,7 @@ def _design(idx: np.ndarray, axes: list[np.ndarray], powers) -> np.ndarray:
 
 
 def _evaluate(coef: np.ndarray, axes: list[np.ndarray], powers, degree: int) -> np.ndarray:
-    """Separable evaluation of sum_c coef_c x^a y^b z^c on the full grid, float32."""
+    """Separable evaluation of sum_c coef_c x^a y^b z^c on the grid of ``axes``, float32."""
     tensor = np.zeros((degree + 1,) * 3)
     for c, p in zip(coef, powers):
         tensor[p] = c
@@ -83,25 +83,31 @@ def fit_log_field(log_values: np.ndarray, design: np.ndarray, start: np.ndarray 
     return coef
 
 
-def _sample_fit(log_image: np.ndarray, mask: np.ndarray, axes, powers, rng, start=None) -> np.ndarray:
+def _log(values: np.ndarray) -> np.ndarray:
+    return np.log(np.maximum(values, LOG_EPS, dtype=np.float32))
+
+
+def _sample_fit(smoothed: np.ndarray, mask: np.ndarray, axes, powers, rng, start=None) -> np.ndarray:
     """:func:`fit_log_field` on up to FIT_SAMPLES voxels of ``mask`` drawn at random."""
     idx = np.argwhere(mask)
     if len(idx) > FIT_SAMPLES:
         idx = idx[rng.choice(len(idx), FIT_SAMPLES, replace=False)]
-    return fit_log_field(log_image[tuple(idx.T)].astype(np.float64), _design(idx, axes, powers), start)
+    return fit_log_field(_log(smoothed[tuple(idx.T)]).astype(np.float64), _design(idx, axes, powers), start)
 
 
-def _away_from_boundaries(log_corrected: np.ndarray, fitted: np.ndarray, voxels: int, rng) -> np.ndarray:
+def _away_from_boundaries(smoothed: np.ndarray, fitted: np.ndarray, coef: np.ndarray, axes, powers, degree: int,
+                          voxels: int, rng) -> np.ndarray:
     """The voxels of ``fitted`` at least ``voxels`` (Chebyshev) from any voxel of the other class, the
-    classes split as the fit's rounds split them (Otsu on the corrected log intensities of its voxels;
-    the air falls with the darker tissue)."""
+    classes split as the fit's rounds split them (Otsu on the log intensities, corrected by the field of
+    ``coef``, of its voxels; the air falls with the darker tissue)."""
     from scipy import ndimage
     from skimage.filters import threshold_otsu
 
     from lesscli.mri.morphology import crop_box
 
     box = crop_box(fitted, voxels)              # the filters see every voxel within reach of the fitted ones
-    log_box, fitted_box = log_corrected[box], fitted[box]
+    log_box = _log(smoothed[box]) - _evaluate(coef, [ax[b] for ax, b in zip(axes, box)], powers, degree)
+    fitted_box = fitted[box]
     values = log_box[fitted_box]
     if len(values) > 2 * FIT_SAMPLES:
         values = values[rng.choice(len(values), 2 * FIT_SAMPLES, replace=False)]
@@ -141,11 +147,10 @@ def correct_bias(smoothed: np.ndarray, spacing_mm: np.ndarray, degree: int = 3,
         return smoothed.astype(np.float32), inner if inner.any() else obj
     axes = _unit_axes(smoothed.shape)
     powers = _powers(degree)
-    log_image = np.log(np.maximum(smoothed, LOG_EPS, dtype=np.float32))
-    coef = _sample_fit(log_image, inner, axes, powers, rng)
+    coef = _sample_fit(smoothed, inner, axes, powers, rng)
     if margin_voxels > 0:
-        clear = _away_from_boundaries(log_image - _evaluate(coef, axes, powers, degree), inner, margin_voxels, rng)
+        clear = _away_from_boundaries(smoothed, inner, coef, axes, powers, degree, margin_voxels, rng)
         if clear.sum() >= MIN_FIT_VOXELS:
-            coef = _sample_fit(log_image, clear, axes, powers, rng, start=coef)
+            coef = _sample_fit(smoothed, clear, axes, powers, rng, start=coef)
     field = np.exp(_evaluate(coef, axes, powers, degree))
     return (smoothed / field).astype(np.float32), inner
