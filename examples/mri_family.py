@@ -21,6 +21,10 @@ posts whose radius is fitted to all their silicone, below the blurred ball (no o
 the footer gives their diameter error. `lesscli.mri.pillar.CAP_SHUT_VOXELS` was chosen on seeds
 900-939 of it (box partial volume).
 
+``--known-diameter`` segments each volume with its posts' true diameter given, as a lab that knows its
+mould's would (``less mri-label --pillar-diameter-mm``): the posts are found, placed and ended from the
+scan as without it, and drawn that wide (the rows' ``post_diameter_error_mm`` stays the measured one's).
+
 ``--margins 0.025,0.05,0.1`` segments nothing: it scores the truth itself, drawn again with each post
 wider and narrower by each radius (mm) and with the base's surface that far up and down (the spheres
 where they were), against the truth as drawn, and prints how many volumes that alone takes below the
@@ -31,6 +35,7 @@ pillar target: how close to its knife edge the target puts each volume.
     python examples/mri_family.py --seeds 5081,3017 --partial-volume box --box-points 24
     python examples/mri_family.py --seeds 0-99 --margins 0.025,0.05,0.1
     python examples/mri_family.py --seeds 900-939 --partial-volume box --lone-short
+    python examples/mri_family.py --seeds 1000-1059 --known-diameter
 """
 
 from __future__ import annotations
@@ -79,10 +84,12 @@ def lone_short(case):
     return dataclasses.replace(case, inclusion_mm=case.inclusion_mm[:1], pillar_height_mm=(tall,))
 
 
-def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lone: bool = False) -> list[dict]:
+def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lone: bool = False,
+             known: bool = False) -> list[dict]:
     """One volume: a case row (insert Dice, pillar voxels drawn, warnings) and one row per inclusion, each with
-    the case's parameters; ``floating``: the volume drawn without posts; ``lone``: :func:`lone_short`."""
-    from lesscli.mri.segment import segment
+    the case's parameters; ``floating``: the volume drawn without posts; ``lone``: :func:`lone_short`;
+    ``known``: segmented with the posts' true diameter given (``SegmentParams.pillar_diameter_mm``)."""
+    from lesscli.mri.segment import SegmentParams, segment
 
     case = dataclasses.replace(draw_case(seed), partial_volume=partial_volume)
     if floating:
@@ -91,7 +98,8 @@ def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lo
         case = lone_short(case)
     volume = generate(case)
     t0 = time.perf_counter()
-    seg = segment(volume.image, volume.spacing_mm, where=f"seed {seed}")
+    params = SegmentParams(pillar_diameter_mm=case.pillar_mm if known and case.pillar_mm > 0 else None)
+    seg = segment(volume.image, volume.spacing_mm, params, where=f"seed {seed}")
     common = {"seed": seed, "voxel_mm": max(case.spacing_mm), "spacing_mm": list(case.spacing_mm),
               "pillar_mm": case.pillar_mm, "pillar_voxels": round(pillar_voxels_wide(case), 2),
               "contrast": "silicone-brighter" if case.silicone_brighter else "silicone-darker",
@@ -225,6 +233,8 @@ def main() -> None:
                         help="draw the volumes without posts: no pillar may be drawn, one warning per inclusion")
     parser.add_argument("--lone-short", action="store_true",
                         help="draw each volume's first inclusion alone, on a post 1-2.5 mm tall")
+    parser.add_argument("--known-diameter", action="store_true",
+                        help="segment with the posts' true diameter given (less mri-label --pillar-diameter-mm)")
     parser.add_argument("--margins", default=None,
                         help="perturbations of the truth, mm (e.g. 0.025,0.05,0.1): segment nothing, count the "
                              "volumes each takes below the pillar target")
@@ -238,7 +248,7 @@ def main() -> None:
         print(margin_table(rows, deltas))
         return
     for seed in _seeds(args.seeds):
-        new = run_case(seed, args.partial_volume, args.floating, args.lone_short)
+        new = run_case(seed, args.partial_volume, args.floating, args.lone_short, args.known_diameter)
         rows += new
         fails = shortfalls(new[0], new[1:])
         print(f"seed {seed}: {new[0]['seconds']} s" + (f"  below: {', '.join(fails)}" if fails else ""),

@@ -301,8 +301,9 @@ def base_error_mm(base, volume: Volume) -> float:
 
 def post_errors(posts: list, volume: Volume, reach_mm: float = 3.0) -> list[dict]:
     """Per inclusion, how the post found under it (:class:`lesscli.mri.pillar.Post`, the one whose foot lies
-    nearest its axis, within ``reach_mm``) differs from the truth: diameter and height (found minus true) and
-    the foot's distance from the true axis, mm; None where no post is that near."""
+    nearest its axis, within ``reach_mm``) differs from the truth: diameter (as the scan measured it, also
+    where the one drawn was given) and height (found minus true) and the foot's distance from the true axis,
+    mm; None where no post is that near."""
     spacing = volume.spacing_mm
     feet = np.array([p.foot_mm[1:] for p in posts]).reshape(-1, 2)
     rows = []
@@ -312,7 +313,8 @@ def post_errors(posts: list, volume: Volume, reach_mm: float = 3.0) -> list[dict
             rows.append({"post_diameter_error_mm": None, "post_height_error_mm": None, "post_offset_mm": None})
             continue
         post = posts[int(np.argmin(off))]
-        rows.append({"post_diameter_error_mm": 2.0 * post.radius_mm - volume.case.pillar_mm,
+        radius = post.radius_mm if post.measured_radius_mm is None else post.measured_radius_mm
+        rows.append({"post_diameter_error_mm": 2.0 * radius - volume.case.pillar_mm,
                      "post_height_error_mm": post.height_mm - volume.case.pillar_height_mm[k],
                      "post_offset_mm": float(off.min())})
     return rows

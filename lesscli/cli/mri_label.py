@@ -109,6 +109,9 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
 @click.option("--spacing-mm", "spacing", default=None, help="dz,dy,dx voxel size for .npy/.npz scans (and --synth).")
 @click.option("--pillar-max-diameter-mm", type=click.FloatRange(min=0.1), default=4.5, show_default=True,
               help="Thickest pillar; thicker silicone bodies are inclusions.")
+@click.option("--pillar-diameter-mm", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              help="The posts' diameter as cast, where known (the mould's): each post is found, placed and "
+                   "ended from the scan but drawn this wide (--report keeps its measured diameter too).")
 @click.option("--skin-max-thickness-mm", type=click.FloatRange(min=0.1), default=3.0, show_default=True,
               help="Thickest silicone skin (labelled insert).")
 @click.option("--smooth-mm", type=click.FloatRange(min=0.0), default=None,
@@ -140,9 +143,9 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
               help="With --synth: peak |log| of the multiplicative bias field.")
 @seed_option()
 @format_option
-def cli(scan, output, spacing, pillar_max_diameter_mm, skin_max_thickness_mm, smooth_mm, inclusion_shape, grid,
-        grid_shape, grid_spacing_mm, orientations, report, qc, strict, synth, truth_out, contrast, noise, bias, seed,
-        fmt) -> None:
+def cli(scan, output, spacing, pillar_max_diameter_mm, pillar_diameter_mm, skin_max_thickness_mm, smooth_mm,
+        inclusion_shape, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict, synth, truth_out,
+        contrast, noise, bias, seed, fmt) -> None:
     """Label an MRI scan (NIfTI, DICOM folder, or .npy/.npz with --spacing-mm) into 0 background,
     1 insert (hydrogel and skin), 2 pillar, 3 inclusion; either tissue may be the brighter one.
 
@@ -150,6 +153,7 @@ def cli(scan, output, spacing, pillar_max_diameter_mm, skin_max_thickness_mm, sm
     Examples:
       less mri-label --synth St12C13 -o scan.nii.gz --truth-out truth.nii.gz --seed 1
       less mri-label scan.nii.gz -o labels.nii.gz --report --plot qc.png
+      less mri-label scan.nii.gz -o labels.nii.gz --pillar-diameter-mm 3 --report
       less mri-label scan.nii.gz -o grid.nii.gz --grid phantom --orientations 0-7
       less mri-label scan.npy --spacing-mm 0.5,0.5,0.5 -o labels.nii.gz
     """
@@ -169,6 +173,10 @@ def cli(scan, output, spacing, pillar_max_diameter_mm, skin_max_thickness_mm, sm
         raise click.BadParameter(f"'{output}': expected {', '.join(allowed)}", param_hint="-o")
     if qc and not qc.endswith(".png"):
         raise click.BadParameter(f"'{qc}': expected a .png file", param_hint="--plot")
-    params = SegmentParams(pillar_max_diameter_mm, skin_max_thickness_mm, smooth_mm, inclusion_shape=inclusion_shape)
+    try:
+        params = SegmentParams(pillar_max_diameter_mm, skin_max_thickness_mm, smooth_mm,
+                               inclusion_shape=inclusion_shape, pillar_diameter_mm=pillar_diameter_mm)
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--pillar-diameter-mm") from None
     _label(scan, output, spacing, params, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict,
            fmt)

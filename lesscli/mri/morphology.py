@@ -356,7 +356,8 @@ def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray, shap
 
 def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_max_diameter_mm: float,
                    skin_max_thickness_mm: float, fraction: np.ndarray | None = None,
-                   inclusion_shape: str = "auto") -> tuple[np.ndarray, np.ndarray, list[str], list[dict]]:
+                   inclusion_shape: str = "auto",
+                   pillar_diameter_mm: float | None = None) -> tuple[np.ndarray, np.ndarray, list[str], list[dict]]:
     """Pillar and inclusion masks from the silicone mask of an insert.
 
     Args:
@@ -368,6 +369,7 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
         fraction: float image of the silicone fraction (0 hydrogel, 1 silicone) for tracing pillars;
             None uses the silicone mask itself.
         inclusion_shape: "auto", "image" or "ball" (:func:`_local_surface`).
+        pillar_diameter_mm: the posts' diameter as cast, where known (:func:`find_pillars`); None: as measured.
 
     Returns:
         (pillar mask, inclusion mask, warnings, one dict per inclusion on how its surface was drawn
@@ -400,7 +402,8 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     warnings = [] if n_inclusions else ["no inclusion found"]
     deep = ins & (depth > shell_mm)
     pillar, missing, base, posts, run_on = find_pillars(frac, ins, inc_ids, n_inclusions, spacing,
-                                                        insert_axis(ins, spacing), pillar_max_diameter_mm, deep)
+                                                        insert_axis(ins, spacing), pillar_max_diameter_mm, deep,
+                                                        pillar_diameter_mm)
     inclusion, shapes = _local_surface(bodies & ~run_on, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm,
                                        inclusion_shape, None if base is None else base.beyond(spacing, ins.shape))
     inclusion |= _junctions(inclusion, pillar, spacing, shapes)

@@ -785,7 +785,8 @@ def _walked_contrast(both: list[Trace], contrast: tuple[float, float]) -> tuple[
 
 def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, n_inclusions: int,
                  spacing_mm, axis: np.ndarray, max_diameter_mm: float,
-                 deep: np.ndarray | None = None) -> tuple[np.ndarray, list[int], int]:
+                 deep: np.ndarray | None = None,
+                 diameter_mm: float | None = None) -> tuple[np.ndarray, list[int], int]:
     """The pillar under each inclusion, traced towards the base.
 
     Args:
@@ -797,6 +798,8 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         max_diameter_mm: thickest pillar (sizes the search around each inclusion's line).
         deep: bool mask of the insert away from its outer surface (where the base's level is read);
             None: the insert.
+        diameter_mm: the posts' diameter as cast, where known: every post is found, placed and ended
+            as without it, then drawn this wide; None: as measured.
 
     Returns:
         (pillar mask, labels of the inclusions without a pillar, the base's surface (:class:`BaseSurface`),
@@ -906,6 +909,9 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
             missing.append(label)
         else:
             found[label] = (under[label], radius, end)
+    measured = {label: radius for label, (_line, radius, _end) in found.items()}
+    if diameter_mm is not None:
+        found = {label: (line, 0.5 * diameter_mm, end) for label, (line, _radius, end) in found.items()}
     for label, (line, radius, end) in found.items():
         col = columns[label]
         st = side * col.t
@@ -918,15 +924,16 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
                                                          for label, (_line, _radius, end) in found.items()])))
     posts = [_post(*found[label], centres[label - 1], axis, side,
                    columns[label].start[side] if balls[label] is None
-                   else _ball_surface(balls[label], centres[label - 1], axis, side)) for label in sorted(found)]
+                   else _ball_surface(balls[label], centres[label - 1], axis, side),
+                   None if diameter_mm is None else measured[label]) for label in sorted(found)]
     return pillar, sorted(missing), base, posts, run_on
 
 
 def _post(line: np.ndarray, radius: float, end: float, centre: np.ndarray, axis: np.ndarray, side: int,
-          start: float) -> Post:
+          start: float, measured: float | None = None) -> Post:
     """The :class:`Post` drawn around ``line`` (lateral offset and slope against the distance ``st`` from
     ``centre`` towards the base, :func:`_trace`'s frame) from ``start`` (the inclusion's surface) to ``end``
-    (the base's)."""
+    (the base's); ``measured``: its radius measured where ``radius`` was given."""
     e1, e2 = _basis(axis)
 
     def at(st):
@@ -934,7 +941,7 @@ def _post(line: np.ndarray, radius: float, end: float, centre: np.ndarray, axis:
         return centre + side * st * axis + u * e1 + v * e2
 
     up = at(0.0) - at(1.0)
-    return Post(at(end), up / np.linalg.norm(up), radius, end - start)
+    return Post(at(end), up / np.linalg.norm(up), radius, end - start, measured)
 
 
 @dataclass
@@ -946,6 +953,7 @@ class Post:
     direction: np.ndarray           # unit, from the foot towards its inclusion
     radius_mm: float
     height_mm: float                # from the base's surface to the inclusion's, along the insert axis
+    measured_radius_mm: float | None = None     # as the scan measured it, where the radius drawn was given
 
     def shifted(self, origin_index: np.ndarray, spacing: np.ndarray) -> Post:
         """The same post on a grid (of the same spacing) whose index 0 lies at this one's ``origin_index``."""

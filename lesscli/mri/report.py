@@ -89,14 +89,17 @@ def base_rows(base, spacing_mm, shape: tuple, affine: np.ndarray) -> list[dict]:
 def post_rows(posts: list, spacing_mm, affine: np.ndarray) -> list[dict]:
     """One row per pillar drawn (:class:`lesscli.mri.pillar.Post`) in the affine's world frame: its foot
     (the centre of its end on the base), the unit direction up its axis, its diameter and its height from
-    the base's surface to its inclusion's along the insert axis."""
+    the base's surface to its inclusion's along the insert axis (and ``measured_diameter_mm``, as the scan
+    measured it, where the diameter drawn was given)."""
     spacing = np.asarray(spacing_mm, dtype=np.float64)
     rows = []
     for post in posts:
         up = np.asarray(affine)[:3, :3] @ (post.direction / spacing)
         rows.append({"row": "pillar", "foot_mm": _world_mm(post.foot_mm, spacing, affine),
                      "direction": [round(float(v), 5) for v in up / np.linalg.norm(up)],
-                     "diameter_mm": round(2.0 * post.radius_mm, 3), "height_mm": round(post.height_mm, 3)})
+                     "diameter_mm": round(2.0 * post.radius_mm, 3), "height_mm": round(post.height_mm, 3)}
+                    | ({} if post.measured_radius_mm is None
+                       else {"measured_diameter_mm": round(2.0 * post.measured_radius_mm, 3)}))
     return rows
 
 

@@ -55,6 +55,9 @@ class SegmentParams:
         bias_degree: polynomial degree of the log bias field (0 = no correction).
         inclusion_shape: "auto" (an inclusion is its fitted ball where that fits within the noise, else
             the image's surface), "image" or "ball" (always).
+        pillar_diameter_mm: the posts' diameter as cast, where it is known (the mould's): each post is
+            still found, placed and ended from the scan, but drawn this wide (its measured diameter is
+            kept, :attr:`lesscli.mri.pillar.Post.measured_radius_mm`); None: drawn as measured.
     """
 
     pillar_max_diameter_mm: float = 4.5
@@ -62,6 +65,12 @@ class SegmentParams:
     smooth_mm: float | None = None
     bias_degree: int = 3
     inclusion_shape: str = "auto"
+    pillar_diameter_mm: float | None = None
+
+    def __post_init__(self):
+        if self.pillar_diameter_mm is not None and not 0 < self.pillar_diameter_mm <= self.pillar_max_diameter_mm:
+            raise ValueError(f"the pillar diameter ({self.pillar_diameter_mm:g} mm) must lie above 0 and at most "
+                             f"the thickest pillar's ({self.pillar_max_diameter_mm:g} mm)")
 
 
 @dataclass
@@ -286,7 +295,7 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     pillar, inclusion, more, shapes, base, posts = split_silicone(silicone, insert, spacing,
                                                                   params.pillar_max_diameter_mm,
                                                                   params.skin_max_thickness_mm, fraction,
-                                                                  params.inclusion_shape)
+                                                                  params.inclusion_shape, params.pillar_diameter_mm)
     labels = np.full(arr.shape, BACKGROUND, dtype=np.uint8)
     labels[insert] = INSERT
     labels[pillar] = PILLAR

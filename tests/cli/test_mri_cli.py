@@ -179,13 +179,36 @@ def test_dicom_folder_without_images_is_a_clear_error(run_less, tmp_path):
     assert "no DICOM images" in line
 
 
-def test_usage_errors(run_less, synth_files):
+def test_usage_errors(run_less, synth_files, tmp_path):
     proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", "x.nii.gz", "--spacing-mm", "1,0,1")
     assert proc.returncode == 2 and "three positive numbers" in proc.stderr.decode()
     proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", "x.nii.gz", "--orientations", "0-7")
     assert proc.returncode == 2 and "--grid phantom" in proc.stderr.decode()
     line = _one_line_error(run_less("mri-label", "--synth", "St12C31", "-o", "x.nii.gz"))
     assert "did you mean" in line
+    proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", "x.nii.gz", "--pillar-diameter-mm", "5")
+    assert proc.returncode == 2 and "thickest pillar's (4.5 mm)" in proc.stderr.decode()
+    assert not (tmp_path / "x.nii.gz").exists()
+
+
+def test_given_pillar_diameter_is_drawn_and_the_measured_one_reported(run_less, synth_files, tmp_path):
+    """`--pillar-diameter-mm`: the post drawn that wide, where the scan places it, its measured diameter in
+    the report; the inclusion as without it (within the voxels its surface is fitted clear of the post)."""
+    from lesscli.io.labels import PILLAR
+    from lesscli.phantom.catalogue import PILLAR_RADIUS_MM
+
+    rows = {}
+    for name, extra in (("blind", ()), ("given", ("--pillar-diameter-mm", "4.4"))):
+        proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", f"{name}.nii.gz", "--report", "--format",
+                        "jsonl", *extra, check=True)
+        (rows[name],) = [r for r in map(json.loads, proc.stdout.decode().splitlines()) if r["row"] == "pillar"]
+    assert rows["given"]["diameter_mm"] == 4.4 and "measured_diameter_mm" not in rows["blind"]
+    assert rows["given"]["measured_diameter_mm"] == rows["blind"]["diameter_mm"]
+    assert abs(rows["blind"]["diameter_mm"] - 2 * PILLAR_RADIUS_MM) < 0.25 * 0.7
+    assert rows["given"]["foot_mm"] == rows["blind"]["foot_mm"]
+    blind, given = (load_nifti_labels(str(tmp_path / f"{name}.nii.gz")).data for name in ("blind", "given"))
+    assert (given == PILLAR).sum() > (blind == PILLAR).sum()
+    assert dice(given == INCLUSION, blind == INCLUSION) > 0.98      # the ball is fitted clear of the post
 
 
 def test_phantom_command_writes_synthetic_mri(run_less, tmp_path):

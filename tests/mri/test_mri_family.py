@@ -263,6 +263,40 @@ def test_a_lone_short_posts_diameter_holds_no_excess_from_the_balls_curve():
     assert abs(np.mean(errors)) < 0.05 and np.abs(np.array(errors) / voxels).max() < 0.3
 
 
+KNOWN_DIAMETER_POSTS = [(pv, voxel, post) for pv in ("box", "ramp") for voxel in (0.8, 1.1) for post in (2.0, 3.0)]
+
+
+def test_a_given_diameter_draws_noisy_lone_short_posts_that_wide_where_the_scan_finds_them():
+    """Noise 0.1 (the family's most), bias 0.3: lone posts 2 and 3 mm wide and 1.5 mm tall under a 9 mm
+    inclusion, at 0.8 and 1.1 mm voxels, box and ramp partial volume. Such a post's radius is fitted to the
+    few voxels of its own silicone, and the noise carries it: drawn as measured, 2.02-3.73 mm wide, pillar
+    Dice down to 0.62. Given the diameter as cast (`SegmentParams.pillar_diameter_mm`, `less mri-label
+    --pillar-diameter-mm`), each post is drawn that wide, on the line and to the base the scan gives, and
+    keeps the diameter the scan measured; each meets the pillar target. A volume without posts given a
+    diameter still gets none."""
+    from lesscli.mri.segment import SegmentParams
+
+    blind_dice, given_dice = [], []
+    for k, (pv, voxel, post) in enumerate(KNOWN_DIAMETER_POSTS):
+        vol = generate(Case(seed=660 + k, spacing_mm=(voxel,) * 3, inclusion_mm=(9.0,), pillar_mm=post,
+                            pillar_height_mm=(1.5,), noise=0.1, bias=0.3, partial_volume=pv))
+        blind = segment(vol.image, vol.spacing_mm, where="lone short post")
+        given = segment(vol.image, vol.spacing_mm, SegmentParams(pillar_diameter_mm=post), where="lone short post")
+        assert blind.warnings == given.warnings == [] and len(blind.posts) == len(given.posts) == 1
+        (drawn,), (measured,) = given.posts, blind.posts
+        assert drawn.radius_mm == 0.5 * post and drawn.measured_radius_mm == measured.radius_mm
+        assert measured.measured_radius_mm is None
+        np.testing.assert_allclose(drawn.foot_mm, measured.foot_mm)
+        assert drawn.height_mm == measured.height_mm
+        blind_dice.append(inclusion_scores(blind.labels, vol)[0]["dice_pillar"])
+        given_dice.append(inclusion_scores(given.labels, vol)[0]["dice_pillar"])
+    assert min(given_dice) >= MIN_DICE["pillar"] and np.mean(given_dice) > np.mean(blind_dice)
+    floating = generate(Case(seed=506, spacing_mm=(0.9, 0.8, 0.8), inclusion_mm=(9.0, 12.0), pillar_mm=0.0,
+                             pillar_height_mm=(4.0, 8.0), noise=0.05, bias=0.2))
+    seg = segment(floating.image, floating.spacing_mm, SegmentParams(pillar_diameter_mm=3.0), where="floating")
+    assert not (seg.labels == PILLAR).any() and seg.posts == [] and len(seg.warnings) == 2
+
+
 CLEAR_RING_POSTS = [(slices, tall, inclusion) for slices in (1.1, 1.2) for tall in (1.3, 1.8) for inclusion in (10.0, 14.0)]
 
 
@@ -597,6 +631,26 @@ def test_family_script_lone_short(tmp_path):
     (inclusion,) = [r for r in rows if r["row"] == "inclusion"]
     assert inclusion["inclusion_mm"] == draw_case(900).inclusion_mm[0] and 1.0 <= inclusion["pillar_height_mm"] <= 2.5
     assert "Post diameter error: mean" in proc.stdout and "(1 posts)" in proc.stdout
+
+
+def test_family_script_known_diameter(tmp_path):
+    """`examples/mri_family.py --known-diameter`: the volume segmented with its posts' true diameter given;
+    the rows' diameter error stays that of the diameter the scan measured, the post drawn as wide as given."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "examples" / "mri_family.py"
+    rows = {}
+    for name, extra in (("measured", []), ("given", ["--known-diameter"])):
+        subprocess.run([sys.executable, str(script), "--seeds", "24", "--partial-volume", "box", *extra,
+                        "--out", str(tmp_path / f"{name}.jsonl")], capture_output=True, text=True, check=True)
+        rows[name] = [json.loads(line) for line in (tmp_path / f"{name}.jsonl").read_text().splitlines()]
+    (measured,), (given,) = ([r for r in rows[n] if r["row"] == "inclusion"] for n in ("measured", "given"))
+    assert given["post_diameter_error_mm"] == measured["post_diameter_error_mm"] != 0.0
+    assert given["post_height_error_mm"] == measured["post_height_error_mm"]
+    pillar_voxels = [next(r for r in rows[n] if r["row"] == "case")["pillar_voxels_drawn"] for n in ("measured", "given")]
+    assert pillar_voxels[0] != pillar_voxels[1]
 
 
 @pytest.mark.parametrize("base_up", [False, True])
