@@ -26,9 +26,10 @@ mould's would (``less mri-label --pillar-diameter-mm``): the posts are found, pl
 scan as without it, and drawn that wide (the rows' ``post_diameter_error_mm`` stays the measured one's).
 
 ``--margins 0.025,0.05,0.1`` segments nothing: it scores the truth itself, drawn again with each post
-wider and narrower by each radius (mm) and with the base's surface that far up and down (the spheres
-where they were), against the truth as drawn, and prints how many volumes that alone takes below the
-pillar target: how close to its knife edge the target puts each volume.
+wider and narrower by each radius (mm), with the base's surface that far up and down, and with each
+sphere that much wider and narrower about its centre, against the truth as drawn, and prints how many
+volumes that alone takes below the pillar target: how close to its knife edge the target puts each
+volume.
 
     python examples/mri_family.py --seeds 1000-1059 --out results/mri_family.jsonl
     python examples/mri_family.py --seeds 1000-1059 --partial-volume box
@@ -123,12 +124,14 @@ def shortfalls(case: dict, inclusions: list[dict]) -> list[str]:
     return fails
 
 
-PERTURBATIONS = {"radius": lambda d: {"radius_mm": d}, "base": lambda d: {"base_mm": d}}
+PERTURBATIONS = {"radius": lambda d: {"radius_mm": d}, "base": lambda d: {"base_mm": d},
+                 "sphere": lambda d: {"sphere_mm": d}}
 
 
 def margin_row(seed: int, deltas: list[float]) -> dict:
     """Pillar Dice per inclusion of the truth drawn with each perturbation (``perturbed``: a post's radius,
-    the base's surface) of +- each delta (mm), scored against the truth as drawn: key ``radius+0.05`` etc."""
+    the base's surface, a sphere's radius) of +- each delta (mm), scored against the truth as drawn: key
+    ``radius+0.05`` etc."""
     case = draw_case(seed)
     truth = generate(case, image=False)
     row = {"row": "margin", "seed": seed, "pillar_voxels": round(pillar_voxels_wide(case), 2)}
@@ -151,11 +154,12 @@ def margin_table(rows: list[dict], deltas: list[float]) -> str:
 
     lines = [(f"Volumes with pillars at least 2 voxels wide: {len(wide)} of {len(rows)}. Below the pillar target "
               f"({ACCEPT['pillar']}) with the truth itself moved by:"), "",
-             "| perturbation (mm) | post radius +- | base surface +- | either | seeds |", "|---|---|---|---|---|"]
+             "| perturbation (mm) | post radius +- | base surface +- | sphere radius +- | any | seeds |",
+             "|---|---|---|---|---|---|"]
     for delta in deltas:
         both = below(delta, PERTURBATIONS)
         lines.append(f"| {delta:g} | {len(below(delta, ['radius']))} | {len(below(delta, ['base']))} | "
-                     f"{len(both)} | {', '.join(map(str, both))} |")
+                     f"{len(below(delta, ['sphere']))} | {len(both)} | {', '.join(map(str, both))} |")
     return "\n".join(lines)
 
 

@@ -55,6 +55,7 @@ class Case:
     base_mm: float = 3.0
     inclusion_aspect: float = 1.0
     partial_volume: str = "ramp"
+    sphere_margin_mm: float = 0.0   # each sphere drawn this much wider in radius, where it was laid out (`perturbed`)
 
 
 PARTIAL_VOLUMES = ("ramp", "box")
@@ -186,7 +187,7 @@ def generate(case: Case, image: bool = True) -> Volume:
     yaw = math.radians(float(rng.uniform(0, 360)) if case.yaw_deg is None else case.yaw_deg)
     shift = rng.uniform(-2.0, 2.0, 3)
     c, s = math.cos(yaw), math.sin(yaw)
-    radii = 0.5 * np.asarray(case.inclusion_mm)
+    radii = 0.5 * np.asarray(case.inclusion_mm) + case.sphere_margin_mm
 
     def distances(a0, a1, a2):
         """Signed distances (mm) of body, cavity, spheres and pillars at array-frame points (broadcast)."""
@@ -264,12 +265,14 @@ def draw_case(seed: int) -> Case:
                 bias=float(np.round(rng.uniform(*RANGES["bias"]), 3)))
 
 
-def perturbed(case: Case, radius_mm: float = 0.0, base_mm: float = 0.0) -> Case:
-    """``case`` with each post ``radius_mm`` wider and the base's surface under the filling ``base_mm``
-    further from the insert's outer surface (the posts that much shorter), all else as drawn: the same
-    layout, rotation, levels, bias and noise draws (the spheres stay where they are)."""
+def perturbed(case: Case, radius_mm: float = 0.0, base_mm: float = 0.0, sphere_mm: float = 0.0) -> Case:
+    """``case`` with each post ``radius_mm`` wider, the base's surface under the filling ``base_mm``
+    further from the insert's outer surface (the posts that much shorter) and each sphere ``sphere_mm``
+    wider in radius about its centre, all else as drawn: the same layout, rotation, levels, bias and noise
+    draws (the spheres' centres stay where they are)."""
     return replace(case, pillar_mm=case.pillar_mm + 2.0 * radius_mm, base_mm=case.base_mm + base_mm,
-                   pillar_height_mm=tuple(h - base_mm for h in case.pillar_height_mm))
+                   pillar_height_mm=tuple(h - base_mm for h in case.pillar_height_mm),
+                   sphere_margin_mm=case.sphere_margin_mm + sphere_mm)
 
 
 def pillar_voxels_wide(case: Case) -> float:

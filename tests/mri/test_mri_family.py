@@ -16,6 +16,7 @@ import nibabel as nib
 import numpy as np
 import pytest
 from mri_family import (
+    INCLUSION,
     PILLAR,
     Case,
     base_error_mm,
@@ -656,7 +657,8 @@ def test_family_script_known_diameter(tmp_path):
 @pytest.mark.parametrize("base_up", [False, True])
 def test_perturbed_case_moves_only_the_post_and_the_base(base_up):
     """`perturbed`: the same layout and draws; the base's surface moves by the given mm into the filling, the
-    posts widen by the given radius; with no change the truth is the same array."""
+    posts widen by the given radius, the spheres grow about their centres; with no change the truth is the
+    same array."""
     case = Case(seed=11, spacing_mm=(0.8, 0.7, 0.7), inclusion_mm=(10.0, 7.0), pillar_height_mm=(5.0, 9.0),
                 base_up=base_up, noise=0.0)
     vol = generate(case)
@@ -667,6 +669,11 @@ def test_perturbed_case_moves_only_the_post_and_the_base(base_up):
     wide = generate(perturbed(case, radius_mm=0.3))
     assert np.allclose(wide.centres_index, vol.centres_index)
     assert (wide.truth == PILLAR).sum() > (vol.truth == PILLAR).sum()
+    grown = generate(perturbed(case, sphere_mm=0.3))
+    assert np.allclose(grown.centres_index, vol.centres_index) and grown.base_index == vol.base_index
+    assert (grown.truth == INCLUSION).sum() > (vol.truth == INCLUSION).sum()
+    assert ((grown.truth == INCLUSION) | (vol.truth != INCLUSION)).all()
+    assert (grown.truth == PILLAR).sum() < (vol.truth == PILLAR).sum()
 
 
 def test_family_script_margins(tmp_path):
@@ -681,6 +688,7 @@ def test_family_script_margins(tmp_path):
     proc = subprocess.run([sys.executable, str(script), "--seeds", "4058", "--margins", "0,0.025", "--out",
                            str(tmp_path / "rows.jsonl")], capture_output=True, text=True, check=True)
     (row,) = [json.loads(line) for line in (tmp_path / "rows.jsonl").read_text().splitlines()]
-    assert all(d == 1.0 for key in ("radius+0", "radius-0", "base+0", "base-0") for d in row[key])
+    assert all(d == 1.0 for key in ("radius+0", "radius-0", "base+0", "base-0", "sphere+0", "sphere-0")
+               for d in row[key])
     assert min(row["radius+0.025"]) < 0.8 <= min(row["radius-0.025"])
-    assert "| 0 | 0 | 0 | 0 |  |" in proc.stdout and "| 0.025 | 1 | 0 | 1 | 4058 |" in proc.stdout
+    assert "| 0 | 0 | 0 | 0 | 0 |  |" in proc.stdout and "| 0.025 | 1 | 0 | 0 | 1 | 4058 |" in proc.stdout
