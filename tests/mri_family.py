@@ -56,6 +56,7 @@ class Case:
     inclusion_aspect: float = 1.0
     partial_volume: str = "ramp"
     sphere_margin_mm: float = 0.0   # each sphere drawn this much wider in radius, where it was laid out (`perturbed`)
+    skin_gap_mm: float | None = None    # the highest sphere this far under the skin (None: MIN_GAP_MM and 0-4 mm more)
 
 
 PARTIAL_VOLUMES = ("ramp", "box")
@@ -99,8 +100,11 @@ def _layout(case: Case, rng: np.random.Generator) -> tuple[np.ndarray, float]:
     """Inclusion centres (x, y, z mm) and the insert height that holds the tallest pillar plus sphere."""
     radii = 0.5 * np.asarray(case.inclusion_mm, dtype=float)
     heights = np.asarray(case.pillar_height_mm, dtype=float)
-    need = float(np.max(case.base_mm + heights + 2 * radii)) + MIN_GAP_MM + case.skin_mm
-    height = max(28.0, need) + float(rng.uniform(0.0, 4.0))
+    gap = MIN_GAP_MM if case.skin_gap_mm is None else case.skin_gap_mm
+    need = float(np.max(case.base_mm + heights + 2 * radii)) + gap + case.skin_mm
+    if case.skin_gap_mm is not None and need < 28.0:
+        raise ValueError(f"case {case}: a skin gap needs posts and spheres reaching 28 mm less the gap and skin")
+    height = max(28.0, need) + (float(rng.uniform(0.0, 4.0)) if case.skin_gap_mm is None else 0.0)
     apothem = 0.5 * case.width_mm - case.skin_mm
     wide = radii * max(1.0, case.inclusion_aspect)             # in-plane reach (a spheroid's long axis)
     for _ in range(PLACEMENT_TRIES):

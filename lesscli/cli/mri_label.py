@@ -116,6 +116,8 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
               help="Thickest silicone skin (labelled insert).")
 @click.option("--smooth-mm", type=click.FloatRange(min=0.0), default=None,
               help="Gaussian denoising sigma (default 0.6 x the finest voxel size).")
+@click.option("--bias-degree", type=click.IntRange(min=0, max=6), default=3, show_default=True,
+              help="Polynomial degree of the log bias field corrected (0: no correction).")
 @click.option("--inclusion-shape", type=click.Choice(["auto", "image", "ball"]), default="auto", show_default=True,
               help="Each inclusion as its fitted blurred ball (ball), as the scan's own surface (image), or the "
                    "ball where it fits the scan within its noise, else the surface (auto).")
@@ -144,7 +146,7 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
 @seed_option()
 @format_option
 def cli(scan, output, spacing, pillar_max_diameter_mm, pillar_diameter_mm, skin_max_thickness_mm, smooth_mm,
-        inclusion_shape, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict, synth, truth_out,
+        bias_degree, inclusion_shape, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict, synth, truth_out,
         contrast, noise, bias, seed, fmt) -> None:
     """Label an MRI scan (NIfTI, DICOM folder, or .npy/.npz with --spacing-mm) into 0 background,
     1 insert (hydrogel and skin), 2 pillar, 3 inclusion; either tissue may be the brighter one.
@@ -174,8 +176,8 @@ def cli(scan, output, spacing, pillar_max_diameter_mm, pillar_diameter_mm, skin_
     if qc and not qc.endswith(".png"):
         raise click.BadParameter(f"'{qc}': expected a .png file", param_hint="--plot")
     try:
-        params = SegmentParams(pillar_max_diameter_mm, skin_max_thickness_mm, smooth_mm,
-                               inclusion_shape=inclusion_shape, pillar_diameter_mm=pillar_diameter_mm)
+        params = SegmentParams(pillar_max_diameter_mm, skin_max_thickness_mm, smooth_mm, bias_degree,
+                               inclusion_shape, pillar_diameter_mm)
     except ValueError as e:
         raise click.BadParameter(str(e), param_hint="--pillar-diameter-mm") from None
     _label(scan, output, spacing, params, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict,

@@ -107,6 +107,7 @@ BLUR_RANGE = (0.5, 2.0)         # a post's fitted blur, in units of the inclusio
 CLEAR_RING_MM = 4.0             # the annulus clear of a ball where the base's profile is read under a short post
 OWN_LINE_P = 0.01               # a post leaves its inclusion's axis where its own line fits better at this level
 CAP_SHUT_VOXELS = 1.0           # the ball's fit leaves out the core from this far inside the body's end on the base side
+CLEAR_POST_RADIUS_MM = 1.0      # a significant post this wide outweighs a short gap on its inclusion's other side
 
 
 @dataclass
@@ -631,14 +632,23 @@ def _base_side(traces: dict, columns: dict, contrasts: dict, labels: list[int], 
     every trace summed per side. A pillar shorter than two slabs leaves no slab to measure, and a short gap
     that holds silicone along the inclusion's axis is where its post is: its other side is not counted. A
     bias field curved across the column raises a wide core over its ring by a millimetre squared or so,
-    which a long trace of hydrogel on the skin side then passes as a post.
+    which a long trace of hydrogel on the skin side then passes as a post. But a short gap decides nothing
+    against a significant post at least a disc of CLEAR_POST_RADIUS_MM on the other side: a sphere a voxel
+    or so under the skin leaves a gap to it that holds no voxel, or one that the blur of the skin and the
+    sphere fills, and taken for its post's side, it lost the post under the sphere.
     """
     inner = {key: _inner(trace) for key, trace in traces.items()}
     scatter = _pooled_scatter(inner.values())
     strong = 0.0
     for k in labels:
+        short = [sign for sign in (1, -1) if _short_gap(traces[k, sign], columns[k], sign, step_mm)]
+        clear = [sign for sign in (1, -1) if sign not in short and inner[k, sign].significant(scatter)
+                 and inner[k, sign].median_area() >= math.pi * CLEAR_POST_RADIUS_MM ** 2]
+        if len(short) == 1 and clear == [-short[0]]:
+            strong += clear[0] * inner[k, clear[0]].median_area()
+            continue
         gaps = {sign: _gap_area(columns[k], sign, traces[k, sign].end_mm, contrasts[k], core_mm, step_mm, voxel_mm3)
-                for sign in (1, -1) if _short_gap(traces[k, sign], columns[k], sign, step_mm)}
+                for sign in short}
         gaps = {sign: max(area, math.pi * MIN_RADIUS_MM ** 2) for sign, area in gaps.items() if area is not None}
         strong += sum(sign * area for sign, area in gaps.items()) if gaps else sum(
             sign * inner[k, sign].median_area() for sign in (1, -1) if inner[k, sign].significant(scatter))

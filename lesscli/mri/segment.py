@@ -42,6 +42,7 @@ SURFACE_LAYER_MM = 1.0          # ... this thick (at least one largest voxel)
 SURFACE_SIGMA_MM = 3.0          # ... averaged along the surface over this
 SURFACE_MIN_WEIGHT = 0.01       # band voxels with no layer nearby keep the global decision
 RICE_BISECTIONS = 40            # inverting the Rice mean for a tissue's signal
+SMOOTH_VOXELS = 0.6             # the denoising's default sigma, in finest voxels
 
 
 @dataclass(frozen=True)
@@ -51,7 +52,7 @@ class SegmentParams:
     Attributes:
         pillar_max_diameter_mm: thickest pillar; the inclusion-finding ball is thicker than this.
         skin_max_thickness_mm: thickest skin; the ball is also thicker than this.
-        smooth_mm: Gaussian sigma of the denoising; None = 0.6 x the finest voxel size.
+        smooth_mm: Gaussian sigma of the denoising; None = SMOOTH_VOXELS (0.6) x the finest voxel size.
         bias_degree: polynomial degree of the log bias field (0 = no correction).
         inclusion_shape: "auto" (an inclusion is its fitted ball where that fits within the noise, else
             the image's surface), "image" or "ball" (always).
@@ -278,7 +279,7 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
         raise DataError(f"{where}: voxel spacing must be positive, got {spacing.tolist()} mm")
     arr = arr - min(float(arr.min()), 0.0)             # magnitudes are >= 0; shift signed data
     scale = float(np.percentile(_sample(arr), NORM_PERCENTILE)) or float(arr.max())
-    smooth_mm = params.smooth_mm if params.smooth_mm is not None else 0.6 * float(spacing.min())
+    smooth_mm = params.smooth_mm if params.smooth_mm is not None else SMOOTH_VOXELS * float(spacing.min())
     smoothed = ndimage.gaussian_filter(arr / scale, sigma=smooth_mm / spacing) if smooth_mm > 0 else arr / scale
     corrected, foreground = correct_bias(smoothed, spacing, params.bias_degree)
     air, dark, bright = _levels(corrected, foreground)

@@ -189,6 +189,20 @@ def test_usage_errors(run_less, synth_files, tmp_path):
     proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", "x.nii.gz", "--pillar-diameter-mm", "5")
     assert proc.returncode == 2 and "thickest pillar's (4.5 mm)" in proc.stderr.decode()
     assert not (tmp_path / "x.nii.gz").exists()
+    proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", "x.nii.gz", "--bias-degree", "7")
+    assert proc.returncode == 2 and "--bias-degree" in proc.stderr.decode()
+
+
+def test_bias_degree_option_reaches_the_correction(run_less, synth_files, tmp_path):
+    """`--bias-degree 0` labels without the bias correction: other labels than the default's, still the
+    inclusion (the scan's bias is 0.25)."""
+    truth = load_nifti_labels(str(synth_files / "truth.nii.gz")).data
+    out = {}
+    for degree in ("0", "3"):
+        run_less("mri-label", synth_files / "scan.nii.gz", "-o", f"d{degree}.nii.gz", "--bias-degree", degree, check=True)
+        out[degree] = load_nifti_labels(str(tmp_path / f"d{degree}.nii.gz")).data
+    assert (out["0"] != out["3"]).any()
+    assert dice(out["0"] == INCLUSION, truth == INCLUSION) > 0.9
 
 
 def test_given_pillar_diameter_is_drawn_and_the_measured_one_reported(run_less, synth_files, tmp_path):
