@@ -90,11 +90,11 @@ def run_mri(n: int, insert_name: str, contrast: str, seed: int) -> list[dict]:
     ]
 
 
-def run_knobs(n: int, insert_name: str, contrast: str, seed: int, knobs: dict = KNOBS) -> list[dict]:
-    """One row per setting of each knob (the others at their defaults) on one synthetic ``n``^3 volume:
-    ``knob``, ``value``, wall and CPU seconds, ``ratio_vs_default`` (against the defaults, timed first in the
-    same run, after one untimed labelling; a knob's default setting is that row again), Dice per class and its difference from the
-    defaults', and the warnings. Call :func:`one_core` first."""
+def run_knobs(n: int, insert_name: str, contrast: str, seed: int) -> list[dict]:
+    """One row per setting of each knob of :data:`KNOBS` (the others at their defaults) on one synthetic
+    ``n``^3 volume: ``knob``, ``value``, wall and CPU seconds, ``ratio_vs_default`` (against the defaults,
+    timed first in the same run, after one untimed labelling; a knob's default setting is that row again),
+    Dice per class and its difference from the defaults', and the warnings. Call :func:`one_core` first."""
     from dataclasses import replace
 
     from lesscli.mri.segment import SMOOTH_VOXELS, SegmentParams
@@ -114,7 +114,7 @@ def run_knobs(n: int, insert_name: str, contrast: str, seed: int, knobs: dict = 
     _label(synth)                   # warm: the first labelling also loads the libraries it calls
     base = _label(synth)
     rows = []
-    for knob, values in knobs.items():
+    for knob, values in KNOBS.items():
         for value in values:
             wall, cpu, scores, warnings = base if is_default(knob, value) else _label(synth, params(knob, value))
             rows.append({"bench": "mri", "case": "knob", **common, "knob": knob, "value": value,

@@ -146,8 +146,8 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
 @seed_option()
 @format_option
 def cli(scan, output, spacing, pillar_max_diameter_mm, pillar_diameter_mm, skin_max_thickness_mm, smooth_mm,
-        bias_degree, inclusion_shape, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict, synth, truth_out,
-        contrast, noise, bias, seed, fmt) -> None:
+        bias_degree, inclusion_shape, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict, synth,
+        truth_out, contrast, noise, bias, seed, fmt) -> None:
     """Label an MRI scan (NIfTI, DICOM folder, or .npy/.npz with --spacing-mm) into 0 background,
     1 insert (hydrogel and skin), 2 pillar, 3 inclusion; either tissue may be the brighter one.
 

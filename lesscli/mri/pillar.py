@@ -919,8 +919,9 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
             missing.append(label)
         else:
             found[label] = (under[label], radius, end)
-    measured = {label: radius for label, (_line, radius, _end) in found.items()}
+    measured = {}                           # label -> the radius measured, where the one drawn is given
     if diameter_mm is not None:
+        measured = {label: radius for label, (_line, radius, _end) in found.items()}
         found = {label: (line, 0.5 * diameter_mm, end) for label, (line, _radius, end) in found.items()}
     for label, (line, radius, end) in found.items():
         col = columns[label]
@@ -935,7 +936,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
     posts = [_post(*found[label], centres[label - 1], axis, side,
                    columns[label].start[side] if balls[label] is None
                    else _ball_surface(balls[label], centres[label - 1], axis, side),
-                   None if diameter_mm is None else measured[label]) for label in sorted(found)]
+                   measured.get(label)) for label in sorted(found)]
     return pillar, sorted(missing), base, posts, run_on
 
 
