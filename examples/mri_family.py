@@ -21,6 +21,10 @@ posts whose radius is fitted to all their silicone, below the blurred ball (no o
 the footer gives their diameter error. `lesscli.mri.pillar.CAP_SHUT_VOXELS` was chosen on seeds
 900-939 of it (box partial volume).
 
+``--near-skin`` draws each seed's volume with its highest sphere 0.5-2 mm under the skin (the family's
+stay 2 mm or more from it): the first inclusion's post made tall enough, and its sphere wide enough that the
+post need not pass 15 mm, for it to reach there in an insert of 28 mm or more; rows keep ``skin_gap_mm``.
+
 ``--known-diameter`` segments each volume with its posts' true diameter given, as a lab that knows its
 mould's would (``less mri-label --pillar-diameter-mm``): the posts are found, placed and ended from the
 scan as without it, and drawn that wide (the rows' ``post_diameter_error_mm`` stays the measured one's).
@@ -36,6 +40,7 @@ volume.
     python examples/mri_family.py --seeds 5081,3017 --partial-volume box --box-points 24
     python examples/mri_family.py --seeds 0-99 --margins 0.025,0.05,0.1
     python examples/mri_family.py --seeds 900-939 --partial-volume box --lone-short
+    python examples/mri_family.py --seeds 0-99 --partial-volume box --near-skin
     python examples/mri_family.py --seeds 1000-1059 --known-diameter
 """
 
@@ -44,6 +49,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 import sys
 import time
@@ -54,8 +60,10 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 import mri_family
 from mri_family import (
+    MIN_INSERT_MM,
     PARTIAL_VOLUMES,
     PILLAR,
+    RANGES,
     base_error_mm,
     draw_case,
     generate,
@@ -68,6 +76,7 @@ from mri_family import (
 
 MIN_PILLAR_VOXELS = 2.0
 LONE_SHORT_MM = (1.0, 2.5)      # --lone-short: the post's height range
+NEAR_SKIN_MM = (0.5, 2.0)       # --near-skin: the highest sphere's gap to the skin
 ACCEPT = {"insert": 0.97, "inclusion": 0.93, "pillar": 0.80}
 
 
@@ -85,11 +94,27 @@ def lone_short(case):
     return dataclasses.replace(case, inclusion_mm=case.inclusion_mm[:1], pillar_height_mm=(tall,))
 
 
+def near_skin(case):
+    """``case`` with its highest sphere 0.5-2 mm under the skin (seeded by the case): the first inclusion's post
+    raised, where it is shorter, to take its sphere there in an insert of MIN_INSERT_MM, and that sphere
+    widened, where it is narrower, so that the post need not pass the family's tallest."""
+    gap = float(np.round(np.random.default_rng([48, case.seed]).uniform(*NEAR_SKIN_MM), 2))
+    reach = MIN_INSERT_MM - case.skin_mm - case.base_mm - gap       # post plus sphere, to the gap under the skin
+
+    def up(value: float, least: float) -> float:
+        return max(value, math.ceil(least * 10.0 - 1e-9) / 10.0)
+
+    wide = up(case.inclusion_mm[0], reach - RANGES["pillar_height_mm"][1])
+    tall = up(case.pillar_height_mm[0], reach - wide)
+    return dataclasses.replace(case, skin_gap_mm=gap, inclusion_mm=(wide, *case.inclusion_mm[1:]),
+                               pillar_height_mm=(tall, *case.pillar_height_mm[1:]))
+
+
 def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lone: bool = False,
-             known: bool = False) -> list[dict]:
+             known: bool = False, near: bool = False) -> list[dict]:
     """One volume: a case row (insert Dice, pillar voxels drawn, warnings) and one row per inclusion, each with
     the case's parameters; ``floating``: the volume drawn without posts; ``lone``: :func:`lone_short`;
-    ``known``: segmented with the posts' true diameter given (``SegmentParams.pillar_diameter_mm``)."""
+    ``near``: :func:`near_skin`; ``known``: segmented with the posts' true diameter given (``SegmentParams.pillar_diameter_mm``)."""
     from lesscli.mri.segment import SegmentParams, segment
 
     case = dataclasses.replace(draw_case(seed), partial_volume=partial_volume)
@@ -97,6 +122,8 @@ def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lo
         case = dataclasses.replace(case, pillar_mm=0.0)
     if lone:
         case = lone_short(case)
+    if near:
+        case = near_skin(case)
     volume = generate(case)
     t0 = time.perf_counter()
     params = SegmentParams(pillar_diameter_mm=case.pillar_mm if known and case.pillar_mm > 0 else None)
@@ -105,7 +132,7 @@ def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lo
               "pillar_mm": case.pillar_mm, "pillar_voxels": round(pillar_voxels_wide(case), 2),
               "contrast": "silicone-brighter" if case.silicone_brighter else "silicone-darker",
               "base": "up" if case.base_up else "down", "noise": case.noise, "bias": case.bias,
-              "inclusions": len(case.inclusion_mm)}
+              "inclusions": len(case.inclusion_mm), "skin_gap_mm": case.skin_gap_mm}
     base = None if seg.base_surface is None else round(base_error_mm(seg.base_surface, volume), 4)
     rows = [{"row": "case", **common, "dice_insert": scores(seg.labels, volume.truth)["insert"],
              "base_error_mm": base, "pillar_voxels_drawn": int((seg.labels == PILLAR).sum()),
@@ -174,6 +201,7 @@ BANDS = [
     ("contrast", "contrast", ["silicone-darker", "silicone-brighter"]),
     ("base", "base", ["down", "up"]),
 ]
+NEAR_SKIN_BANDS = [("highest sphere under the skin (mm)", "skin_gap_mm", [(0.5, 1.0), (1.0, 1.5), (1.5, 2.0)])]
 
 
 def _in(value, band) -> bool:
@@ -190,7 +218,8 @@ def table(rows: list[dict]) -> str:
     incs = [r for r in rows if r["row"] == "inclusion"]
     lines = [("| parameter | band | volumes | inclusions | insert min / median | inclusion min / median "
               "| pillar (>= 2 voxels) min / median |"), "|---|---|---|---|---|---|---|"]
-    for title, key, bands in BANDS:
+    near = any(r.get("skin_gap_mm") is not None for r in cases)
+    for title, key, bands in BANDS + (NEAR_SKIN_BANDS if near else []):
         for band in bands:
             inc = [r for r in incs if _in(r[key], band)]
             pil = [r["dice_pillar"] for r in inc if r["pillar_voxels"] >= MIN_PILLAR_VOXELS]
@@ -235,8 +264,11 @@ def main() -> None:
                         help="sub-voxel points per axis of the box partial volume")
     parser.add_argument("--floating", action="store_true",
                         help="draw the volumes without posts: no pillar may be drawn, one warning per inclusion")
-    parser.add_argument("--lone-short", action="store_true",
-                        help="draw each volume's first inclusion alone, on a post 1-2.5 mm tall")
+    drawn = parser.add_mutually_exclusive_group()
+    drawn.add_argument("--lone-short", action="store_true",
+                       help="draw each volume's first inclusion alone, on a post 1-2.5 mm tall")
+    drawn.add_argument("--near-skin", action="store_true",
+                       help="draw each volume's highest sphere 0.5-2 mm under the skin")
     parser.add_argument("--known-diameter", action="store_true",
                         help="segment with the posts' true diameter given (less mri-label --pillar-diameter-mm)")
     parser.add_argument("--margins", default=None,
@@ -252,7 +284,8 @@ def main() -> None:
         print(margin_table(rows, deltas))
         return
     for seed in _seeds(args.seeds):
-        new = run_case(seed, args.partial_volume, args.floating, args.lone_short, args.known_diameter)
+        new = run_case(seed, args.partial_volume, args.floating, args.lone_short, args.known_diameter,
+                       args.near_skin)
         rows += new
         fails = shortfalls(new[0], new[1:])
         print(f"seed {seed}: {new[0]['seconds']} s" + (f"  below: {', '.join(fails)}" if fails else ""),

@@ -33,6 +33,7 @@ import numpy as np
 AIR, INSERT, PILLAR, INCLUSION = 0, 1, 2, 3
 MIN_GAP_MM = 2.0               # between inclusions, and from an inclusion to the skin
 PLACEMENT_TRIES = 400
+MIN_INSERT_MM = 28.0           # the shortest insert drawn (the published phantoms' are 30 mm)
 
 
 @dataclass(frozen=True)
@@ -102,9 +103,10 @@ def _layout(case: Case, rng: np.random.Generator) -> tuple[np.ndarray, float]:
     heights = np.asarray(case.pillar_height_mm, dtype=float)
     gap = MIN_GAP_MM if case.skin_gap_mm is None else case.skin_gap_mm
     need = float(np.max(case.base_mm + heights + 2 * radii)) + gap + case.skin_mm
-    if case.skin_gap_mm is not None and need < 28.0:
-        raise ValueError(f"case {case}: a skin gap needs posts and spheres reaching 28 mm less the gap and skin")
-    height = max(28.0, need) + (float(rng.uniform(0.0, 4.0)) if case.skin_gap_mm is None else 0.0)
+    if case.skin_gap_mm is not None and need < MIN_INSERT_MM:
+        raise ValueError(f"case {case}: a skin gap needs posts and spheres reaching {MIN_INSERT_MM:g} mm less the gap "
+                         "and skin")
+    height = max(MIN_INSERT_MM, need) + (float(rng.uniform(0.0, 4.0)) if case.skin_gap_mm is None else 0.0)
     apothem = 0.5 * case.width_mm - case.skin_mm
     wide = radii * max(1.0, case.inclusion_aspect)             # in-plane reach (a spheroid's long axis)
     for _ in range(PLACEMENT_TRIES):

@@ -107,7 +107,8 @@ BLUR_RANGE = (0.5, 2.0)         # a post's fitted blur, in units of the inclusio
 CLEAR_RING_MM = 4.0             # the annulus clear of a ball where the base's profile is read under a short post
 OWN_LINE_P = 0.01               # a post leaves its inclusion's axis where its own line fits better at this level
 CAP_SHUT_VOXELS = 1.0           # the ball's fit leaves out the core from this far inside the body's end on the base side
-CLEAR_POST_RADIUS_MM = 1.0      # a significant post this wide outweighs a short gap on its inclusion's other side
+TESTED_SLABS = 3                # from this many slabs, a trace's cross-section is tested against their scatter
+CLEAR_POST_RADIUS_MM = 0.7      # a significant post this wide (1.4 mm) outweighs a brief side of its inclusion
 
 
 @dataclass
@@ -135,30 +136,32 @@ class Trace:
     def median_area(self) -> float:
         return float(np.median(self.area_mm2)) if len(self.area_mm2) else 0.0
 
+    def tested(self) -> bool:
+        """Enough slabs (TESTED_SLABS) for their scatter to test the median cross-section against."""
+        return len(self.area_mm2) >= TESTED_SLABS
+
     def deviations(self) -> np.ndarray:
         """The slabs' cross-sections' absolute deviations from their median, the median's own slab (a zero)
-        left out where the slabs are odd in number; none under 3 slabs."""
-        n = len(self.area_mm2)
-        if n < 3:
+        left out where the slabs are odd in number; none where not :meth:`tested`."""
+        if not self.tested():
             return np.zeros(0)
-        return np.sort(np.abs(self.area_mm2 - self.median_area()))[n % 2:]
+        return np.sort(np.abs(self.area_mm2 - self.median_area()))[len(self.area_mm2) % 2:]
 
     def significant(self, scatter: float | None) -> bool:
         """The median cross-section is a post, not noise: NOISE_Z standard errors of the slab-to-slab
         ``scatter`` (:func:`_pooled_scatter` over the traces that include this one; None only where none
-        has 3 slabs, this one neither: its median alone decides)."""
-        n = len(self.area_mm2)
+        is :meth:`tested`, this one neither: its median alone decides)."""
         med = self.median_area()
         if med < math.pi * MIN_RADIUS_MM ** 2:
             return False
-        if n < 3:
+        if not self.tested():
             return True
-        return med >= NOISE_Z * MEDIAN_SE * scatter / math.sqrt(n)
+        return med >= NOISE_Z * MEDIAN_SE * scatter / math.sqrt(len(self.area_mm2))
 
 
 def _pooled_scatter(traces) -> float | None:
     """The slab-to-slab scatter of cross-sections (robust standard deviation) over all ``traces`` (measured
-    in one core's size) of at least 3 slabs, each about its own median; None where none has 3."""
+    in one core's size) that are :meth:`Trace.tested`, each about its own median; None where none is."""
     dev = np.concatenate([np.zeros(0)] + [t.deviations() for t in traces])
     return MAD_TO_SIGMA * float(np.median(dev)) if len(dev) else None
 
@@ -632,19 +635,23 @@ def _base_side(traces: dict, columns: dict, contrasts: dict, labels: list[int], 
     every trace summed per side. A pillar shorter than two slabs leaves no slab to measure, and a short gap
     that holds silicone along the inclusion's axis is where its post is: its other side is not counted. A
     bias field curved across the column raises a wide core over its ring by a millimetre squared or so,
-    which a long trace of hydrogel on the skin side then passes as a post. But a short gap decides nothing
-    against a significant post at least a disc of CLEAR_POST_RADIUS_MM on the other side: a sphere a voxel
-    or so under the skin leaves a gap to it that holds no voxel, or one that the blur of the skin and the
-    sphere fills, and taken for its post's side, it lost the post under the sphere.
+    which a long trace of hydrogel on the skin side then passes as a post. But a side too brief to test
+    against the noise (a short gap, or a trace not :meth:`Trace.tested` past the slab next to the inclusion) decides
+    nothing against a significant post at least a disc of CLEAR_POST_RADIUS_MM on the other side: a sphere
+    a voxel or two under the skin leaves a gap to it that holds no voxel, or one or two slabs that the blur
+    of the skin and the sphere fill as a post's silicone would, and taken for its post's side, it lost the
+    post under the sphere (a post of 1.5 mm, the thinnest cast, measures about 2 mm^2 there; the long
+    hydrogel traces beside a short gap, 0.7 mm^2 at most, were not significant).
     """
     inner = {key: _inner(trace) for key, trace in traces.items()}
     scatter = _pooled_scatter(inner.values())
     strong = 0.0
     for k in labels:
         short = [sign for sign in (1, -1) if _short_gap(traces[k, sign], columns[k], sign, step_mm)]
-        clear = [sign for sign in (1, -1) if sign not in short and inner[k, sign].significant(scatter)
+        brief = [sign for sign in (1, -1) if sign in short or not inner[k, sign].tested()]
+        clear = [sign for sign in (1, -1) if sign not in brief and inner[k, sign].significant(scatter)
                  and inner[k, sign].median_area() >= math.pi * CLEAR_POST_RADIUS_MM ** 2]
-        if len(short) == 1 and clear == [-short[0]]:
+        if len(brief) == 1 and clear == [-brief[0]]:
             strong += clear[0] * inner[k, clear[0]].median_area()
             continue
         gaps = {sign: _gap_area(columns[k], sign, traces[k, sign].end_mm, contrasts[k], core_mm, step_mm, voxel_mm3)
