@@ -114,7 +114,8 @@ def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lo
              known: bool = False, near: bool = False) -> list[dict]:
     """One volume: a case row (insert Dice, pillar voxels drawn, warnings) and one row per inclusion, each with
     the case's parameters; ``floating``: the volume drawn without posts; ``lone``: :func:`lone_short`;
-    ``near``: :func:`near_skin`; ``known``: segmented with the posts' true diameter given (``SegmentParams.pillar_diameter_mm``)."""
+    ``near``: :func:`near_skin`; ``known``: segmented with the posts' true diameter given
+    (``SegmentParams.pillar_diameter_mm``)."""
     from lesscli.mri.segment import SegmentParams, segment
 
     case = dataclasses.replace(draw_case(seed), partial_volume=partial_volume)

@@ -103,7 +103,7 @@ def _layout(case: Case, rng: np.random.Generator) -> tuple[np.ndarray, float]:
     heights = np.asarray(case.pillar_height_mm, dtype=float)
     gap = MIN_GAP_MM if case.skin_gap_mm is None else case.skin_gap_mm
     need = float(np.max(case.base_mm + heights + 2 * radii)) + gap + case.skin_mm
-    if case.skin_gap_mm is not None and need < MIN_INSERT_MM:
+    if case.skin_gap_mm is not None and need < MIN_INSERT_MM - 1e-6:       # (the sum's rounding)
         raise ValueError(f"case {case}: a skin gap needs posts and spheres reaching {MIN_INSERT_MM:g} mm less the gap "
                          "and skin")
     height = max(MIN_INSERT_MM, need) + (float(rng.uniform(0.0, 4.0)) if case.skin_gap_mm is None else 0.0)
