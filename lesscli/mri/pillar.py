@@ -636,12 +636,12 @@ def _base_side(traces: dict, columns: dict, contrasts: dict, labels: list[int], 
     that holds silicone along the inclusion's axis is where its post is: its other side is not counted. A
     bias field curved across the column raises a wide core over its ring by a millimetre squared or so,
     which a long trace of hydrogel on the skin side then passes as a post. But a side too brief to test
-    against the noise (a short gap, or a trace not :meth:`Trace.tested` past the slab next to the inclusion) decides
-    nothing against a significant post at least a disc of CLEAR_POST_RADIUS_MM on the other side: a sphere
-    a voxel or two under the skin leaves a gap to it that holds no voxel, or one or two slabs that the blur
-    of the skin and the sphere fill as a post's silicone would, and taken for its post's side, it lost the
-    post under the sphere (a post of 1.5 mm, the thinnest cast, measures about 2 mm^2 there; the long
-    hydrogel traces beside a short gap, 0.7 mm^2 at most, were not significant).
+    against the noise (a short gap, or a trace not :meth:`Trace.tested` past the slab next to the
+    inclusion) decides nothing against a significant post at least a disc of CLEAR_POST_RADIUS_MM on the
+    other side: a sphere a voxel or two under the skin leaves a gap to it that holds no voxel, or one or
+    two slabs that the blur of the skin and the sphere fill as a post's silicone would, and taken for its
+    post's side, it lost the post under the sphere (a post of 1.5 mm, the thinnest cast, measures about
+    2 mm^2 there; the long hydrogel traces beside a short gap, 0.7 mm^2 at most, were not significant).
     """
     inner = {key: _inner(trace) for key, trace in traces.items()}
     scatter = _pooled_scatter(inner.values())

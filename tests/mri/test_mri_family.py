@@ -325,7 +325,7 @@ THIN_SKIN_CASES = [(spacing, gap, up) for spacing in ((0.8, 0.6, 0.6), (1.15, 0.
 def test_a_thin_post_under_a_sphere_just_under_the_skin_is_found():
     """A 1.5 mm post (the thinnest cast; 2.1-2.5 voxels wide) 9-10 mm tall under a 12 mm sphere 0.8 or 1.6 mm
     under the skin, base down and up. Its trace (about 2 mm^2 over 5-15 slabs, significant) lies under the
-    disc of 2 mm that outweighed a short gap to the skin before, and a gap of a slab or two to the skin
+    disc 2 mm across that outweighed a short gap to the skin before, and a gap of a slab or two to the skin
     leaves a trace too short to test against the noise, which the skin's and the sphere's blur fill as
     well as a post would: 10 of 12 such scans at 0.8 and 1.2 mm lost the post. A significant post of at
     least CLEAR_POST_RADIUS_MM now decides against a short gap or a trace under 3 slabs on the other side."""
