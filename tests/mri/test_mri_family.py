@@ -161,6 +161,19 @@ def test_inclusion_thinner_than_the_ball_voxel_for_voxel_is_found():
     assert all(row["dice_inclusion"] >= 0.9 for row in inclusion_scores(seg.labels, vol))
 
 
+@pytest.mark.xfail(strict=True, reason="a 6.3 mm sphere at 1.11 mm voxels and noise 0.085 (seed 1016 of "
+                   "mri_family.py --near-skin) is not found, and no warning says so: opened with the smaller ball "
+                   "its body holds 45 voxels, under the 49 of the main ball's volume that morphology._compact asks "
+                   "(the family's own draw of 1016, other noise, keeps 57; 30 designed scans of 6-6.8 mm spheres "
+                   "at 1.0-1.2 mm voxels and noise 0.06-0.1 found every one)")
+def test_a_noisy_small_sphere_at_coarse_voxels_is_found():
+    vol = generate(Case(seed=1016, spacing_mm=(1.12, 1.11, 1.11), inclusion_mm=(12.3, 6.3), pillar_mm=3.53,
+                        pillar_height_mm=(9.2, 11.8), noise=0.085, bias=0.116, partial_volume="box",
+                        skin_gap_mm=1.02))
+    seg = segment(vol.image, vol.spacing_mm, where="small noisy sphere")
+    assert all(row["dice_inclusion"] >= MIN_DICE["inclusion"] for row in inclusion_scores(seg.labels, vol))
+
+
 @pytest.mark.parametrize("brighter", [False, True])
 @pytest.mark.parametrize("spacing", [(1.15, 1.15, 1.15), (1.2, 1.0, 0.8)])
 def test_small_inclusions_at_coarse_voxels_are_not_cut_small(spacing, brighter):
