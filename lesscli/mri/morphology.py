@@ -45,6 +45,7 @@ PROFILE_RADIUS = (0.5, 1.5)     # ... its radius within these factors of the bod
 PROFILE_SIGMA_VOXELS = (0.1, 3.0)   # ... its blur within these, in voxels
 PROFILE_CONTRAST = (0.5, 2.0)   # ... its contrast within these factors of the interior's over the filling
 BALL_MISFIT = 1.25              # an inclusion whose blurred ball fits its voxels this close to the noise is that ball
+POST_BLUR_VOXELS = 1.0          # ... the fit leaves out the voxels this close to a post (its blur), in (largest) voxels
 
 
 def crop_box(mask: np.ndarray, pad: int) -> tuple[slice, ...]:
@@ -80,10 +81,24 @@ def _without_pinholes(mask: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     return mask | small[holes]
 
 
-def _principal(coords_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Principal standard deviations (descending) of (n, 3) points and the (3, 3) axes as columns."""
+def _rim(mask: np.ndarray, reach_mm: float, spacing: np.ndarray) -> np.ndarray:
+    """The voxels outside ``mask`` within ``reach_mm`` of it (voxel-centre distances)."""
+    from scipy import ndimage
+
+    out = np.zeros(mask.shape, dtype=bool)
+    if mask.any():
+        box = crop_box(mask, math.ceil(reach_mm / float(spacing.min())) + 1)
+        out[box] = (ndimage.distance_transform_edt(~mask[box], sampling=spacing) <= reach_mm) & ~mask[box]
+    return out
+
+
+def _principal(coords_mm: np.ndarray, box_mm: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Principal standard deviations (descending) of (n, 3) points and the (3, 3) axes as columns; ``box_mm``:
+    each point the centre of a voxel of these sides, whose own spread (side^2 / 12 per axis) counts too."""
     centred = coords_mm - coords_mm.mean(axis=0)
     cov = np.einsum("ni,nj->ij", centred, centred) / max(len(coords_mm), 1)
+    if box_mm is not None:
+        cov += np.diag(np.asarray(box_mm, dtype=np.float64) ** 2 / 12.0)
     values, vectors = np.linalg.eigh(cov)
     return np.sqrt(np.maximum(values[::-1], 0.0)), vectors[:, ::-1]
 
@@ -110,29 +125,68 @@ def _opened(core: np.ndarray, radius_mm: float, spacing: np.ndarray) -> np.ndarr
     return np.isin(comps, keep[keep > 0])
 
 
-def _compact(candidates: np.ndarray, bodies: np.ndarray, radius_mm: float, spacing: np.ndarray) -> np.ndarray:
-    """The components of ``candidates`` apart from ``bodies`` that are round and hold a ball of ``radius_mm``.
+def _round(candidates: np.ndarray, bodies: np.ndarray, radius_mm: float,
+           spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The round components of ``candidates`` apart from ``bodies``: (those that hold the volume of a ball of
+    ``radius_mm``, those that hold half of it but not all).
 
     A small inclusion at coarse voxels can be too thin, voxel for voxel, for the ball that removes the
     thickest pillar, though it holds that ball's volume; a smaller ball keeps it, and with it any pillar
     thicker than that ball, joined to its inclusion into an elongated body, or short pieces of such a
-    pillar (less than the ball's volume). Round components (principal spreads within MAX_ELONGATION) at
-    least as big as the ball are inclusions.
+    pillar. Round components (principal spreads within MAX_ELONGATION, of the voxels as boxes: a 6 mm
+    inclusion at 1.1-1.2 mm voxels opened to 36 voxels, 3 x 3 x 4, whose centres alone spread 1.51 times
+    more along one axis than across) at least as big as the ball are inclusions; smaller ones, down to half
+    the ball (the rule of :func:`_opened`), are inclusions or pieces of a post (:func:`_off_axis`).
     """
     from scipy import ndimage
 
     comps, _n = ndimage.label(candidates)
     known = np.unique(comps[bodies])
-    min_voxels = (4 / 3) * math.pi * radius_mm ** 3 / float(np.prod(spacing))
-    out = np.zeros(candidates.shape, dtype=bool)
+    ball_voxels = (4 / 3) * math.pi * radius_mm ** 3 / float(np.prod(spacing))
+    whole, half = (np.zeros(candidates.shape, dtype=bool) for _ in range(2))
     for i, sl in enumerate(ndimage.find_objects(comps), start=1):
         own = comps[sl] == i
-        if i in known or own.sum() < min_voxels:
+        n = int(own.sum())
+        if i in known or n < 0.5 * ball_voxels:
             continue
-        spread = _principal((np.argwhere(own) + [s.start for s in sl]) * spacing)[0]
+        spread = _principal((np.argwhere(own) + [s.start for s in sl]) * spacing, spacing)[0]
         if spread[0] <= MAX_ELONGATION * max(spread[2], 1e-6):
-            out[sl] |= own
+            (whole if n >= ball_voxels else half)[sl] |= own
+    return whole, half
+
+
+def _off_axis(pieces: np.ndarray, bodies: np.ndarray, axis: np.ndarray, spacing: np.ndarray) -> np.ndarray:
+    """The components of ``pieces`` that lie off the axis of every component of ``bodies`` and of every larger
+    piece kept: laterally (across the insert ``axis``) at least the smaller one's equal-volume radius from
+    its centre. Every post stands on the base, so of two inclusions that close one's post would pass
+    through the other: a piece that close to an inclusion's centre is a piece of its post.
+
+    A 6.3 mm inclusion at 1.11 mm voxels and noise 0.085 opened to 0.92 of the ball's volume
+    (:func:`_round`), and pieces of a 4 mm post under its inclusion to more than half.
+    """
+    from scipy import ndimage
+
+    def centres_radii(mask):
+        labels, n = ndimage.label(mask)
+        index = np.arange(1, n + 1)
+        volumes = ndimage.sum_labels(mask, labels, index) * float(np.prod(spacing))
+        centres = np.asarray(ndimage.center_of_mass(mask, labels, index)).reshape(-1, 3) * spacing
+        return labels, list(zip(centres, (0.75 * volumes / math.pi) ** (1.0 / 3.0)))
+
+    held = centres_radii(bodies)[1]
+    labels, found = centres_radii(pieces)
+    out = np.zeros(pieces.shape, dtype=bool)
+    for i in np.argsort([-r for _c, r in found]):
+        centre, radius = found[i]
+        if all(_lateral(centre - c, axis) >= min(radius, r) for c, r in held):
+            out |= labels == i + 1
+            held.append(found[i])
     return out
+
+
+def _lateral(offset: np.ndarray, axis: np.ndarray) -> float:
+    """Length of ``offset`` across the unit ``axis``."""
+    return float(np.linalg.norm(offset - float(offset @ axis) * axis))
 
 
 def _in_filling(bodies: np.ndarray, silicone: np.ndarray, insert: np.ndarray, spacing: np.ndarray) -> np.ndarray:
@@ -157,7 +211,8 @@ def _in_filling(bodies: np.ndarray, silicone: np.ndarray, insert: np.ndarray, sp
 
 
 def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray, spacing: np.ndarray,
-                   reach_mm: float, shape: str = "auto", unfitted: np.ndarray | None = None) -> np.ndarray:
+                   reach_mm: float, shape: str = "auto", unfitted: np.ndarray | None = None,
+                   blurred: np.ndarray | None = None) -> np.ndarray:
     """Each body's surface between its own interior level and the filling's level around it.
 
     The opening leaves a body's surface where the global threshold put it, up to the roughness that
@@ -171,7 +226,8 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
     ``BALL_MISFIT``: the noise, not the shape, is then what separates them) and the image's surface
     elsewhere (a body that is not a ball fits worse). ``unfitted``: voxels no ball is fitted to (the base's
     silicone), None: none; neither a body's nor its image's surface takes them (a body can run on through a
-    short post into the base).
+    short post into the base). ``blurred``: voxels no ball is fitted to either, but which either surface
+    may take (the blur of a post beside its inclusion).
 
     Returns:
         (inclusion mask, one dict per body: ``shape`` "ball" or "image", ``centre_index`` (the fitted
@@ -186,7 +242,7 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
     shapes = []
     for i, sl in enumerate(ndimage.find_objects(comps), start=1):
         own = (comps == i) & ~base
-        fit = fitted_ball(own, fraction, allowed, spacing, sl, reach_mm, unfitted)
+        fit = fitted_ball(own, fraction, allowed, spacing, sl, reach_mm, base if blurred is None else base | blurred)
         if fit is None:
             out |= own
             shapes.append({"shape": "image", "centre_index": list(ndimage.center_of_mass(own)),
@@ -393,19 +449,23 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     core = _without_pinholes(sil & (depth > shell_mm), spacing)
     fine_mm = float(np.prod(spacing)) ** (1.0 / 3.0)        # mean voxel size (anisotropic grids)
     radius_mm = 0.5 * max(pillar_max_diameter_mm, skin_max_thickness_mm) + BALL_MARGIN_VOXELS * fine_mm
-    bodies = _opened(core, radius_mm, spacing)
-    bodies |= _compact(_opened(core, SMALL_BALL * radius_mm, spacing), bodies, radius_mm, spacing)
+    opened = _opened(core, radius_mm, spacing)
+    whole, half = _round(_opened(core, SMALL_BALL * radius_mm, spacing), opened, radius_mm, spacing)
     frac = np.pad(fraction[box], 1) if fraction is not None else sil.astype(np.float32)
-    bodies = _in_filling(bodies, sil, ins, spacing)
+    bodies = _in_filling(opened | whole, sil, ins, spacing)
+    axis = insert_axis(ins, spacing)
+    bodies |= _off_axis(_in_filling(half, sil, ins, spacing), bodies, axis, spacing)
     offset = np.array([b.start for b in box]) - 1              # padded crop -> input voxel index
     inc_ids, n_inclusions = ndimage.label(bodies)
     warnings = [] if n_inclusions else ["no inclusion found"]
     deep = ins & (depth > shell_mm)
     pillar, missing, base, posts, run_on = find_pillars(frac, ins, inc_ids, n_inclusions, spacing,
-                                                        insert_axis(ins, spacing), pillar_max_diameter_mm, deep,
+                                                        axis, pillar_max_diameter_mm, deep,
                                                         pillar_diameter_mm)
+    post_blur = _rim(pillar, POST_BLUR_VOXELS * voxel_mm, spacing) & ~bodies
     inclusion, shapes = _local_surface(bodies & ~run_on, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm,
-                                       inclusion_shape, None if base is None else base.beyond(spacing, ins.shape))
+                                       inclusion_shape, None if base is None else base.beyond(spacing, ins.shape),
+                                       post_blur)
     inclusion |= _junctions(inclusion, pillar, spacing, shapes)
     pillar &= ~inclusion
     for i in missing:

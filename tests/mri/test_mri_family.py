@@ -161,17 +161,67 @@ def test_inclusion_thinner_than_the_ball_voxel_for_voxel_is_found():
     assert all(row["dice_inclusion"] >= 0.9 for row in inclusion_scores(seg.labels, vol))
 
 
-@pytest.mark.xfail(strict=True, reason="a 6.3 mm sphere at 1.11 mm voxels and noise 0.085 (seed 1016 of "
-                   "mri_family.py --near-skin) is not found, and no warning says so: opened with the smaller ball "
-                   "its body holds 45 voxels, under the 49 of the main ball's volume that morphology._compact asks "
-                   "(the family's own draw of 1016, other noise, keeps 57; 30 designed scans of 6-6.8 mm spheres "
-                   "at 1.0-1.2 mm voxels and noise 0.06-0.1 found every one)")
 def test_a_noisy_small_sphere_at_coarse_voxels_is_found():
+    """A 6.3 mm sphere 1 mm under the skin at 1.11 mm voxels and noise 0.085 (seed 1016 of ``mri_family.py
+    --near-skin``): opened by the smaller ball, its body holds 0.92 of the main ball's volume. Round and off
+    the other inclusion's axis, it is an inclusion (morphology._off_axis); taken for a piece of a post, it
+    was missed with no warning."""
     vol = generate(Case(seed=1016, spacing_mm=(1.12, 1.11, 1.11), inclusion_mm=(12.3, 6.3), pillar_mm=3.53,
                         pillar_height_mm=(9.2, 11.8), noise=0.085, bias=0.116, partial_volume="box",
                         skin_gap_mm=1.02))
     seg = segment(vol.image, vol.spacing_mm, where="small noisy sphere")
     assert all(row["dice_inclusion"] >= MIN_DICE["inclusion"] for row in inclusion_scores(seg.labels, vol))
+
+
+def test_a_small_sphere_opened_to_a_few_voxels_is_round():
+    """A 6 mm sphere at 1.08-1.19 mm voxels, alone on a 3.71 mm post: opened, its body is 36 voxels, 3 x 3 x 4,
+    whose centres spread 1.51 times more along one axis than across, over the 1.5 of a round body; the
+    voxels as boxes (morphology._principal) spread 1.47 times. Taken for elongated, no inclusion was found."""
+    vol = generate(Case(seed=49233, spacing_mm=(1.08, 1.18, 1.19), inclusion_mm=(6.0,), pillar_mm=3.71,
+                        pillar_height_mm=(7.8,), base_up=True, noise=0.082, bias=0.309, partial_volume="box"))
+    seg = segment(vol.image, vol.spacing_mm, where="few voxels")
+    assert seg.warnings == []
+    (row,) = inclusion_scores(seg.labels, vol)
+    assert row["dice_inclusion"] >= MIN_DICE["inclusion"] and row["dice_pillar"] >= MIN_DICE["pillar"]
+
+
+SMALL_ON_THICK = {
+    # a 6.9 mm sphere on a 3.77 mm post at 1.13 mm voxels: the post's blur beside it misfit the ball (1.45),
+    # whose image surface scored 0.895
+    "6.9mm-on-3.8mm-post": Case(seed=4909, spacing_mm=(1.13, 1.09, 1.12), inclusion_mm=(6.9, 10.1, 11.8),
+                                pillar_mm=3.77, pillar_height_mm=(13.0, 8.3, 7.4), noise=0.07, bias=0.13,
+                                partial_volume="box"),
+    # a 6.7 mm sphere on a 2.19 mm post at 1.17 mm voxels, base up, bright silicone: 0.922
+    "6.7mm-on-2.2mm-post": Case(seed=4907, spacing_mm=(1.09, 1.17, 1.07), inclusion_mm=(6.7, 7.7), pillar_mm=2.19,
+                                pillar_height_mm=(10.4, 8.7), base_up=True, silicone_brighter=True, noise=0.077,
+                                bias=0.336, partial_volume="box"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SMALL_ON_THICK))
+def test_a_small_sphere_on_a_thick_post_is_drawn_as_its_ball(name):
+    """A sphere of 6-7 mm at coarse voxels on a post of more than a third its width: the voxels within a voxel
+    of the drawn post (outside the inclusion's body) hold the post's blur, which is no part of the ball, and
+    are left out of its fit (morphology.POST_BLUR_VOXELS); the ball then fits to the noise and is drawn."""
+    vol = generate(SMALL_ON_THICK[name])
+    seg = segment(vol.image, vol.spacing_mm, where=name)
+    assert seg.warnings == []
+    assert all(row["shape"] == "ball" for row in seg.inclusion_shapes)
+    assert all(row["dice_inclusion"] >= 0.96 for row in inclusion_scores(seg.labels, vol))
+
+
+def test_a_piece_of_a_thick_post_is_not_taken_for_an_inclusion():
+    """Seed 20 of the family (box partial volume): a 3.84 mm post at 1.14 mm voxels and noise 0.075. Opened
+    by the smaller ball, a round piece of it under its 13.9 mm inclusion holds more than half the main
+    ball's volume; on that inclusion's axis, it is a piece of the post (morphology._off_axis). Every such
+    piece taken for an inclusion drew this one as a third inclusion on a post of its own (pillar 0.92)."""
+    from dataclasses import replace
+
+    vol = generate(replace(draw_case(20), partial_volume="box"))
+    seg = segment(vol.image, vol.spacing_mm, where="seed 20")
+    rows = inclusion_scores(seg.labels, vol)
+    assert seg.warnings == [] and len(seg.posts) == 2
+    assert all(row["dice_inclusion"] >= MIN_DICE["inclusion"] and row["dice_pillar"] >= 0.95 for row in rows)
 
 
 @pytest.mark.parametrize("brighter", [False, True])

@@ -601,3 +601,74 @@ def test_a_posts_significance_reads_the_slab_scatter_of_all_the_scans_traces():
     assert noise_pooled <= min(0.015, noise_own)
     assert abs(ratio - 1.0) < 0.15
     assert _pooled_scatter([trace(np.ones(2)), trace(np.zeros(1))]) is None
+
+
+def test_a_small_round_piece_on_a_larger_bodys_axis_is_a_piece_of_its_post():
+    """Round pieces under the opening ball's volume are kept where they lie off the axis of every larger
+    body (morphology._off_axis): every post stands on the base, so a piece under an inclusion's centre,
+    along the insert's axis (here tilted off the array's), is a piece of its post; one beside it, further
+    from its axis than the piece's own radius, is a small inclusion, and a smaller piece under that one
+    is a piece of its post in turn."""
+    from lesscli.mri.morphology import _off_axis
+
+    spacing = np.array([1.0, 0.8, 0.8])
+    z, y, x = _grid((40, 40, 40), spacing)
+    axis = np.array([1.0, 0.15, -0.1]) / math.hypot(1.0, 0.15, 0.1)
+    across = np.array([-axis[2], 0.0, axis[0]]) / math.hypot(axis[2], axis[0])
+
+    def ball(centre, radius):
+        return (z - centre[0]) ** 2 + (y - centre[1]) ** 2 + (x - centre[2]) ** 2 <= radius ** 2
+
+    centre = np.array([10.0, 14.0, 14.0])
+    inclusion = ball(centre, 5.0)
+    under = ball(centre + 11.0 * axis, 2.2)
+    beside_centre = centre + 9.0 * axis + 8.0 * across
+    beside, under_beside = ball(beside_centre, 2.4), ball(beside_centre + 6.0 * axis, 1.8)
+    kept = _off_axis(under | beside | under_beside, inclusion, axis, spacing)
+    np.testing.assert_array_equal(kept, beside)
+
+
+def test_a_balls_fit_leaves_out_the_blur_of_its_post():
+    """A 7 mm ball on a 3.8 mm post at 1.1 mm voxels, little noise: the post's blurred silicone beside the
+    drawn post is no part of the ball, and left in its fit it reads as misfit above BALL_MISFIT (the image's
+    surface drawn); left out (``blurred``, a voxel around the post), the ball fits to the noise and is drawn."""
+    from scipy import ndimage
+
+    from lesscli.mri.morphology import BALL_MISFIT, _local_surface, _rim
+
+    spacing = np.array([1.1, 1.1, 1.1])
+    shape = (30, 30, 30)
+    z, y, x = _grid(shape, spacing)
+    centre, radius, post_radius = np.array([12.3, 16.1, 15.8]), 3.5, 1.9
+
+    def ball_on_post(z, y, x):
+        across = (y - centre[1]) ** 2 + (x - centre[2]) ** 2
+        return (across + (z - centre[0]) ** 2 <= radius ** 2) | ((across <= post_radius ** 2) & (z > centre[0]))
+
+    fraction = ndimage.gaussian_filter(_box_fill(ball_on_post, shape, spacing), sigma=0.5)
+    fraction += np.random.default_rng(0).normal(0.0, 0.02, shape)
+    sphere = (z - centre[0]) ** 2 + (y - centre[1]) ** 2 + (x - centre[2]) ** 2 <= radius ** 2
+    post = ball_on_post(z, y, x) & ~sphere
+    body = (z - centre[0]) ** 2 + (y - centre[1]) ** 2 + (x - centre[2]) ** 2 <= (radius - 1.2) ** 2
+    _drawn, (blurred_in,) = _local_surface(body, fraction.astype(np.float32), ~post, spacing, 1.1)
+    assert blurred_in["shape"] == "image" and blurred_in["ball_misfit"] > BALL_MISFIT
+    drawn, (row,) = _local_surface(body, fraction.astype(np.float32), ~post, spacing, 1.1,
+                                   blurred=_rim(post, 1.1, spacing))
+    assert row["shape"] == "ball" and row["ball_misfit"] <= 1.0
+    assert abs(row["ball_diameter_mm"] - 2 * radius) <= 0.05 and dice(drawn, sphere) >= 0.99
+
+
+def test_principal_spreads_of_voxels_count_each_voxels_own_extent():
+    """A block of n voxels per axis has the solid block's variance, (n s)^2 / 12 per axis, once each voxel
+    counts as its box; its centres alone have ((n s)^2 - s^2) / 12, which reads a block 3 x 3 x 4 voxels of
+    1.19, 1.19 and 1.08 mm as 1.24 times longer than wide where the solid block is 1.21 times."""
+    from lesscli.mri.morphology import _principal
+
+    spacing = np.array([1.08, 1.19, 1.19])
+    counts = np.array([4, 3, 3])
+    points = np.argwhere(np.ones(counts, dtype=bool)) * spacing
+    solid = np.sort(counts * spacing / math.sqrt(12.0))[::-1]
+    np.testing.assert_allclose(_principal(points, spacing)[0], solid, rtol=1e-9)
+    centres = np.sort(np.sqrt(((counts * spacing) ** 2 - spacing ** 2) / 12.0))[::-1]
+    np.testing.assert_allclose(_principal(points)[0], centres, rtol=1e-9)
+    assert solid[0] / solid[2] == pytest.approx(1.21, abs=0.01) and centres[0] / centres[2] == pytest.approx(1.24, abs=0.01)
