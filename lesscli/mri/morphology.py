@@ -92,13 +92,10 @@ def _rim(mask: np.ndarray, reach_mm: float, spacing: np.ndarray) -> np.ndarray:
     return out
 
 
-def _principal(coords_mm: np.ndarray, box_mm: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Principal standard deviations (descending) of (n, 3) points and the (3, 3) axes as columns; ``box_mm``:
-    each point the centre of a voxel of these sides, whose own spread (side^2 / 12 per axis) counts too."""
+def _principal(coords_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Principal standard deviations (descending) of (n, 3) points and the (3, 3) axes as columns."""
     centred = coords_mm - coords_mm.mean(axis=0)
     cov = np.einsum("ni,nj->ij", centred, centred) / max(len(coords_mm), 1)
-    if box_mm is not None:
-        cov += np.diag(np.asarray(box_mm, dtype=np.float64) ** 2 / 12.0)
     values, vectors = np.linalg.eigh(cov)
     return np.sqrt(np.maximum(values[::-1], 0.0)), vectors[:, ::-1]
 
@@ -133,10 +130,9 @@ def _round(candidates: np.ndarray, bodies: np.ndarray, radius_mm: float,
     A small inclusion at coarse voxels can be too thin, voxel for voxel, for the ball that removes the
     thickest pillar, though it holds that ball's volume; a smaller ball keeps it, and with it any pillar
     thicker than that ball, joined to its inclusion into an elongated body, or short pieces of such a
-    pillar. Round components (principal spreads within MAX_ELONGATION, of the voxels as boxes: a 6 mm
-    inclusion at 1.1-1.2 mm voxels opened to 36 voxels, 3 x 3 x 4, whose centres alone spread 1.51 times
-    more along one axis than across) at least as big as the ball are inclusions; smaller ones, down to half
-    the ball (the rule of :func:`_opened`), are inclusions or pieces of a post (:func:`_off_axis`).
+    pillar. Round components (principal spreads within MAX_ELONGATION) at least as big as the ball are
+    inclusions; smaller ones, down to half the ball (the rule of :func:`_opened`), are inclusions or
+    pieces of a post (:func:`_off_axis`).
     """
     from scipy import ndimage
 
@@ -149,7 +145,7 @@ def _round(candidates: np.ndarray, bodies: np.ndarray, radius_mm: float,
         n = int(own.sum())
         if i in known or n < 0.5 * ball_voxels:
             continue
-        spread = _principal((np.argwhere(own) + [s.start for s in sl]) * spacing, spacing)[0]
+        spread = _principal((np.argwhere(own) + [s.start for s in sl]) * spacing)[0]
         if spread[0] <= MAX_ELONGATION * max(spread[2], 1e-6):
             (whole if n >= ball_voxels else half)[sl] |= own
     return whole, half

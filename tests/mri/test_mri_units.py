@@ -657,18 +657,3 @@ def test_a_balls_fit_leaves_out_the_blur_of_its_post():
     assert row["shape"] == "ball" and row["ball_misfit"] <= 1.0
     assert abs(row["ball_diameter_mm"] - 2 * radius) <= 0.05 and dice(drawn, sphere) >= 0.99
 
-
-def test_principal_spreads_of_voxels_count_each_voxels_own_extent():
-    """A block of n voxels per axis has the solid block's variance, (n s)^2 / 12 per axis, once each voxel
-    counts as its box; its centres alone have ((n s)^2 - s^2) / 12, which reads a block 3 x 3 x 4 voxels of
-    1.19, 1.19 and 1.08 mm as 1.24 times longer than wide where the solid block is 1.21 times."""
-    from lesscli.mri.morphology import _principal
-
-    spacing = np.array([1.08, 1.19, 1.19])
-    counts = np.array([4, 3, 3])
-    points = np.argwhere(np.ones(counts, dtype=bool)) * spacing
-    solid = np.sort(counts * spacing / math.sqrt(12.0))[::-1]
-    np.testing.assert_allclose(_principal(points, spacing)[0], solid, rtol=1e-9)
-    centres = np.sort(np.sqrt(((counts * spacing) ** 2 - spacing ** 2) / 12.0))[::-1]
-    np.testing.assert_allclose(_principal(points)[0], centres, rtol=1e-9)
-    assert solid[0] / solid[2] == pytest.approx(1.21, abs=0.01) and centres[0] / centres[2] == pytest.approx(1.24, abs=0.01)
