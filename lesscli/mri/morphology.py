@@ -169,9 +169,11 @@ def _off_axis(pieces: np.ndarray, bodies: np.ndarray, axis: np.ndarray, spacing:
         centres = np.asarray(ndimage.center_of_mass(mask, labels, index)).reshape(-1, 3) * spacing
         return labels, list(zip(centres, (0.75 * volumes / math.pi) ** (1.0 / 3.0)))
 
+    out = np.zeros(pieces.shape, dtype=bool)
+    if not pieces.any():
+        return out
     held = centres_radii(bodies)[1]
     labels, found = centres_radii(pieces)
-    out = np.zeros(pieces.shape, dtype=bool)
     for i in np.argsort([-r for _c, r in found]):
         centre, radius = found[i]
         if all(_lateral(centre - c, axis) >= min(radius, r) for c, r in held):
