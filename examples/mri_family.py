@@ -64,6 +64,7 @@ from mri_family import (
     PARTIAL_VOLUMES,
     PILLAR,
     RANGES,
+    Case,
     base_error_mm,
     draw_case,
     generate,
@@ -77,6 +78,7 @@ from mri_family import (
 MIN_PILLAR_VOXELS = 2.0
 LONE_SHORT_MM = (1.0, 2.5)      # --lone-short: the post's height range
 NEAR_SKIN_MM = (0.5, 2.0)       # --near-skin: the highest sphere's gap to the skin
+SMALL_COARSE = {"first_mm": (6.0, 7.0), "spacing_mm": (0.9, 1.2), "noise": (0.05, 0.1)}   # --small-coarse
 ACCEPT = {"insert": 0.97, "inclusion": 0.93, "pillar": 0.80}
 
 
@@ -92,6 +94,23 @@ def lone_short(case):
     """``case`` with its first inclusion alone, on a post drawn 1-2.5 mm tall (seeded by the case)."""
     tall = float(np.round(np.random.default_rng([46, case.seed]).uniform(*LONE_SHORT_MM), 1))
     return dataclasses.replace(case, inclusion_mm=case.inclusion_mm[:1], pillar_height_mm=(tall,))
+
+
+def small_coarse(seed: int) -> Case:
+    """A volume of small spheres at coarse voxels, seeded by ``[seed // 100, seed % 100]`` (seeds 4900-4979 and
+    49200-49279 are examples/README's two probes): 1-3 inclusions, the first of 6-7 mm and the others over the
+    family's range; every voxel side 0.9-1.2 mm; noise 0.05-0.1; posts, bias, base and contrast as the family's."""
+    rng = np.random.default_rng([seed // 100, seed % 100])
+    n = int(rng.integers(1, 4))
+    spacing = tuple(float(v) for v in np.round(rng.uniform(*SMALL_COARSE["spacing_mm"], 3), 2))
+    first = float(np.round(rng.uniform(*SMALL_COARSE["first_mm"]), 1))
+    others = tuple(float(v) for v in np.round(rng.uniform(*RANGES["inclusion_mm"], n - 1), 1))
+    return Case(seed=seed, spacing_mm=spacing, inclusion_mm=(first, *others),
+                pillar_mm=float(np.round(rng.uniform(*RANGES["pillar_mm"]), 2)),
+                pillar_height_mm=tuple(float(v) for v in np.round(rng.uniform(*RANGES["pillar_height_mm"], n), 1)),
+                base_up=bool(rng.random() < 0.5), silicone_brighter=bool(rng.random() < 0.5),
+                noise=float(np.round(rng.uniform(*SMALL_COARSE["noise"]), 3)),
+                bias=float(np.round(rng.uniform(*RANGES["bias"]), 3)))
 
 
 def near_skin(case):
@@ -111,14 +130,14 @@ def near_skin(case):
 
 
 def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lone: bool = False,
-             known: bool = False, near: bool = False) -> list[dict]:
+             known: bool = False, near: bool = False, small: bool = False) -> list[dict]:
     """One volume: a case row (insert Dice, pillar voxels drawn, warnings) and one row per inclusion, each with
-    the case's parameters; ``floating``: the volume drawn without posts; ``lone``: :func:`lone_short`;
-    ``near``: :func:`near_skin`; ``known``: segmented with the posts' true diameter given
-    (``SegmentParams.pillar_diameter_mm``)."""
+    the case's parameters; ``small``: drawn by :func:`small_coarse`, not ``draw_case``; ``floating``: the
+    volume drawn without posts; ``lone``: :func:`lone_short`; ``near``: :func:`near_skin`; ``known``: segmented
+    with the posts' true diameter given (``SegmentParams.pillar_diameter_mm``)."""
     from lesscli.mri.segment import SegmentParams, segment
 
-    case = dataclasses.replace(draw_case(seed), partial_volume=partial_volume)
+    case = dataclasses.replace(small_coarse(seed) if small else draw_case(seed), partial_volume=partial_volume)
     if floating:
         case = dataclasses.replace(case, pillar_mm=0.0)
     if lone:
@@ -270,6 +289,9 @@ def main() -> None:
                        help="draw each volume's first inclusion alone, on a post 1-2.5 mm tall")
     drawn.add_argument("--near-skin", action="store_true",
                        help="draw each volume's highest sphere 0.5-2 mm under the skin")
+    parser.add_argument("--small-coarse", action="store_true",
+                        help="draw small spheres at coarse voxels (the first 6-7 mm, voxels 0.9-1.2 mm, noise "
+                             "0.05-0.1; seeded by seed // 100 and seed %% 100) instead of the family's draw")
     parser.add_argument("--known-diameter", action="store_true",
                         help="segment with the posts' true diameter given (less mri-label --pillar-diameter-mm)")
     parser.add_argument("--margins", default=None,
@@ -286,7 +308,7 @@ def main() -> None:
         return
     for seed in _seeds(args.seeds):
         new = run_case(seed, args.partial_volume, args.floating, args.lone_short, args.known_diameter,
-                       args.near_skin)
+                       args.near_skin, args.small_coarse)
         rows += new
         fails = shortfalls(new[0], new[1:])
         print(f"seed {seed}: {new[0]['seconds']} s" + (f"  below: {', '.join(fails)}" if fails else ""),
