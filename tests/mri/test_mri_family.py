@@ -174,10 +174,11 @@ def test_a_noisy_small_sphere_at_coarse_voxels_is_found():
 
 
 @pytest.mark.xfail(strict=True, reason="a 6 mm sphere at 1.08-1.19 mm voxels (--small-coarse seed 49233), alone "
-                   "on a 3.71 mm post, opens to 36 voxels, 3 x 3 x 4, whose centres spread 1.51 times more along one axis than across, over the "
-                   "1.5 of a round body: no inclusion found (one warning). Counting each voxel as its box reads it "
-                   "round (1.47), but it also read a piece of a post, 1.01 of the ball's volume, under seed 2054's "
-                   "15.3 mm inclusion (ramp) as round, and a piece that large is taken without the axis test")
+                   "on a 3.71 mm post, opens to 36 voxels, 3 x 3 x 4, whose centres spread 1.51 times more along "
+                   "one axis than across, over the 1.5 of a round body: no inclusion found (one warning). Counting "
+                   "each voxel as its box reads it round (1.47), but it also read a piece of a post, 1.01 of the "
+                   "ball's volume, under seed 2054's 15.3 mm inclusion (ramp) as round, and a piece that large is "
+                   "taken without the axis test")
 def test_a_small_sphere_opened_to_a_few_voxels_is_round():
     vol = generate(Case(seed=49233, spacing_mm=(1.08, 1.18, 1.19), inclusion_mm=(6.0,), pillar_mm=3.71,
                         pillar_height_mm=(7.8,), base_up=True, noise=0.082, bias=0.309, partial_volume="box"))
