@@ -170,8 +170,6 @@ def _off_axis(pieces: np.ndarray, bodies: np.ndarray, axis: np.ndarray, spacing:
         return labels, list(zip(centres, (0.75 * volumes / math.pi) ** (1.0 / 3.0)))
 
     out = np.zeros(pieces.shape, dtype=bool)
-    if not pieces.any():
-        return out
     held = centres_radii(bodies)[1]
     labels, found = centres_radii(pieces)
     for i in np.argsort([-r for _c, r in found]):
@@ -452,7 +450,8 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     frac = np.pad(fraction[box], 1) if fraction is not None else sil.astype(np.float32)
     bodies = _in_filling(opened | whole, sil, ins, spacing)
     axis = insert_axis(ins, spacing)
-    bodies |= _off_axis(_in_filling(half, sil, ins, spacing), bodies, axis, spacing)
+    if half.any():                                          # rare: labelling every scan's bodies costs
+        bodies |= _off_axis(_in_filling(half, sil, ins, spacing), bodies, axis, spacing)
     offset = np.array([b.start for b in box]) - 1              # padded crop -> input voxel index
     inc_ids, n_inclusions = ndimage.label(bodies)
     warnings = [] if n_inclusions else ["no inclusion found"]
