@@ -628,6 +628,27 @@ def test_a_small_round_piece_on_a_larger_bodys_axis_is_a_piece_of_its_post():
     np.testing.assert_array_equal(kept, beside)
 
 
+def test_a_piece_a_few_voxels_across_is_read_round_by_its_voxels_boxes():
+    """The 6 mm sphere of ``mri_family.py --small-coarse`` seed 49233, at 1.08 x 1.18 x 1.19 mm voxels, opened
+    to a block of 3 x 3 x 4 voxels, 0.8 of the opening ball's volume, the 4 along the 1.19 mm side: their
+    centres spread 1.51 times more along it than along the 1.08 mm side (over MAX_ELONGATION), the voxels
+    themselves 1.47. Counted as boxes (morphology._round) the piece is round; a post's piece of 2 x 2 x 6
+    voxels is not. Pieces under half the ball's volume, or of a body already found, are not returned."""
+    from lesscli.mri.morphology import MAX_ELONGATION, _principal, _round
+
+    spacing = np.array([1.08, 1.18, 1.19])
+    small, post = np.zeros((20, 20, 20), dtype=bool), np.zeros((20, 20, 20), dtype=bool)
+    small[2:5, 2:5, 2:6] = True
+    post[8:14, 10:12, 10:12] = True
+    centres = _principal(np.argwhere(small) * spacing)[0]
+    assert centres[0] > MAX_ELONGATION * centres[2]
+    ball_mm = (0.75 * 45 * float(np.prod(spacing)) / math.pi) ** (1 / 3)     # a ball of 45 voxels' volume
+    none = np.zeros_like(small)
+    np.testing.assert_array_equal(_round(small | post, none, ball_mm, spacing), small)
+    assert not _round(small, small, ball_mm, spacing).any()
+    assert not _round(small, none, 1.3 * ball_mm, spacing).any()
+
+
 def test_a_balls_fit_leaves_out_the_blur_of_its_post():
     """A 7 mm ball on a 3.8 mm post at 1.1 mm voxels, little noise: the post's blurred silicone beside the
     drawn post is no part of the ball, and left in its fit it reads as misfit above BALL_MISFIT (the image's
