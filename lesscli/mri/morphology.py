@@ -66,6 +66,11 @@ def open_ball(mask: np.ndarray, radius_mm: float, spacing: np.ndarray) -> np.nda
     return ndimage.distance_transform_edt(~eroded, sampling=spacing) <= radius_mm
 
 
+def _ball_voxels(radius_mm: float, spacing: np.ndarray) -> float:
+    """How many voxels of ``spacing`` a ball of ``radius_mm`` holds."""
+    return (4 / 3) * math.pi * radius_mm ** 3 / float(np.prod(spacing))
+
+
 def _without_pinholes(mask: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     """``mask`` with its holes (face-connected) smaller than a ball of one largest voxel's radius filled.
 
@@ -76,7 +81,7 @@ def _without_pinholes(mask: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     from scipy import ndimage
 
     holes, _n = ndimage.label(~mask)
-    small = np.bincount(holes.ravel()) < (4 / 3) * math.pi * float(spacing.max()) ** 3 / float(np.prod(spacing))
+    small = np.bincount(holes.ravel()) < _ball_voxels(float(spacing.max()), spacing)
     small[0] = False
     return mask | small[holes]
 
@@ -120,8 +125,7 @@ def _opened(core: np.ndarray, radius_mm: float, spacing: np.ndarray) -> np.ndarr
 
     comps = label(open_ball(core, radius_mm, spacing), connectivity=1)
     sizes = np.bincount(comps.ravel())
-    min_voxels = 0.5 * (4 / 3) * math.pi * radius_mm ** 3 / float(np.prod(spacing))
-    keep = np.flatnonzero(sizes >= min_voxels)
+    keep = np.flatnonzero(sizes >= 0.5 * _ball_voxels(radius_mm, spacing))
     return np.isin(comps, keep[keep > 0])
 
 
@@ -139,12 +143,12 @@ def _round(candidates: np.ndarray, bodies: np.ndarray, radius_mm: float, spacing
     from scipy import ndimage
 
     comps, _n = ndimage.label(candidates)
-    known = np.unique(comps[bodies])
-    ball_voxels = (4 / 3) * math.pi * radius_mm ** 3 / float(np.prod(spacing))
+    known = set(np.unique(comps[bodies]).tolist())
+    min_voxels = 0.5 * _ball_voxels(radius_mm, spacing)
     out = np.zeros(candidates.shape, dtype=bool)
     for i, sl in enumerate(ndimage.find_objects(comps), start=1):
         own = comps[sl] == i
-        if i in known or int(own.sum()) < 0.5 * ball_voxels:
+        if i in known or int(own.sum()) < min_voxels:
             continue
         spread = _principal((np.argwhere(own) + [s.start for s in sl]) * spacing, spacing)[0]
         if spread[0] <= MAX_ELONGATION * max(spread[2], 1e-6):
