@@ -290,6 +290,15 @@ class Ball:
         r = np.linalg.norm(points_mm - self.centre_mm, axis=1)
         return self.contrast * ball_profile(r, self.radius_mm, self.sigma_mm)
 
+    def shell(self, points_mm: np.ndarray) -> np.ndarray:
+        """How much :meth:`excess` grows at ``points_mm`` (n, 3) per millimetre of radius: the blur's normal
+        summed over the ball's surface, ``R / (r sigma sqrt(2 pi)) (exp(-(R - r)^2 / 2 sigma^2) - exp(-(R +
+        r)^2 / 2 sigma^2))`` times the contrast."""
+        r = np.maximum(np.linalg.norm(points_mm - self.centre_mm, axis=1), 1e-6 * self.radius_mm)
+        s2 = 2.0 * self.sigma_mm ** 2
+        return self.contrast * self.radius_mm / (r * self.sigma_mm * math.sqrt(2.0 * math.pi)) * (
+            np.exp(-(self.radius_mm - r) ** 2 / s2) - np.exp(-(self.radius_mm + r) ** 2 / s2))
+
 
 def fitted_ball(own_full: np.ndarray, fraction: np.ndarray, allowed: np.ndarray, spacing: np.ndarray,
                 sl: tuple, reach_mm: float, unfitted: np.ndarray | None = None) -> Ball | None:
