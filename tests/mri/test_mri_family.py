@@ -822,7 +822,8 @@ def test_family_script_small_coarse(tmp_path):
 
 def test_family_script_known_diameter(tmp_path):
     """`examples/mri_family.py --known-diameter`: the volume segmented with its posts' true diameter given;
-    the rows' diameter error stays that of the diameter the scan measured, the post drawn as wide as given."""
+    the rows' diameter error stays that of the diameter the scan measured, the post drawn as wide as given
+    (seed 6058's 2.4 voxels wide, measured 0.2 mm too wide: 35 voxels drawn, 28 given its diameter)."""
     import subprocess
     import sys
     from pathlib import Path
@@ -830,7 +831,7 @@ def test_family_script_known_diameter(tmp_path):
     script = Path(__file__).resolve().parents[2] / "examples" / "mri_family.py"
     rows = {}
     for name, extra in (("measured", []), ("given", ["--known-diameter"])):
-        subprocess.run([sys.executable, str(script), "--seeds", "24", "--partial-volume", "box", *extra,
+        subprocess.run([sys.executable, str(script), "--seeds", "6058", "--partial-volume", "box", *extra,
                         "--out", str(tmp_path / f"{name}.jsonl")], capture_output=True, text=True, check=True)
         rows[name] = [json.loads(line) for line in (tmp_path / f"{name}.jsonl").read_text().splitlines()]
     (measured,), (given,) = ([r for r in rows[n] if r["row"] == "inclusion"] for n in ("measured", "given"))
