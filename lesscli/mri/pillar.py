@@ -598,7 +598,7 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
 
     shell = np.zeros(len(at)) if ball is None else ball.shell(col.points[at]) / contrast[1]
     whole = float(excess.sum()) * voxel_mm3 / max(end_mm - start_mm, step_mm)
-    start = min(math.sqrt(max(whole, 0.0) / math.pi), core_mm)
+    start = min(_disc_radius(whole), core_mm)
     fit = least_squares(lambda p: disc_profile(rho[at], p[0], sigma) * axial(p[1]) + p[1] * shell - excess,
                         [max(start, 0.1 * core_mm), 0.0], bounds=([0.05 * core_mm, -sigma], [core_mm, sigma]))
     return float(fit.x[0])
@@ -617,7 +617,7 @@ def _gap_radius(col: _Column, sign: int, end_mm: float, contrast: tuple[float, f
         return None
     if found:
         return float(np.median([r for _line, r, _end in found.values()]))
-    radius = fitted() if fitted is not None else math.sqrt(area / math.pi)
+    radius = fitted() if fitted is not None else _disc_radius(area)
     return radius if MIN_RADIUS_MM <= radius <= 0.5 * widest_mm else None
 
 
@@ -678,6 +678,11 @@ def _base_side(traces: dict, columns: dict, contrasts: dict, labels: list[int], 
     return 1
 
 
+def _disc_radius(area_mm2: float) -> float:
+    """The radius (mm) of a disc of ``area_mm2``; 0 where that is not positive (a cross-section of noise)."""
+    return math.sqrt(max(area_mm2, 0.0) / math.pi)
+
+
 def _pooled_radii(found: dict, short_radius: Callable[[int, float, float], float]) -> dict:
     """label -> (line, radius, end) from label -> (line, slab cross-sections, core radius, end).
 
@@ -697,9 +702,9 @@ def _pooled_radii(found: dict, short_radius: Callable[[int, float, float], float
     out = {}
     for label, (line, areas, core, end) in found.items():
         if len(areas) >= MIN_OWN_SLABS:
-            radius = math.sqrt(max(float(np.median(areas)), 0.0) / math.pi)
+            radius = _disc_radius(float(np.median(areas)))
         elif fitted[label] >= MIN_RADIUS_MM and len(pooled) > len(areas):
-            radius = math.sqrt(max(float(np.median(pooled)), 0.0) / math.pi)
+            radius = _disc_radius(float(np.median(pooled)))
         else:
             radius = fitted[label]
         out[label] = (line, min(radius, core), end)
@@ -915,7 +920,7 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
             (short if _short_gap(traces[label, side], columns[label], side, step) else missing).append(label)
             continue
         col, line = columns[label], _fit_line(first, np.zeros((2, 2)))
-        core = min(core0, math.sqrt(first.median_area() / math.pi) + CORE_MARGIN_VOXELS * voxel)
+        core = min(core0, _disc_radius(first.median_area()) + CORE_MARGIN_VOXELS * voxel)
         second = _trace(col, side, line, core, rings(core), step, voxel_mm3, contrasts[label], balls[label])
         final = _inner(second) if len(second.area_mm2) else first
         line = _fit_line(final, line) if len(final.area_mm2) >= MIN_LINE_SLABS else under[label]
