@@ -56,7 +56,10 @@ held on its inclusion's axis (the line through the fitted ball's centre along th
 phantoms are cast) unless its own line fits significantly better (:func:`own_or_centred`). A post measured
 thinner than ``MIN_RADIUS_MM`` in the end is no post (its first, wider core let noise pass the test;
 without posts, about one inclusion in ten of the family's had one, drawn with a voxel or none and with
-its warning missing). Short pillars are measured over few slabs, each as noisy as the next:
+its warning missing), by its fitted cylinder or by its second trace's median cross-section: a trace of
+noise 17 mm long under a sphere near the skin read a disc of 0.26 mm there and a cylinder over 0.5 mm,
+the fit's blur and radius trading against each other on a few voxels per slab. Short pillars are
+measured over few slabs, each as noisy as the next:
 
 - with fewer than ``MIN_LINE_SLABS`` slabs a line is not told apart from noise, and the pillar stands
   under its inclusion's centre, as the phantoms are built (one pillar under each sphere's centre,
@@ -934,13 +937,16 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
                             voxel_mm3, under[label])
 
     found = _pooled_radii(found, short_radius)
+    thinnest = {}                           # label -> the least of the radii measured for it
     for label, final in finals.items():     # line, radius and blur refined together: one blurred cylinder
         if len(final.area_mm2) >= MIN_LINE_SLABS:
             line, radius, end = found[label]
             line, fitted = _fit_cylinder(columns[label], side, final, line, radius, cores[label], step,
                                          contrasts[label], balls[label], None if balls[label] is None else under[label])
-            found[label] = (line, fitted if len(final.area_mm2) >= MIN_OWN_SLABS else radius, end)
-    for label in [k for k, (_line, radius, _end) in found.items() if radius < MIN_RADIUS_MM]:
+            own = len(final.area_mm2) >= MIN_OWN_SLABS
+            found[label] = (line, fitted if own else radius, end)
+            thinnest[label] = min(fitted, radius) if own else radius
+    for label in [k for k, (_line, radius, _end) in found.items() if thinnest.get(k, radius) < MIN_RADIUS_MM]:
         del found[label]                # measured thinner than noise tells apart: no post after all
         missing.append(label)
     for label in short:                 # too close to the base to measure: silicone across the gap, or none
