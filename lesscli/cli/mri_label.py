@@ -61,8 +61,9 @@ def _synth(name: str, output: str, truth_out: str | None, spacing: str | None, c
     LOG.info("wrote %s (%s, yaw %.1f deg)", output, "x".join(map(str, result.image.shape)), result.yaw_deg)
 
 
-def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, grid_shape: str,
-           grid_spacing: str, orientations: list[int], report: bool, qc: str | None, strict: bool, fmt: str | None) -> None:
+def _label(scan_path: str, output: str, spacing: str | None, series: str | None, params, grid: str,
+           grid_shape: str, grid_spacing: str, orientations: list[int], report: bool, qc: str | None, strict: bool,
+           fmt: str | None) -> None:
     from lesscli.errors import DataError
     from lesscli.io.atomic import atomic_path
     from lesscli.io.labels import save_nifti
@@ -71,7 +72,7 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
     from lesscli.mri.scan import load_scan, save_labels, zyx_affine
     from lesscli.mri.segment import segment
 
-    scan = load_scan(scan_path, _triple(spacing, "--spacing-mm") if spacing else None)
+    scan = load_scan(scan_path, _triple(spacing, "--spacing-mm") if spacing else None, series)
     seg = segment(scan.data, scan.spacing_mm, params, where=scan_path)
     if strict and seg.warnings:
         raise DataError(f"{scan_path}: {seg.warnings[0]} (--strict)")
@@ -107,6 +108,8 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
 @click.argument("scan", type=click.Path(), required=False)
 @output_option(help="Output labels (.nii.gz/.nii; .npy for a numpy scan). With --synth: the synthetic scan.")
 @click.option("--spacing-mm", "spacing", default=None, help="dz,dy,dx voxel size for .npy/.npz scans (and --synth).")
+@click.option("--series", default=None, metavar="NUMBER|UID",
+              help="The series to read from a DICOM folder holding several (its SeriesNumber or SeriesInstanceUID).")
 @click.option("--pillar-max-diameter-mm", type=click.FloatRange(min=0.1), default=4.5, show_default=True,
               help="Thickest pillar; thicker silicone bodies are inclusions.")
 @click.option("--pillar-diameter-mm", type=click.FloatRange(min=0.0, min_open=True), default=None,
@@ -145,7 +148,7 @@ def _label(scan_path: str, output: str, spacing: str | None, params, grid: str, 
               help="With --synth: peak |log| of the multiplicative bias field.")
 @seed_option()
 @format_option
-def cli(scan, output, spacing, pillar_max_diameter_mm, pillar_diameter_mm, skin_max_thickness_mm, smooth_mm,
+def cli(scan, output, spacing, series, pillar_max_diameter_mm, pillar_diameter_mm, skin_max_thickness_mm, smooth_mm,
         bias_degree, inclusion_shape, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict, synth,
         truth_out, contrast, noise, bias, seed, fmt) -> None:
     """Label an MRI scan (NIfTI, DICOM folder, or .npy/.npz with --spacing-mm) into 0 background,
@@ -158,6 +161,7 @@ def cli(scan, output, spacing, pillar_max_diameter_mm, pillar_diameter_mm, skin_
       less mri-label scan.nii.gz -o labels.nii.gz --pillar-diameter-mm 3 --report
       less mri-label scan.nii.gz -o grid.nii.gz --grid phantom --orientations 0-7
       less mri-label scan.npy --spacing-mm 0.5,0.5,0.5 -o labels.nii.gz
+      less mri-label dicom_folder/ --series 3 -o labels.nii.gz
     """
     from lesscli.mri.segment import SegmentParams
 
@@ -180,5 +184,5 @@ def cli(scan, output, spacing, pillar_max_diameter_mm, pillar_diameter_mm, skin_
                                inclusion_shape, pillar_diameter_mm)
     except ValueError as e:
         raise click.BadParameter(str(e), param_hint="--pillar-diameter-mm") from None
-    _label(scan, output, spacing, params, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict,
+    _label(scan, output, spacing, series, params, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict,
            fmt)

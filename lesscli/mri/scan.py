@@ -20,6 +20,9 @@ LOG = logging.getLogger("less")
 
 NIFTI_SUFFIXES = (".nii", ".nii.gz")
 NUMPY_SUFFIXES = (".npy", ".npz")
+ORIENTATION_TOLERANCE = 1e-4        # direction cosines of one series' slices agree to this (decimal strings)
+POSITION_TOLERANCE_MM = 1e-3        # slices nearer than this along the normal share a position
+SPACING_TOLERANCE = 0.01            # a gap between slices off the median by more than this share is uneven
 
 
 @dataclass
@@ -90,36 +93,98 @@ def _dicom_affine(first, last, n: int) -> np.ndarray:
     return np.diag([-1.0, -1.0, 1.0, 1.0]) @ aff      # LPS -> RAS
 
 
-def _load_dicom(path: str) -> MRIScan:
+def _series_key(ds) -> str:
+    """A series' name for ``--series``: its SeriesNumber, else its SeriesInstanceUID ("" without either)."""
+    number = getattr(ds, "SeriesNumber", None)
+    return str(number) if number not in (None, "") else str(getattr(ds, "SeriesInstanceUID", ""))
+
+
+def _one_series(path: str, images: list, series: str | None) -> list:
+    """The (file name, dataset) pairs of one series: the only one in the folder, or ``series`` (a
+    SeriesNumber or SeriesInstanceUID)."""
+    groups: dict[str, list] = {}
+    for name, ds in images:
+        groups.setdefault(str(getattr(ds, "SeriesInstanceUID", "")), []).append((name, ds))
+    if series is not None:
+        chosen = [g for uid, g in groups.items() if series in (uid, _series_key(g[0][1]))]
+        if not chosen:
+            found = ", ".join(sorted(_series_key(g[0][1]) for g in groups.values()))
+            raise DataError(f"{path}: no series {series!r} in this folder (its series: {found})")
+        if len(chosen) > 1:
+            raise DataError(f"{path}: {len(chosen)} series numbered {series!r} in this folder; give the "
+                            f"SeriesInstanceUID of one ({', '.join(sorted(uid for uid in groups if uid))})")
+        return chosen[0]
+    if len(groups) > 1:
+        listed = "; ".join(f"{_series_key(ds)} {str(getattr(ds, 'SeriesDescription', '')).strip()!r}: {len(g)} files"
+                           for g in groups.values() for _name, ds in g[:1])
+        raise DataError(f"{path}: {len(groups)} series in this folder ({listed}); choose one with --series")
+    return next(iter(groups.values()))
+
+
+def _slice_positions(path: str, images: list) -> list:
+    """``images`` sorted along the slice normal: one orientation, one image per position, evenly spaced,
+    else a DataError naming the files."""
+    orient = [np.asarray(ds.ImageOrientationPatient, float) for _name, ds in images]
+    for (name, _ds), o in zip(images, orient):
+        if np.abs(o - orient[0]).max() > ORIENTATION_TOLERANCE:
+            raise DataError(f"{path}: {images[0][0]} and {name} have different orientations; one series of "
+                            "parallel slices is one volume")
+    normal = np.cross(orient[0][:3], orient[0][3:])
+    at = np.array([float(np.asarray(ds.ImagePositionPatient, float) @ normal) for _name, ds in images])
+    order = np.argsort(at, kind="stable")
+    images, at = [images[i] for i in order], at[order]
+    gaps = np.diff(at)
+    if len(gaps) and gaps.min() <= POSITION_TOLERANCE_MM:
+        k = int(np.argmin(gaps))
+        raise DataError(f"{path}: {images[k][0]} and {images[k + 1][0]} lie at the same slice position "
+                        f"({at[k]:.3f} mm): several images per position (echoes, phases) are not one volume")
+    if len(gaps) > 1:
+        step = float(np.median(gaps))
+        k = int(np.argmax(np.abs(gaps - step)))
+        if abs(gaps[k] - step) > max(SPACING_TOLERANCE * step, POSITION_TOLERANCE_MM):
+            raise DataError(f"{path}: slices are not evenly spaced ({gaps[k]:.3f} mm between {images[k][0]} and "
+                            f"{images[k + 1][0]}, {step:.3f} mm elsewhere): a slice missing?")
+    return images
+
+
+def _load_dicom(path: str, series: str | None = None) -> MRIScan:
     try:
         import pydicom
     except ImportError:
         raise DataError(f"{path}: reading DICOM needs pydicom (pip install 'lesscli[dicom]'), "
                         "or convert the series to NIfTI first") from None
-    slices = []
+    images = []
     for name in sorted(os.listdir(path)):
         try:
             ds = pydicom.dcmread(os.path.join(path, name))
         except (pydicom.errors.InvalidDicomError, OSError):
             LOG.debug("%s: skipping %s (not DICOM)", path, name)
             continue
-        if hasattr(ds, "ImagePositionPatient") and hasattr(ds, "PixelData"):
-            slices.append(ds)
-    if not slices:
+        if all(hasattr(ds, key) for key in ("ImagePositionPatient", "ImageOrientationPatient", "PixelData")):
+            images.append((name, ds))
+    if not images:
         raise DataError(f"{path}: no DICOM images with position information in this folder")
-    normal = np.cross(np.asarray(slices[0].ImageOrientationPatient[:3], float),
-                      np.asarray(slices[0].ImageOrientationPatient[3:], float))
-    slices.sort(key=lambda ds: float(np.asarray(ds.ImagePositionPatient, float) @ normal))
-    shapes = {ds.pixel_array.shape for ds in slices}
+    images = _slice_positions(path, _one_series(path, images, series))
+    pixels = []
+    for name, ds in images:
+        try:
+            pixels.append(ds.pixel_array)
+        except Exception as exc:            # noqa: BLE001 - pydicom raises many kinds for undecodable data
+            syntax = getattr(getattr(ds, "file_meta", None), "TransferSyntaxUID", None)
+            raise DataError(f"{os.path.join(path, name)}: pixel data not decodable"
+                            f"{f' ({syntax.name})' if syntax else ''}: {' '.join(str(exc).split())}") from None
+    shapes = {p.shape for p in pixels}
     if len(shapes) != 1:
         raise DataError(f"{path}: slices have different sizes {sorted(shapes)}")
-    vol = np.stack([ds.pixel_array.T * float(getattr(ds, "RescaleSlope", 1.0))
-                    + float(getattr(ds, "RescaleIntercept", 0.0)) for ds in slices], axis=2)
-    return MRIScan(vol.astype(np.float32), _dicom_affine(slices[0], slices[-1], len(slices)), path, "dicom")
+    vol = np.stack([p.T * float(getattr(ds, "RescaleSlope", 1.0)) + float(getattr(ds, "RescaleIntercept", 0.0))
+                    for p, (_name, ds) in zip(pixels, images)], axis=2)
+    return MRIScan(vol.astype(np.float32), _dicom_affine(images[0][1], images[-1][1], len(images)), path, "dicom")
 
 
-def load_scan(path: str, spacing_mm=None) -> MRIScan:
+def load_scan(path: str, spacing_mm=None, series: str | None = None) -> MRIScan:
     """Read a scan: NIfTI file, DICOM series folder, or .npy/.npz (with ``spacing_mm`` = (dz, dy, dx)).
+    ``series``: in a DICOM folder holding several series, the one to read (SeriesNumber or
+    SeriesInstanceUID).
 
     Raises:
         DataError: missing file, unknown format or unreadable content, naming ``path``.
@@ -127,7 +192,9 @@ def load_scan(path: str, spacing_mm=None) -> MRIScan:
     if not os.path.exists(path):
         raise DataError(f"{path}: no such file or folder")
     if os.path.isdir(path):
-        return _load_dicom(path)
+        return _load_dicom(path, series)
+    if series is not None:
+        raise DataError(f"{path}: --series is for a DICOM folder; a file holds one scan")
     if path.endswith(NIFTI_SUFFIXES):
         scan = _load_nifti(path)
     elif path.endswith(NUMPY_SUFFIXES):

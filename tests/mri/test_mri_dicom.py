@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import nibabel as nib
 import numpy as np
@@ -40,20 +41,23 @@ def quantised(volume: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return stored, stored.astype(np.float64) * SLOPE + INTERCEPT
 
 
-def write_series(folder, stored: np.ndarray, spacing_mm, angle_deg: float, order, names=None) -> None:
-    """One file per slice; ``stored`` is (columns, rows, slices); files are written in ``order``.
+def write_series(folder, stored: np.ndarray, spacing_mm, angle_deg: float, order, names=None, number: int = 1,
+                 description: str = "T2", at=None, angles=None) -> str:
+    """One file per slice; ``stored`` is (columns, rows, slices); files are written in ``order``; returns the
+    SeriesInstanceUID (a new series per call, numbered ``number``).
 
-    File k of the write order holds slice order[k] and is named ``names[k]`` (default IM<k>).
+    File k of the write order holds slice order[k] and is named ``names[k]`` (default IM<k>). Slice s lies
+    ``at[s]`` slices along the normal (default s) in the plane turned by ``angles[s]`` (default ``angle_deg``).
     """
     from pydicom.dataset import Dataset, FileMetaDataset
     from pydicom.uid import ExplicitVRLittleEndian, MRImageStorage, generate_uid
 
     folder.mkdir(parents=True, exist_ok=True)
-    row, col = _cosines(angle_deg)
-    normal = np.cross(row, col)
+    normal = np.cross(*_cosines(angle_deg))
     dc, dr, ds_mm = spacing_mm
     series, frame = generate_uid(), generate_uid()
     for k, s in enumerate(order):
+        row, col = _cosines(angle_deg if angles is None else angles[s])
         meta = FileMetaDataset()
         meta.MediaStorageSOPClassUID, meta.MediaStorageSOPInstanceUID = MRImageStorage, generate_uid()
         meta.TransferSyntaxUID = ExplicitVRLittleEndian
@@ -61,8 +65,9 @@ def write_series(folder, stored: np.ndarray, spacing_mm, angle_deg: float, order
         ds.file_meta = meta
         ds.SOPClassUID, ds.SOPInstanceUID = MRImageStorage, meta.MediaStorageSOPInstanceUID
         ds.Modality, ds.SeriesInstanceUID, ds.FrameOfReferenceUID = "MR", series, frame
-        ds.InstanceNumber = int(s) + 1
-        ds.ImagePositionPatient = [f"{v:.{DS_DECIMALS - 2}f}" for v in ORIGIN_LPS + s * ds_mm * normal]
+        ds.SeriesNumber, ds.SeriesDescription, ds.InstanceNumber = number, description, int(s) + 1
+        step = s if at is None else at[s]
+        ds.ImagePositionPatient = [f"{v:.{DS_DECIMALS - 2}f}" for v in ORIGIN_LPS + step * ds_mm * normal]
         ds.ImageOrientationPatient = [f"{v:.{DS_DECIMALS}f}" for v in (*row, *col)]
         ds.PixelSpacing = [dr, dc]
         ds.SliceThickness = ds_mm
@@ -73,6 +78,7 @@ def write_series(folder, stored: np.ndarray, spacing_mm, angle_deg: float, order
         ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 16, 15, 0
         ds.PixelData = pixels.astype("<u2").tobytes()
         ds.save_as(folder / (names[k] if names else f"IM{k}"), enforce_file_format=True)
+    return series
 
 
 @pytest.fixture(scope="module")
@@ -120,3 +126,81 @@ def test_dicom_in_any_file_order_labels_like_the_nifti(run_less, tmp_path, scan_
     for source in ("ordered", "shuffled"):
         np.testing.assert_array_equal(labels[source][0], ref)
         np.testing.assert_allclose(labels[source][1], ref_affine, atol=1e-5)
+
+
+def _series_values(shape=(7, 6, 5), seed=0):
+    return quantised(np.random.default_rng(seed).uniform(-1.0, 25.0, shape))
+
+
+def test_a_folder_of_several_series_reads_the_one_chosen(tmp_path):
+    """A scanner's export folder holds a localizer beside the scan: without --series it is one clear error
+    listing both; by SeriesNumber or SeriesInstanceUID the chosen one is read, the other left out."""
+    from lesscli.errors import DataError
+    from lesscli.mri.scan import load_scan
+
+    stored, recovered = _series_values()
+    spacing = (0.6, 0.5, 1.2)
+    uid = write_series(tmp_path / "s", stored, spacing, 30.0, order=range(5), names=[f"a{k}" for k in range(5)],
+                       number=3, description="T2 SPACE")
+    write_series(tmp_path / "s", _series_values((7, 6, 3), seed=1)[0], (1.0, 1.0, 5.0), 0.0, order=range(3),
+                 names=[f"b{k}" for k in range(3)], number=1, description="localizer")
+    with pytest.raises(DataError, match=r": 2 series in this folder \(.*3 'T2 SPACE': 5 files.*1 'localizer': 3 files"
+                                        r".*choose one with --series"):
+        load_scan(str(tmp_path / "s"))
+    for chosen in ("3", uid):
+        scan = load_scan(str(tmp_path / "s"), series=chosen)
+        np.testing.assert_allclose(scan.data, recovered, atol=1e-4)
+        np.testing.assert_allclose(scan.affine, expected_affine(spacing, 30.0), atol=1e-5)
+    with pytest.raises(DataError, match=r"no series '7' in this folder \(its series: 1, 3\)"):
+        load_scan(str(tmp_path / "s"), series="7")
+    again = write_series(tmp_path / "s", stored, spacing, 30.0, order=range(5), names=[f"c{k}" for k in range(5)],
+                         number=3, description="T2 SPACE")              # a second exam's series 3
+    with pytest.raises(DataError, match=r"2 series numbered '3' in this folder; give the SeriesInstanceUID of one"):
+        load_scan(str(tmp_path / "s"), series="3")
+    np.testing.assert_allclose(load_scan(str(tmp_path / "s"), series=again).data, recovered, atol=1e-4)
+
+
+@pytest.mark.parametrize("fault, message", [
+    ("missing", r"slices are not evenly spaced \(2\.400 mm between IM2 and IM3, 1\.200 mm elsewhere\): a slice missing"),
+    ("repeated", r"IM2 and IM3 lie at the same slice position .*several images per position"),
+    ("turned", r"IM0 and IM3 have different orientations"),
+])
+def test_a_series_that_is_not_one_volume_is_refused_naming_its_files(run_less, tmp_path, fault, message):
+    """A slice missing, two images at one position (echoes) or a slice in another plane: one line naming the
+    files, exit 1, no output (``less mri-label``)."""
+    stored, _ = _series_values((7, 6, 4))
+    at = {"missing": [0, 1, 2, 4], "repeated": [0, 1, 2, 2]}.get(fault)
+    angles = [30.0, 30.0, 30.0, 40.0] if fault == "turned" else None
+    write_series(tmp_path / "s", stored, (0.6, 0.5, 1.2), 30.0, order=range(4), at=at, angles=angles)
+    proc = run_less("mri-label", "s", "-o", "labels.nii.gz")
+    err = proc.stderr.decode().strip()
+    assert proc.returncode == 1 and len(err.splitlines()) == 1 and err.startswith("less: error: s: "), err
+    assert re.search(message, err), err
+    assert not (tmp_path / "labels.nii.gz").exists()
+
+
+def test_series_is_refused_for_a_file(run_less, tmp_path):
+    nib.save(nib.Nifti1Image(np.zeros((4, 4, 4), np.float32), np.eye(4)), tmp_path / "scan.nii.gz")
+    proc = run_less("mri-label", "scan.nii.gz", "--series", "3", "-o", "labels.nii.gz")
+    assert proc.returncode == 1
+    assert "scan.nii.gz: --series is for a DICOM folder" in proc.stderr.decode()
+    assert not (tmp_path / "labels.nii.gz").exists()
+
+
+def test_undecodable_pixel_data_is_one_line_naming_the_file(run_less, tmp_path):
+    """A compressed transfer syntax whose bytes do not decode: the file named, exit 1."""
+    from pydicom import dcmread
+    from pydicom.encaps import encapsulate
+    from pydicom.uid import JPEGBaseline8Bit
+
+    stored, _ = _series_values((7, 6, 3))
+    write_series(tmp_path / "s", stored, (0.6, 0.5, 1.2), 30.0, order=range(3))
+    ds = dcmread(tmp_path / "s" / "IM1")
+    ds.file_meta.TransferSyntaxUID = JPEGBaseline8Bit
+    ds.PixelData = encapsulate([b"\xff\xd8 not a JPEG" + b"\x00" * 64])
+    ds.save_as(tmp_path / "s" / "IM1", enforce_file_format=True)
+    proc = run_less("mri-label", "s", "-o", "labels.nii.gz")
+    err = proc.stderr.decode().strip()
+    assert proc.returncode == 1 and len(err.splitlines()) == 1, err
+    assert "IM1: pixel data not decodable" in err
+    assert not (tmp_path / "labels.nii.gz").exists()
