@@ -82,14 +82,87 @@ def _load_numpy(path: str, spacing_mm) -> MRIScan:
     return MRIScan(np.asarray(obj), zyx_affine((0.0, 0.0, 0.0), spacing_mm), path, "numpy")
 
 
-def _dicom_affine(first, last, n: int) -> np.ndarray:
+@dataclass
+class _Image:
+    """One 2D image of a DICOM series: a single-frame file, or one frame of an enhanced multi-frame file.
+
+    Attributes:
+        name: the file's name (with the frame's number in a multi-frame file), for messages.
+        ds: its dataset (the series' attributes; the pixels).
+        position, orientation: ImagePositionPatient (3,) and ImageOrientationPatient (6,), LPS mm.
+        spacing: PixelSpacing (between rows, between columns) mm; thickness: SliceThickness mm (1 if absent).
+        slope, intercept: the rescale to stored values.
+        frame: the frame's index in a multi-frame file's pixels; None for a single frame.
+    """
+
+    name: str
+    ds: object
+    position: np.ndarray
+    orientation: np.ndarray
+    spacing: tuple[float, float]
+    thickness: float
+    slope: float
+    intercept: float
+    frame: int | None = None
+
+    @property
+    def normal(self) -> np.ndarray:
+        return np.cross(self.orientation[:3], self.orientation[3:])
+
+    def pixels(self) -> np.ndarray:
+        """(rows, columns) stored values (pydicom keeps a multi-frame file's decoded frames)."""
+        data = self.ds.pixel_array
+        return data if self.frame is None or data.ndim == 2 else data[self.frame]
+
+
+def _number(value, default: float) -> float:
+    return default if value in (None, "") else float(value)
+
+
+def _group_value(groups, sequence: str, key: str):
+    """``key`` in the first of ``groups`` (functional group items, or None) whose ``sequence`` holds it."""
+    for group in groups:
+        if group is not None and sequence in group and len(group[sequence].value) and key in group[sequence][0]:
+            return group[sequence][0][key].value
+    return None
+
+
+def _images(name: str, ds) -> list[_Image]:
+    """The images of one DICOM file: its frames, each placed by its own functional groups or the shared
+    ones (enhanced multi-frame), or the file itself; none where a position, orientation or pixel spacing
+    is missing (reports, presentation states)."""
+    if "PerFrameFunctionalGroupsSequence" in ds and "PixelData" in ds:
+        shared = ds.SharedFunctionalGroupsSequence[0] if "SharedFunctionalGroupsSequence" in ds else None
+        out = []
+        for k, own in enumerate(ds.PerFrameFunctionalGroupsSequence):
+            groups = (own, shared)
+            at = _group_value(groups, "PlanePositionSequence", "ImagePositionPatient")
+            turned = _group_value(groups, "PlaneOrientationSequence", "ImageOrientationPatient")
+            spacing = _group_value(groups, "PixelMeasuresSequence", "PixelSpacing")
+            if at is None or turned is None or spacing is None:
+                return []
+            out.append(_Image(f"{name} frame {k + 1}", ds, np.asarray(at, float), np.asarray(turned, float),
+                              (float(spacing[0]), float(spacing[1])),
+                              _number(_group_value(groups, "PixelMeasuresSequence", "SliceThickness"), 1.0),
+                              _number(_group_value(groups, "PixelValueTransformationSequence", "RescaleSlope"), 1.0),
+                              _number(_group_value(groups, "PixelValueTransformationSequence", "RescaleIntercept"),
+                                      0.0), k))
+        return out
+    if not all(key in ds for key in ("ImagePositionPatient", "ImageOrientationPatient", "PixelSpacing",
+                                     "PixelData")):
+        return []
+    return [_Image(name, ds, np.asarray(ds.ImagePositionPatient, float), np.asarray(ds.ImageOrientationPatient, float),
+                   (float(ds.PixelSpacing[0]), float(ds.PixelSpacing[1])), _number(ds.get("SliceThickness"), 1.0),
+                   _number(ds.get("RescaleSlope"), 1.0), _number(ds.get("RescaleIntercept"), 0.0))]
+
+
+def _dicom_affine(first: _Image, last: _Image, n: int) -> np.ndarray:
     """LPS DICOM geometry -> RAS-style affine over (column, row, slice) indices."""
-    row_dir, col_dir = np.asarray(first.ImageOrientationPatient[:3], float), np.asarray(first.ImageOrientationPatient[3:], float)
-    dr, dc = (float(v) for v in first.PixelSpacing)
-    p0, p1 = np.asarray(first.ImagePositionPatient, float), np.asarray(last.ImagePositionPatient, float)
-    step = (p1 - p0) / (n - 1) if n > 1 else np.cross(row_dir, col_dir) * float(getattr(first, "SliceThickness", 1.0))
+    dr, dc = first.spacing
+    step = (last.position - first.position) / (n - 1) if n > 1 else first.normal * first.thickness
     aff = np.eye(4)
-    aff[:3, 0], aff[:3, 1], aff[:3, 2], aff[:3, 3] = row_dir * dc, col_dir * dr, step, p0
+    aff[:3, 0], aff[:3, 1], aff[:3, 2], aff[:3, 3] = first.orientation[:3] * dc, first.orientation[3:] * dr, step, \
+        first.position
     return np.diag([-1.0, -1.0, 1.0, 1.0]) @ aff      # LPS -> RAS
 
 
@@ -99,51 +172,49 @@ def _series_key(ds) -> str:
     return str(number) if number not in (None, "") else str(getattr(ds, "SeriesInstanceUID", ""))
 
 
-def _one_series(path: str, images: list, series: str | None) -> list:
-    """The (file name, dataset) pairs of one series: the only one in the folder, or ``series`` (a
-    SeriesNumber or SeriesInstanceUID)."""
-    groups: dict[str, list] = {}
-    for name, ds in images:
-        groups.setdefault(str(getattr(ds, "SeriesInstanceUID", "")), []).append((name, ds))
+def _one_series(path: str, images: list[_Image], series: str | None) -> list[_Image]:
+    """The images of one series: the only one in the folder, or ``series`` (a SeriesNumber or
+    SeriesInstanceUID)."""
+    groups: dict[str, list[_Image]] = {}
+    for image in images:
+        groups.setdefault(str(getattr(image.ds, "SeriesInstanceUID", "")), []).append(image)
     if series is not None:
-        chosen = [g for uid, g in groups.items() if series in (uid, _series_key(g[0][1]))]
+        chosen = [g for uid, g in groups.items() if series in (uid, _series_key(g[0].ds))]
         if not chosen:
-            found = ", ".join(sorted(_series_key(g[0][1]) for g in groups.values()))
+            found = ", ".join(sorted(_series_key(g[0].ds) for g in groups.values()))
             raise DataError(f"{path}: no series {series!r} in this folder (its series: {found})")
         if len(chosen) > 1:
             raise DataError(f"{path}: {len(chosen)} series numbered {series!r} in this folder; give the "
                             f"SeriesInstanceUID of one ({', '.join(sorted(uid for uid in groups if uid))})")
         return chosen[0]
     if len(groups) > 1:
-        listed = "; ".join(f"{_series_key(ds)} {str(getattr(ds, 'SeriesDescription', '')).strip()!r}: {len(g)} files"
-                           for g in groups.values() for _name, ds in g[:1])
+        listed = "; ".join(f"{_series_key(g[0].ds)} {str(getattr(g[0].ds, 'SeriesDescription', '')).strip()!r}: "
+                           f"{len(g)} images" for g in groups.values())
         raise DataError(f"{path}: {len(groups)} series in this folder ({listed}); choose one with --series")
     return next(iter(groups.values()))
 
 
-def _slice_positions(path: str, images: list) -> list:
+def _slice_positions(path: str, images: list[_Image]) -> list[_Image]:
     """``images`` sorted along the slice normal: one orientation, one image per position, evenly spaced,
     else a DataError naming the files."""
-    orient = [np.asarray(ds.ImageOrientationPatient, float) for _name, ds in images]
-    for (name, _ds), o in zip(images, orient):
-        if np.abs(o - orient[0]).max() > ORIENTATION_TOLERANCE:
-            raise DataError(f"{path}: {images[0][0]} and {name} have different orientations; one series of "
-                            "parallel slices is one volume")
-    normal = np.cross(orient[0][:3], orient[0][3:])
-    at = np.array([float(np.asarray(ds.ImagePositionPatient, float) @ normal) for _name, ds in images])
-    order = np.argsort(at, kind="stable")
-    images, at = [images[i] for i in order], at[order]
+    for image in images:
+        if np.abs(image.orientation - images[0].orientation).max() > ORIENTATION_TOLERANCE:
+            raise DataError(f"{path}: {images[0].name} and {image.name} have different orientations; one series "
+                            "of parallel slices is one volume")
+    normal = images[0].normal
+    images = sorted(images, key=lambda image: float(image.position @ normal))
+    at = np.array([float(image.position @ normal) for image in images])
     gaps = np.diff(at)
     if len(gaps) and gaps.min() <= POSITION_TOLERANCE_MM:
         k = int(np.argmin(gaps))
-        raise DataError(f"{path}: {images[k][0]} and {images[k + 1][0]} lie at the same slice position "
+        raise DataError(f"{path}: {images[k].name} and {images[k + 1].name} lie at the same slice position "
                         f"({at[k]:.3f} mm): several images per position (echoes, phases) are not one volume")
     if len(gaps) > 1:
         step = float(np.median(gaps))
         k = int(np.argmax(np.abs(gaps - step)))
         if abs(gaps[k] - step) > max(SPACING_TOLERANCE * step, POSITION_TOLERANCE_MM):
-            raise DataError(f"{path}: slices are not evenly spaced ({gaps[k]:.3f} mm between {images[k][0]} and "
-                            f"{images[k + 1][0]}, {step:.3f} mm elsewhere): a slice missing?")
+            raise DataError(f"{path}: slices are not evenly spaced ({gaps[k]:.3f} mm between {images[k].name} and "
+                            f"{images[k + 1].name}, {step:.3f} mm elsewhere): a slice missing?")
     return images
 
 
@@ -156,29 +227,25 @@ def _load_dicom(path: str, series: str | None = None) -> MRIScan:
     images = []
     for name in sorted(os.listdir(path)):
         try:
-            ds = pydicom.dcmread(os.path.join(path, name))
+            images += _images(name, pydicom.dcmread(os.path.join(path, name)))
         except (pydicom.errors.InvalidDicomError, OSError):
             LOG.debug("%s: skipping %s (not DICOM)", path, name)
-            continue
-        if all(hasattr(ds, key) for key in ("ImagePositionPatient", "ImageOrientationPatient", "PixelData")):
-            images.append((name, ds))
     if not images:
         raise DataError(f"{path}: no DICOM images with position information in this folder")
     images = _slice_positions(path, _one_series(path, images, series))
     pixels = []
-    for name, ds in images:
+    for image in images:
         try:
-            pixels.append(ds.pixel_array)
+            pixels.append(image.pixels())
         except Exception as exc:            # noqa: BLE001 - pydicom raises many kinds for undecodable data
-            syntax = getattr(getattr(ds, "file_meta", None), "TransferSyntaxUID", None)
-            raise DataError(f"{os.path.join(path, name)}: pixel data not decodable"
+            syntax = getattr(getattr(image.ds, "file_meta", None), "TransferSyntaxUID", None)
+            raise DataError(f"{os.path.join(path, image.name)}: pixel data not decodable"
                             f"{f' ({syntax.name})' if syntax else ''}: {' '.join(str(exc).split())}") from None
     shapes = {p.shape for p in pixels}
     if len(shapes) != 1:
         raise DataError(f"{path}: slices have different sizes {sorted(shapes)}")
-    vol = np.stack([p.T * float(getattr(ds, "RescaleSlope", 1.0)) + float(getattr(ds, "RescaleIntercept", 0.0))
-                    for p, (_name, ds) in zip(pixels, images)], axis=2)
-    return MRIScan(vol.astype(np.float32), _dicom_affine(images[0][1], images[-1][1], len(images)), path, "dicom")
+    vol = np.stack([p.T * image.slope + image.intercept for p, image in zip(pixels, images)], axis=2)
+    return MRIScan(vol.astype(np.float32), _dicom_affine(images[0], images[-1], len(images)), path, "dicom")
 
 
 def load_scan(path: str, spacing_mm=None, series: str | None = None) -> MRIScan:

@@ -1,4 +1,5 @@
-"""Real DICOM series (written with pydicom) read by `less mri-label`: geometry, rescale, file order, labels."""
+"""Real DICOM series (written with pydicom) read by `less mri-label`: geometry, rescale, file order, labels;
+enhanced multi-frame files; folders of several series; series that are not one volume."""
 
 from __future__ import annotations
 
@@ -41,6 +42,27 @@ def quantised(volume: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return stored, stored.astype(np.float64) * SLOPE + INTERCEPT
 
 
+def _image_dataset(sop_class: str, pixels: np.ndarray):
+    """A dataset of ``sop_class`` with its file meta, modality and ``pixels`` (uint16; rows x columns, or
+    frames x rows x columns)."""
+    from pydicom.dataset import Dataset, FileMetaDataset
+    from pydicom.uid import ExplicitVRLittleEndian, generate_uid
+
+    meta = FileMetaDataset()
+    meta.MediaStorageSOPClassUID, meta.MediaStorageSOPInstanceUID = sop_class, generate_uid()
+    meta.TransferSyntaxUID = ExplicitVRLittleEndian
+    ds = Dataset()
+    ds.file_meta = meta
+    ds.SOPClassUID, ds.SOPInstanceUID, ds.Modality = sop_class, meta.MediaStorageSOPInstanceUID, "MR"
+    if pixels.ndim == 3:
+        ds.NumberOfFrames = pixels.shape[0]
+    ds.Rows, ds.Columns = pixels.shape[-2:]
+    ds.SamplesPerPixel, ds.PhotometricInterpretation = 1, "MONOCHROME2"
+    ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 16, 15, 0
+    ds.PixelData = np.ascontiguousarray(pixels).astype("<u2").tobytes()
+    return ds
+
+
 def write_series(folder, stored: np.ndarray, spacing_mm, angle_deg: float, order, names=None, number: int = 1,
                  description: str = "T2", at=None, angles=None) -> str:
     """One file per slice; ``stored`` is (columns, rows, slices); files are written in ``order``; returns the
@@ -49,8 +71,7 @@ def write_series(folder, stored: np.ndarray, spacing_mm, angle_deg: float, order
     File k of the write order holds slice order[k] and is named ``names[k]`` (default IM<k>). Slice s lies
     ``at[s]`` slices along the normal (default s) in the plane turned by ``angles[s]`` (default ``angle_deg``).
     """
-    from pydicom.dataset import Dataset, FileMetaDataset
-    from pydicom.uid import ExplicitVRLittleEndian, MRImageStorage, generate_uid
+    from pydicom.uid import MRImageStorage, generate_uid
 
     folder.mkdir(parents=True, exist_ok=True)
     normal = np.cross(*_cosines(angle_deg))
@@ -58,13 +79,8 @@ def write_series(folder, stored: np.ndarray, spacing_mm, angle_deg: float, order
     series, frame = generate_uid(), generate_uid()
     for k, s in enumerate(order):
         row, col = _cosines(angle_deg if angles is None else angles[s])
-        meta = FileMetaDataset()
-        meta.MediaStorageSOPClassUID, meta.MediaStorageSOPInstanceUID = MRImageStorage, generate_uid()
-        meta.TransferSyntaxUID = ExplicitVRLittleEndian
-        ds = Dataset()
-        ds.file_meta = meta
-        ds.SOPClassUID, ds.SOPInstanceUID = MRImageStorage, meta.MediaStorageSOPInstanceUID
-        ds.Modality, ds.SeriesInstanceUID, ds.FrameOfReferenceUID = "MR", series, frame
+        ds = _image_dataset(MRImageStorage, stored[:, :, s].T)          # rows x columns
+        ds.SeriesInstanceUID, ds.FrameOfReferenceUID = series, frame
         ds.SeriesNumber, ds.SeriesDescription, ds.InstanceNumber = number, description, int(s) + 1
         step = s if at is None else at[s]
         ds.ImagePositionPatient = [f"{v:.{DS_DECIMALS - 2}f}" for v in ORIGIN_LPS + step * ds_mm * normal]
@@ -72,13 +88,38 @@ def write_series(folder, stored: np.ndarray, spacing_mm, angle_deg: float, order
         ds.PixelSpacing = [dr, dc]
         ds.SliceThickness = ds_mm
         ds.RescaleSlope, ds.RescaleIntercept = SLOPE, INTERCEPT
-        pixels = np.ascontiguousarray(stored[:, :, s].T)              # rows x columns
-        ds.Rows, ds.Columns = pixels.shape
-        ds.SamplesPerPixel, ds.PhotometricInterpretation = 1, "MONOCHROME2"
-        ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 16, 15, 0
-        ds.PixelData = pixels.astype("<u2").tobytes()
         ds.save_as(folder / (names[k] if names else f"IM{k}"), enforce_file_format=True)
     return series
+
+
+def write_multiframe(path, stored: np.ndarray, spacing_mm, angle_deg: float, order) -> None:
+    """One enhanced MR file (multi-frame): frame k holds slice order[k], placed by its own Plane Position
+    functional group; orientation, pixel measures and rescale in the shared functional groups."""
+    from pydicom.dataset import Dataset
+    from pydicom.sequence import Sequence
+    from pydicom.uid import EnhancedMRImageStorage, generate_uid
+
+    def item(**values) -> Dataset:
+        ds = Dataset()
+        for key, value in values.items():
+            setattr(ds, key, value)
+        return ds
+
+    row, col = _cosines(angle_deg)
+    normal, cosines = np.cross(row, col), [f"{v:.{DS_DECIMALS}f}" for v in (*row, *col)]
+    dc, dr, ds_mm = spacing_mm
+    ds = _image_dataset(EnhancedMRImageStorage, np.stack([stored[:, :, s].T for s in order]))
+    ds.SeriesInstanceUID, ds.SeriesNumber = generate_uid(), 1
+    ds.SharedFunctionalGroupsSequence = Sequence([item(
+        PlaneOrientationSequence=Sequence([item(ImageOrientationPatient=cosines)]),
+        PixelMeasuresSequence=Sequence([item(PixelSpacing=[dr, dc], SliceThickness=ds_mm)]),
+        PixelValueTransformationSequence=Sequence([item(RescaleSlope=SLOPE, RescaleIntercept=INTERCEPT,
+                                                        RescaleType="US")]))])
+    ds.PerFrameFunctionalGroupsSequence = Sequence([item(PlanePositionSequence=Sequence([item(
+        ImagePositionPatient=[f"{v:.{DS_DECIMALS - 2}f}" for v in ORIGIN_LPS + s * ds_mm * normal])]))
+        for s in order])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ds.save_as(path, enforce_file_format=True)
 
 
 @pytest.fixture(scope="module")
@@ -103,6 +144,10 @@ def test_reader_recovers_values_geometry_and_slice_order(tmp_path):
     np.testing.assert_allclose(scan.data, recovered, atol=1e-4)
     np.testing.assert_allclose(scan.affine, expected_affine(spacing, 30.0), atol=1e-5)
     np.testing.assert_allclose(scan.spacing_mm, spacing, atol=1e-5)
+    write_multiframe(tmp_path / "m" / "enhanced.dcm", stored, spacing, 30.0, order=[3, 0, 4, 1, 2])
+    frames = load_scan(str(tmp_path / "m"))
+    np.testing.assert_allclose(frames.data, recovered, atol=1e-4)
+    np.testing.assert_allclose(frames.affine, scan.affine, atol=1e-5)
 
 
 def test_dicom_in_any_file_order_labels_like_the_nifti(run_less, tmp_path, scan_volume):
@@ -113,17 +158,18 @@ def test_dicom_in_any_file_order_labels_like_the_nifti(run_less, tmp_path, scan_
     shuffled = np.random.default_rng(1).permutation(n)
     write_series(tmp_path / "shuffled", stored, spacing, -25.0, order=shuffled,
                  names=[f"{int(v):03d}.dcm" for v in np.random.default_rng(2).permutation(n)])
+    write_multiframe(tmp_path / "enhanced" / "IM0", stored, spacing, -25.0, order=shuffled)
     nifti = nib.Nifti1Image(recovered.astype(np.float32), expected_affine(spacing, -25.0))
     nib.save(nifti, tmp_path / "scan.nii.gz")
     labels = {}
-    for source in ("scan.nii.gz", "ordered", "shuffled"):
+    for source in ("scan.nii.gz", "ordered", "shuffled", "enhanced"):
         out = f"{source.split('.')[0]}_labels.nii.gz"
         run_less("mri-label", source, "-o", out, check=True)
         img = nib.load(tmp_path / out)
         labels[source] = (np.asarray(img.dataobj), img.affine)
     ref, ref_affine = labels["scan.nii.gz"]
     assert set(np.unique(ref)) == {0, 1, 2, 3}
-    for source in ("ordered", "shuffled"):
+    for source in ("ordered", "shuffled", "enhanced"):
         np.testing.assert_array_equal(labels[source][0], ref)
         np.testing.assert_allclose(labels[source][1], ref_affine, atol=1e-5)
 
@@ -144,7 +190,7 @@ def test_a_folder_of_several_series_reads_the_one_chosen(tmp_path):
                        number=3, description="T2 SPACE")
     write_series(tmp_path / "s", _series_values((7, 6, 3), seed=1)[0], (1.0, 1.0, 5.0), 0.0, order=range(3),
                  names=[f"b{k}" for k in range(3)], number=1, description="localizer")
-    with pytest.raises(DataError, match=r": 2 series in this folder \(.*3 'T2 SPACE': 5 files.*1 'localizer': 3 files"
+    with pytest.raises(DataError, match=r": 2 series in this folder \(.*3 'T2 SPACE': 5 images.*1 'localizer': 3 images"
                                         r".*choose one with --series"):
         load_scan(str(tmp_path / "s"))
     for chosen in ("3", uid):
@@ -161,7 +207,7 @@ def test_a_folder_of_several_series_reads_the_one_chosen(tmp_path):
 
 
 @pytest.mark.parametrize("fault, message", [
-    ("missing", r"slices are not evenly spaced \(2\.400 mm between IM2 and IM3, 1\.200 mm elsewhere\): a slice missing"),
+    ("missing", r"not evenly spaced \(2\.400 mm between IM2 and IM3, 1\.200 mm elsewhere\): a slice missing"),
     ("repeated", r"IM2 and IM3 lie at the same slice position .*several images per position"),
     ("turned", r"IM0 and IM3 have different orientations"),
 ])
