@@ -23,6 +23,7 @@ NUMPY_SUFFIXES = (".npy", ".npz")
 ORIENTATION_TOLERANCE = 1e-4        # direction cosines of one series' slices agree to this (decimal strings)
 POSITION_TOLERANCE_MM = 1e-3        # slices nearer than this along the normal share a position
 SPACING_TOLERANCE = 0.01            # a gap between slices off the median by more than this share is uneven
+DEFER_BYTES = 65536                 # DICOM values this large (the pixels) are read only when used
 
 
 @dataclass
@@ -188,8 +189,8 @@ def _one_series(path: str, images: list[_Image], series: str | None) -> list[_Im
                             f"SeriesInstanceUID of one ({', '.join(sorted(uid for uid in groups if uid))})")
         return chosen[0]
     if len(groups) > 1:
-        listed = "; ".join(f"{_series_key(g[0].ds)} {str(getattr(g[0].ds, 'SeriesDescription', '')).strip()!r}: "
-                           f"{len(g)} images" for g in groups.values())
+        listed = "; ".join(sorted(f"{_series_key(g[0].ds)} {str(getattr(g[0].ds, 'SeriesDescription', '')).strip()!r}: "
+                                  f"{len(g)} images" for g in groups.values()))
         raise DataError(f"{path}: {len(groups)} series in this folder ({listed}); choose one with --series")
     return next(iter(groups.values()))
 
@@ -224,14 +225,15 @@ def _load_dicom(path: str, series: str | None = None) -> MRIScan:
     except ImportError:
         raise DataError(f"{path}: reading DICOM needs pydicom (pip install 'lesscli[dicom]'), "
                         "or convert the series to NIfTI first") from None
+    names = sorted(os.path.relpath(os.path.join(root, f), path) for root, _dirs, files in os.walk(path) for f in files)
     images = []
-    for name in sorted(os.listdir(path)):
+    for name in names:                      # large values (the pixels) read once an image is chosen
         try:
-            images += _images(name, pydicom.dcmread(os.path.join(path, name)))
+            images += _images(name, pydicom.dcmread(os.path.join(path, name), defer_size=DEFER_BYTES))
         except (pydicom.errors.InvalidDicomError, OSError):
             LOG.debug("%s: skipping %s (not DICOM)", path, name)
     if not images:
-        raise DataError(f"{path}: no DICOM images with position information in this folder")
+        raise DataError(f"{path}: no DICOM images with position information in this folder or under it")
     images = _slice_positions(path, _one_series(path, images, series))
     pixels = []
     for image in images:
@@ -250,8 +252,8 @@ def _load_dicom(path: str, series: str | None = None) -> MRIScan:
 
 def load_scan(path: str, spacing_mm=None, series: str | None = None) -> MRIScan:
     """Read a scan: NIfTI file, DICOM series folder, or .npy/.npz (with ``spacing_mm`` = (dz, dy, dx)).
-    ``series``: in a DICOM folder holding several series, the one to read (SeriesNumber or
-    SeriesInstanceUID).
+    A DICOM folder is read with its subfolders (a scanner's export of patient / study / series folders);
+    ``series``: where it holds several series, the one to read (SeriesNumber or SeriesInstanceUID).
 
     Raises:
         DataError: missing file, unknown format or unreadable content, naming ``path``.

@@ -178,20 +178,25 @@ def _series_values(shape=(7, 6, 5), seed=0):
     return quantised(np.random.default_rng(seed).uniform(-1.0, 25.0, shape))
 
 
-def test_a_folder_of_several_series_reads_the_one_chosen(tmp_path):
-    """A scanner's export folder holds a localizer beside the scan: without --series it is one clear error
-    listing both; by SeriesNumber or SeriesInstanceUID the chosen one is read, the other left out."""
+@pytest.mark.parametrize("nested", [False, True])
+def test_a_folder_of_several_series_reads_the_one_chosen(tmp_path, nested):
+    """A scanner's export holds a localizer beside the scan, all in one folder or in patient / study /
+    series folders under it: without --series it is one clear error listing both; by SeriesNumber or
+    SeriesInstanceUID the chosen one is read, the other left out."""
     from lesscli.errors import DataError
     from lesscli.mri.scan import load_scan
 
+    def folder(*parts):
+        return tmp_path.joinpath("s", *parts) if nested else tmp_path / "s"
+
     stored, recovered = _series_values()
     spacing = (0.6, 0.5, 1.2)
-    uid = write_series(tmp_path / "s", stored, spacing, 30.0, order=range(5), names=[f"a{k}" for k in range(5)],
-                       number=3, description="T2 SPACE")
-    write_series(tmp_path / "s", _series_values((7, 6, 3), seed=1)[0], (1.0, 1.0, 5.0), 0.0, order=range(3),
-                 names=[f"b{k}" for k in range(3)], number=1, description="localizer")
-    with pytest.raises(DataError, match=r": 2 series in this folder \(.*3 'T2 SPACE': 5 images.*1 'localizer': 3 images"
-                                        r".*choose one with --series"):
+    uid = write_series(folder("P1", "ST1", "SE3"), stored, spacing, 30.0, order=range(5),
+                       names=[f"a{k}" for k in range(5)], number=3, description="T2 SPACE")
+    write_series(folder("P1", "ST1", "SE1"), _series_values((7, 6, 3), seed=1)[0], (1.0, 1.0, 5.0), 0.0,
+                 order=range(3), names=[f"b{k}" for k in range(3)], number=1, description="localizer")
+    with pytest.raises(DataError, match=r": 2 series in this folder \(1 'localizer': 3 images; 3 'T2 SPACE': 5 "
+                                        r"images\); choose one with --series"):
         load_scan(str(tmp_path / "s"))
     for chosen in ("3", uid):
         scan = load_scan(str(tmp_path / "s"), series=chosen)
@@ -199,8 +204,8 @@ def test_a_folder_of_several_series_reads_the_one_chosen(tmp_path):
         np.testing.assert_allclose(scan.affine, expected_affine(spacing, 30.0), atol=1e-5)
     with pytest.raises(DataError, match=r"no series '7' in this folder \(its series: 1, 3\)"):
         load_scan(str(tmp_path / "s"), series="7")
-    again = write_series(tmp_path / "s", stored, spacing, 30.0, order=range(5), names=[f"c{k}" for k in range(5)],
-                         number=3, description="T2 SPACE")              # a second exam's series 3
+    again = write_series(folder("P1", "ST2", "SE3"), stored, spacing, 30.0, order=range(5),
+                         names=[f"c{k}" for k in range(5)], number=3, description="T2 SPACE")   # a second exam's
     with pytest.raises(DataError, match=r"2 series numbered '3' in this folder; give the SeriesInstanceUID of one"):
         load_scan(str(tmp_path / "s"), series="3")
     np.testing.assert_allclose(load_scan(str(tmp_path / "s"), series=again).data, recovered, atol=1e-4)
