@@ -92,9 +92,10 @@ def write_series(folder, stored: np.ndarray, spacing_mm, angle_deg: float, order
     return series
 
 
-def write_multiframe(path, stored: np.ndarray, spacing_mm, angle_deg: float, order) -> None:
+def write_multiframe(path, stored: np.ndarray, spacing_mm, angle_deg: float, order, at=None) -> None:
     """One enhanced MR file (multi-frame): frame k holds slice order[k], placed by its own Plane Position
-    functional group; orientation, pixel measures and rescale in the shared functional groups."""
+    functional group (slice s ``at[s]`` slices along the normal; default s); orientation, pixel measures
+    and rescale in the shared functional groups."""
     from pydicom.dataset import Dataset
     from pydicom.sequence import Sequence
     from pydicom.uid import EnhancedMRImageStorage, generate_uid
@@ -116,7 +117,8 @@ def write_multiframe(path, stored: np.ndarray, spacing_mm, angle_deg: float, ord
         PixelValueTransformationSequence=Sequence([item(RescaleSlope=SLOPE, RescaleIntercept=INTERCEPT,
                                                         RescaleType="US")]))])
     ds.PerFrameFunctionalGroupsSequence = Sequence([item(PlanePositionSequence=Sequence([item(
-        ImagePositionPatient=[f"{v:.{DS_DECIMALS - 2}f}" for v in ORIGIN_LPS + s * ds_mm * normal])]))
+        ImagePositionPatient=[f"{v:.{DS_DECIMALS - 2}f}" for v in ORIGIN_LPS + (s if at is None else at[s]) * ds_mm
+                              * normal])]))
         for s in order])
     path.parent.mkdir(parents=True, exist_ok=True)
     ds.save_as(path, enforce_file_format=True)
@@ -215,14 +217,18 @@ def test_a_folder_of_several_series_reads_the_one_chosen(tmp_path, nested):
     ("missing", r"not evenly spaced \(2\.400 mm between IM2 and IM3, 1\.200 mm elsewhere\): a slice missing"),
     ("repeated", r"IM2 and IM3 lie at the same slice position .*several images per position"),
     ("turned", r"IM0 and IM3 have different orientations"),
+    ("missing frame", r"not evenly spaced \(2\.400 mm between x\.dcm frame 4 and x\.dcm frame 1, 1\.200 mm elsewhere"),
 ])
 def test_a_series_that_is_not_one_volume_is_refused_naming_its_files(run_less, tmp_path, fault, message):
     """A slice missing, two images at one position (echoes) or a slice in another plane: one line naming the
-    files, exit 1, no output (``less mri-label``)."""
+    files (and frames), exit 1, no output (``less mri-label``)."""
     stored, _ = _series_values((7, 6, 4))
-    at = {"missing": [0, 1, 2, 4], "repeated": [0, 1, 2, 2]}.get(fault)
+    at = {"missing": [0, 1, 2, 4], "repeated": [0, 1, 2, 2], "missing frame": [0, 1, 2, 4]}.get(fault)
     angles = [30.0, 30.0, 30.0, 40.0] if fault == "turned" else None
-    write_series(tmp_path / "s", stored, (0.6, 0.5, 1.2), 30.0, order=range(4), at=at, angles=angles)
+    if fault == "missing frame":      # frames 1-4 hold slices 3, 0, 1, 2: the gap lies between frames 4 and 1
+        write_multiframe(tmp_path / "s" / "x.dcm", stored, (0.6, 0.5, 1.2), 30.0, order=[3, 0, 1, 2], at=at)
+    else:
+        write_series(tmp_path / "s", stored, (0.6, 0.5, 1.2), 30.0, order=range(4), at=at, angles=angles)
     proc = run_less("mri-label", "s", "-o", "labels.nii.gz")
     err = proc.stderr.decode().strip()
     assert proc.returncode == 1 and len(err.splitlines()) == 1 and err.startswith("less: error: s: "), err
