@@ -202,9 +202,9 @@ def _slice_positions(path: str, images: list[_Image]) -> list[_Image]:
         if np.abs(image.orientation - images[0].orientation).max() > ORIENTATION_TOLERANCE:
             raise DataError(f"{path}: {images[0].name} and {image.name} have different orientations; one series "
                             "of parallel slices is one volume")
-    normal = images[0].normal
-    images = sorted(images, key=lambda image: float(image.position @ normal))
-    at = np.array([float(image.position @ normal) for image in images])
+    along = np.array([image.position for image in images]) @ images[0].normal
+    order = np.argsort(along, kind="stable")
+    images, at = [images[i] for i in order], along[order]
     gaps = np.diff(at)
     if len(gaps) and gaps.min() <= POSITION_TOLERANCE_MM:
         k = int(np.argmin(gaps))
