@@ -161,17 +161,21 @@ def test_dicom_in_any_file_order_labels_like_the_nifti(run_less, tmp_path, scan_
     write_series(tmp_path / "shuffled", stored, spacing, -25.0, order=shuffled,
                  names=[f"{int(v):03d}.dcm" for v in np.random.default_rng(2).permutation(n)])
     write_multiframe(tmp_path / "enhanced" / "IM0", stored, spacing, -25.0, order=shuffled)
+    write_series(tmp_path / "export" / "SE1", stored, spacing, -25.0, order=list(range(n)))
+    write_series(tmp_path / "export" / "SE2", stored[:, :, :3], (1.0, 1.0, 5.0), 0.0, order=range(3), number=2,
+                 description="localizer")
     nifti = nib.Nifti1Image(recovered.astype(np.float32), expected_affine(spacing, -25.0))
     nib.save(nifti, tmp_path / "scan.nii.gz")
     labels = {}
-    for source in ("scan.nii.gz", "ordered", "shuffled", "enhanced"):
+    for source, options in (("scan.nii.gz", ()), ("ordered", ()), ("shuffled", ()), ("enhanced", ()),
+                            ("export", ("--series", "1"))):
         out = f"{source.split('.')[0]}_labels.nii.gz"
-        run_less("mri-label", source, "-o", out, check=True)
+        run_less("mri-label", source, *options, "-o", out, check=True)
         img = nib.load(tmp_path / out)
         labels[source] = (np.asarray(img.dataobj), img.affine)
     ref, ref_affine = labels["scan.nii.gz"]
     assert set(np.unique(ref)) == {0, 1, 2, 3}
-    for source in ("ordered", "shuffled", "enhanced"):
+    for source in ("ordered", "shuffled", "enhanced", "export"):
         np.testing.assert_array_equal(labels[source][0], ref)
         np.testing.assert_allclose(labels[source][1], ref_affine, atol=1e-5)
 
