@@ -691,25 +691,31 @@ def _pooled_radii(found: dict, short_radius: Callable[[int, float, float], float
 
     A pillar measured over at least MIN_OWN_SLABS slabs keeps the median of its own cross-sections; a
     shorter one has its radius fitted to all its silicone (``short_radius(label, core, end)``,
-    :func:`_post_radius`) and, where that shows a post (MIN_RADIUS_MM) and other pillars' slabs are
-    there, takes the median over the slabs of all the scan's pillars that show one. Its own few slabs,
-    read with the ball as fitted without the cap over them, passed a sphere's gap to the skin as a
-    post: two spheres without posts 1.4 and 2.6 mm under the skin drew posts of 0.71 mm there (seed 51
-    of the family's ``--near-skin --floating``, box partial volume); so fitted, 0.45 and 0.13 mm. The
-    radius never exceeds the core it was measured in.
+    :func:`_post_radius`) and, where that shows a post (MIN_RADIUS_MM), takes the median over the slabs
+    of the scan's pillars measured over MIN_OWN_SLABS slabs or more, else, with other short posts that
+    show one, the median of their fitted radii. Its own few slabs, read with the ball as fitted without
+    the cap over them, passed a sphere's gap to the skin as a post: two spheres without posts 1.4 and
+    2.6 mm under the skin drew posts of 0.71 mm there (seed 51 of the family's ``--near-skin
+    --floating``, box partial volume); so fitted, 0.45 and 0.13 mm. Nor are a short post's slabs pooled:
+    the blur carries much of it into its inclusion's and the base's slabs (:func:`_post_radius`), and
+    where every post of a scan was short, the median of their slabs drew them too thin (the family's
+    volumes whose two or three posts are all short, in seeds 0-6099 and 7000-7149, box partial volume:
+    all six drawn narrow, by 0.09 mm in diameter on average, five of them from their slabs). The radius
+    never exceeds the core it was measured in.
     """
     fitted = {label: short_radius(label, core, end) for label, (_line, areas, core, end) in found.items()
               if len(areas) < MIN_OWN_SLABS}
-    pooled = np.concatenate([np.zeros(0)] + [areas for label, (_line, areas, _core, _end) in found.items()
-                                             if fitted.get(label, MIN_RADIUS_MM) >= MIN_RADIUS_MM])
+    pooled = np.concatenate([np.zeros(0)] + [areas for _line, areas, _core, _end in found.values()
+                                             if len(areas) >= MIN_OWN_SLABS])
+    shown = [radius for radius in fitted.values() if radius >= MIN_RADIUS_MM]
     out = {}
     for label, (line, areas, core, end) in found.items():
         if len(areas) >= MIN_OWN_SLABS:
             radius = _disc_radius(float(np.median(areas)))
-        elif fitted[label] >= MIN_RADIUS_MM and len(pooled) > len(areas):
-            radius = _disc_radius(float(np.median(pooled)))
-        else:
+        elif fitted[label] < MIN_RADIUS_MM:
             radius = fitted[label]
+        else:
+            radius = _disc_radius(float(np.median(pooled))) if len(pooled) else float(np.median(shown))
         out[label] = (line, min(radius, core), end)
     return out
 
