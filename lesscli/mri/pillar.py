@@ -943,19 +943,15 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
                             voxel_mm3, under[label])
 
     found = _pooled_radii(found, short_radius)
-    thin = set()                            # posts whose own slabs read thinner than MIN_RADIUS_MM
     for label, final in finals.items():     # line, radius and blur refined together: one blurred cylinder
         if len(final.area_mm2) >= MIN_LINE_SLABS:
             line, radius, end = found[label]
             line, fitted = _fit_cylinder(columns[label], side, final, line, radius, cores[label], step,
                                          contrasts[label], balls[label], None if balls[label] is None else under[label])
-            if len(final.area_mm2) >= MIN_OWN_SLABS:
-                found[label] = (line, fitted, end)
-                if radius < MIN_RADIUS_MM:
-                    thin.add(label)
-            else:
-                found[label] = (line, radius, end)
-    for label in [k for k, (_line, radius, _end) in found.items() if radius < MIN_RADIUS_MM or k in thin]:
+            if len(final.area_mm2) >= MIN_OWN_SLABS:        # its own slabs must show a post too
+                radius = fitted if radius >= MIN_RADIUS_MM else 0.0
+            found[label] = (line, radius, end)
+    for label in [k for k, (_line, radius, _end) in found.items() if radius < MIN_RADIUS_MM]:
         del found[label]                # measured thinner than noise tells apart: no post after all
         missing.append(label)
     for label in short:                 # too close to the base to measure: silicone across the gap, or none

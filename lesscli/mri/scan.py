@@ -185,8 +185,9 @@ def _one_series(path: str, images: list[_Image], series: str | None) -> list[_Im
             found = ", ".join(sorted(_series_key(g[0].ds) for g in groups.values()))
             raise DataError(f"{path}: no series {series!r} in this folder (its series: {found})")
         if len(chosen) > 1:
+            uids = sorted(str(getattr(g[0].ds, "SeriesInstanceUID", "")) for g in chosen)
             raise DataError(f"{path}: {len(chosen)} series numbered {series!r} in this folder; give the "
-                            f"SeriesInstanceUID of one ({', '.join(sorted(uid for uid in groups if uid))})")
+                            f"SeriesInstanceUID of one ({', '.join(uids)})")
         return chosen[0]
     if len(groups) > 1:
         listed = "; ".join(sorted(f"{_series_key(g[0].ds)} {str(getattr(g[0].ds, 'SeriesDescription', '')).strip()!r}: "
