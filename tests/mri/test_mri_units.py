@@ -336,9 +336,11 @@ def test_cylinder_fit_reads_the_blur_across_the_post(radius, blur, start):
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_a_post_is_held_on_its_inclusions_axis_unless_its_own_line_fits_better(seed):
     """A post of radius 1 mm over 0.8 mm voxels (true partial volume, blur 0.5 mm, white noise 0.15 of the
-    contrast, 6 slabs), its inclusion's axis 0.3 voxel off the voxel centres: on that axis the cylinder is
-    held on it (the very line given); 0.5 mm off it, the post's own line is
-    kept (nearer the post than the axis at mid-height); without an axis it is always its own."""
+    contrast, 6 slabs 1 mm apart), its inclusion's axis 0.3 voxel off the voxel centres: on that axis the
+    cylinder is held on it (the very line given); 0.5 mm off it, the post's own line along the insert axis
+    is kept (nearer the post than the axis at mid-height, not tilted); tilted by 0.15 (8.5 degrees), its own
+    tilted line, within 0.25 mm of the post at both ends (the best straight one is 0.375 mm off at
+    them); without an axis it is always its own."""
     from lesscli.mri.pillar import disc_profile, own_or_centred
 
     voxel, slabs, radius, blur = 0.8, 6, 1.0, 0.5
@@ -349,19 +351,25 @@ def test_a_post_is_held_on_its_inclusions_axis_unless_its_own_line_fits_better(s
     axis_at = np.array([0.3, -0.3]) * voxel
     centred = np.stack([axis_at, np.zeros(2)])
     rng = np.random.default_rng(seed)
-    for off, held in [((0.0, 0.0), True), ((0.5, 0.0), False), ((0.0, -0.5), False)]:
-        centre = axis_at + np.asarray(off)
-        value = np.mean([disc_profile(np.linalg.norm(uv + d - centre, axis=1), radius, blur) for d in subs], axis=0)
-        excess = np.tile(value, slabs) + rng.normal(0.0, 0.15, slabs * len(uv))
+    for off, slope, held in [((0.0, 0.0), (0.0, 0.0), "axis"), ((0.5, 0.0), (0.0, 0.0), "straight"),
+                             ((0.0, -0.5), (0.0, 0.0), "straight"), ((0.0, -0.35), (0.0, 0.15), "tilted")]:
+        post = np.stack([axis_at + np.asarray(off), np.asarray(slope)])
+        value = np.concatenate([np.mean([disc_profile(np.linalg.norm(uv + d - post[0] - k * post[1], axis=1),
+                                                      radius, blur) for d in subs], axis=0) for k in range(slabs)])
+        excess = value + rng.normal(0.0, 0.15, slabs * len(uv))
         t = np.repeat(np.arange(slabs, dtype=float), len(uv))
         args = (np.tile(uv, (slabs, 1)), t, excess, np.zeros((2, 2)), 0.9, blur, 3.0)
         line, _ = own_or_centred(*args, centred)
         own, _ = own_or_centred(*args, None)
         assert not np.array_equal(own, centred)
-        if held:
+        if held == "axis":
             assert np.array_equal(line, centred)
+        elif held == "straight":
+            assert np.array_equal(line[1], centred[1]) and np.linalg.norm(line[0] - post[0]) < 0.25
         else:
-            assert np.array_equal(line, own) and np.linalg.norm(line[0] + 2.5 * line[1] - centre) < 0.25
+            assert np.array_equal(line, own)
+            assert all(np.linalg.norm(line[0] + k * line[1] - post[0] - k * post[1]) < 0.25 for k in (0, slabs - 1))
+
 
 def test_a_thin_posts_significance_is_read_in_a_narrow_core_too():
     """`find_pillars` tests a post first in a core as wide as the widest pillar (4.5 mm here), then in one half
