@@ -751,9 +751,10 @@ def fit_blurred_cylinder(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line
         return np.r_[p[:free_line], line.ravel()[free_line:]].reshape(2, 2), p[-2], p[-1]
 
     x0 = np.r_[line.ravel()[:free_line], radius, sigma]
-    reach = np.r_[np.full(2, core_mm), np.full(2, MAX_TILT)][:free_line]
-    lo = np.r_[np.r_[line[0], 0.0, 0.0][:free_line] - reach, 0.25 * radius, BLUR_RANGE[0] * sigma]
-    hi = np.r_[np.r_[line[0], 0.0, 0.0][:free_line] + reach, core_mm, BLUR_RANGE[1] * sigma]
+    mid = np.r_[line[0], 0.0, 0.0][:free_line]            # the start's offset; no tilt
+    reach = np.r_[core_mm, core_mm, MAX_TILT, MAX_TILT][:free_line]
+    lo = np.r_[mid - reach, 0.25 * radius, BLUR_RANGE[0] * sigma]
+    hi = np.r_[mid + reach, core_mm, BLUR_RANGE[1] * sigma]
     x = least_squares(lambda p: _cylinder_misfit(uv, t, excess, *unpack(p)), np.clip(x0, lo + 1e-9, hi - 1e-9),
                       bounds=(lo, hi)).x
     fitted, r, s = unpack(x)
@@ -772,7 +773,7 @@ def own_or_centred(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line: np.n
     places better than a post's few noisy voxels per slab place its own line: over the 700 volumes of
     the independent family (``tests/mri_family.py``, box partial volume) the posts' feet lay 0.041 mm
     off their true axes (median; 0.126 mm for one in ten) on their own lines, 0.031 mm (0.097 mm) so
-    chosen. A post set off its inclusion's axis by more than the noise explains keeps its own line. The
+    chosen when this choice came in. A post set off its inclusion's axis by more than the noise explains keeps its own line. The
     voxels' residuals are correlated by the blur, so the tests count more evidence than there is: they
     err towards the own line. Tested directly against the held line, the tilted line took 39 of 68
     posts (family seeds 7000-7039, box), as much as 0.5 mm off at their ends in strong noise; tested
