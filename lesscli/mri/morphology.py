@@ -424,7 +424,8 @@ def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray, shap
 def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_max_diameter_mm: float,
                    skin_max_thickness_mm: float, fraction: np.ndarray | None = None,
                    inclusion_shape: str = "auto",
-                   pillar_diameter_mm: float | None = None) -> tuple[np.ndarray, np.ndarray, list[str], list[dict]]:
+                   pillar_diameter_mm: float | None = None,
+                   smoothing: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[str], list[dict]]:
     """Pillar and inclusion masks from the silicone mask of an insert.
 
     Args:
@@ -437,6 +438,7 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
             None uses the silicone mask itself.
         inclusion_shape: "auto", "image" or "ball" (:func:`_local_surface`).
         pillar_diameter_mm: the posts' diameter as cast, where known (:func:`find_pillars`); None: as measured.
+        smoothing: (3,) sigma per axis, in voxels, of the denoising ``fraction`` had (:func:`find_pillars`).
 
     Returns:
         (pillar mask, inclusion mask, warnings, one dict per inclusion on how its surface was drawn
@@ -473,7 +475,7 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     deep = ins & (depth > shell_mm)
     pillar, missing, base, posts, run_on = find_pillars(frac, ins, inc_ids, n_inclusions, spacing,
                                                         axis, pillar_max_diameter_mm, deep,
-                                                        pillar_diameter_mm)
+                                                        pillar_diameter_mm, smoothing)
     post_blur = _rim(pillar, POST_BLUR_VOXELS * voxel_mm, spacing) & ~bodies
     inclusion, shapes = _local_surface(bodies & ~run_on, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm,
                                        inclusion_shape, None if base is None else base.beyond(spacing, ins.shape),

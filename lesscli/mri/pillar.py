@@ -54,7 +54,7 @@ scan's across the insert axis, which a ball's one blur, averaged over all direct
 the slices are thicker or thinner than the in-plane voxels (and with it the radius). The post is then
 held on its inclusion's axis (the line through the fitted ball's centre along the insert axis, as the
 phantoms are cast) unless a line of its own fits significantly better, one along the insert axis first and
-a tilted one only past that (:func:`own_or_centred`). A post measured
+a tilted one only past that, the tests reading the noise as the denoising correlated it (:func:`own_or_centred`). A post measured
 thinner than ``MIN_RADIUS_MM`` in the end is no post (its first, wider core let noise pass the test;
 without posts, about one inclusion in ten of the family's had one, drawn with a voxel or none and with
 its warning missing), by its fitted cylinder or by its second trace's median cross-section: a trace of
@@ -109,6 +109,7 @@ PROFILE_MOVE_SLABS = 0.5        # ... moving the half-way crossing by less than 
 PROFILE_SPARE_SLABS = 2         # ... from this many slabs more than it has unknowns
 BLUR_RANGE = (0.5, 2.0)         # a post's fitted blur, in units of the inclusion's it starts from
 CLEAR_RING_MM = 4.0             # the annulus clear of a ball where the base's profile is read under a short post
+SMOOTHING_TRUNCATE = 4.0        # the denoising's Gaussian, in its sigmas, as the F tests' correction reads it
 OWN_LINE_P = 0.01               # a post leaves its inclusion's axis where its own line fits better at this level
 CAP_SHUT_VOXELS = 1.0           # the ball's fit leaves out the core from this far inside the body's end on the base side
 TESTED_SLABS = 3                # from this many slabs, a trace's cross-section is tested against their scatter
@@ -761,8 +762,63 @@ def fit_blurred_cylinder(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line
     return fitted, float(r), float(s)
 
 
+def _line_jacobian(uv: np.ndarray, t: np.ndarray, fit: tuple, free_line: int) -> np.ndarray:
+    """(n, free_line + 2) derivatives of the blurred cylinder ``fit`` = (line, radius, blur) at each voxel by
+    its fitted parameters (:func:`fit_blurred_cylinder`'s order), by central differences."""
+    line, radius, blur = fit
+    p0 = np.r_[line.ravel()[:free_line], radius, blur]
+
+    def model(p):
+        held = np.r_[p[:free_line], line.ravel()[free_line:]].reshape(2, 2)
+        return disc_profile(_from_line(uv, held, t), p[-2], p[-1])
+
+    steps = 1e-4 * np.maximum(1.0, np.abs(p0))
+    return np.stack([(model(p0 + h * e) - model(p0 - h * e)) / (2 * h) for h, e in zip(steps, np.eye(len(p0)))], 1)
+
+
+def _span(m: np.ndarray) -> np.ndarray:
+    """Orthonormal columns spanning ``m``'s columns (those of a negligible singular value left out)."""
+    u, s, _ = np.linalg.svd(m, full_matrices=False)
+    return u[:, s > 1e-9 * max(float(s.max()), np.finfo(float).tiny)]
+
+
+def _kept_by_smoothing(patterns: np.ndarray, index: tuple, smoothing: np.ndarray) -> np.ndarray:
+    """The squared norm of each column of ``patterns`` (n, k), values at the voxels ``index`` (a tuple of
+    (n,) grid indices), after the denoising's Gaussian of ``smoothing`` voxels per axis."""
+    from scipy import ndimage
+
+    lo = np.array([i.min() for i in index])
+    pad = np.ceil(SMOOTHING_TRUNCATE * np.asarray(smoothing)).astype(int) + 1
+    shape = tuple(np.array([i.max() for i in index]) - lo + 1 + 2 * pad)
+    at = tuple(i - a + b for i, a, b in zip(index, lo, pad))
+    out = []
+    for q in patterns.T:
+        grid = np.zeros(shape)
+        grid[at] = q
+        out.append(float(np.sum(ndimage.gaussian_filter(grid, smoothing, mode="constant",
+                                                        truncate=SMOOTHING_TRUNCATE) ** 2)))
+    return np.array(out)
+
+
+def correlation_inflation(uv: np.ndarray, t: np.ndarray, fit: tuple, held: int, free_line: int, index: tuple,
+                          smoothing: np.ndarray) -> float:
+    """How much more the F statistic of ``fit`` (:func:`fit_blurred_cylinder`, ``free_line`` of its line's
+    parameters fitted) over the same cylinder with only ``held`` of them fitted reads under noise that
+    was white before the scan was denoised by a Gaussian of ``smoothing`` voxels per axis, than under
+    white noise: the share of the noise the denoising keeps in the directions the extra parameters fit
+    (their derivatives, clear of the other parameters', at the voxels ``index``) over its share in one
+    voxel. Patterns as wide as the kernel keep it all (about 1 / (2 sqrt(pi) s)^3 over one voxel's share
+    at s voxels: 10 at 0.6); a post's, 1-3 voxels across, 1.5-6 times as much as one voxel's."""
+    jac = _line_jacobian(uv, t, fit, free_line)
+    both, null = _span(jac), _span(np.delete(jac, np.s_[held:free_line], axis=1))
+    extra = _span(both - null @ (null.T @ both))[:, :free_line - held]
+    voxel = _kept_by_smoothing(np.ones((1, 1)), tuple(np.zeros(1, dtype=int) for _ in range(3)), smoothing)[0]
+    return float(np.mean(_kept_by_smoothing(extra, index, smoothing))) / voxel
+
+
 def own_or_centred(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line: np.ndarray, radius: float,
-                   sigma: float, core_mm: float, centred: np.ndarray | None) -> tuple[np.ndarray, float]:
+                   sigma: float, core_mm: float, centred: np.ndarray | None, index: tuple | None = None,
+                   smoothing: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """(line, radius) of the post in ``excess`` (:func:`fit_blurred_cylinder`'s arguments): its own blurred
     cylinder, or, with ``centred`` (a line, offset and slope, through its inclusion's centre along the
     insert axis), the cylinder held on that line unless a line of the post's own fits significantly
@@ -773,13 +829,18 @@ def own_or_centred(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line: np.n
     places better than a post's few noisy voxels per slab place its own line: over the 700 volumes of
     the independent family (``tests/mri_family.py``, box partial volume) the posts' feet lay 0.041 mm
     off their true axes (median; 0.126 mm for one in ten) on their own lines, 0.031 mm (0.097 mm) so
-    chosen when this choice came in. A post set off its inclusion's axis by more than the noise explains keeps its own line. The
-    voxels' residuals are correlated by the blur, so the tests count more evidence than there is: they
-    err towards the own line. Tested directly against the held line, the tilted line took 39 of 68
-    posts (family seeds 7000-7039, box), as much as 0.5 mm off at their ends in strong noise; tested
-    as here, 26 are held, 31 take a straight line and 11 a tilted one, and over the 700 volumes' posts
-    at least 2 voxels wide the feet lie 0.021 mm off (median; 90 % within 0.065 mm, 99 % within 0.21)
-    against 0.022 (0.083, 0.24).
+    chosen when this choice came in. A post set off its inclusion's axis by more than the noise explains keeps its own line.
+    Tested directly against the held line, the tilted line took 39 of 68 posts (family seeds 7000-7039,
+    box), as much as 0.5 mm off at their ends in strong noise; tested in two steps, 26 are held, 31 take
+    a straight line and 11 a tilted one.
+
+    The scan's denoising (``smoothing``, its Gaussian's sigma per axis in voxels; ``index``, the voxels'
+    grid indices) correlates the residuals of neighbouring voxels, and read as white each F statistic
+    comes out 1.5-6 times too large (:func:`correlation_inflation`): the tests chose a post's own line
+    for 42 of those 68 posts, all cast on their inclusions' axes. Each statistic is divided by that
+    factor: 57 are held, 10 take a straight line and 1 a tilted one, and on seeds 7040-7139 (box) the
+    feet lie 0.017 mm off the true axis (median; 90 % within 0.036 mm, 99 % within 0.078) against 0.019
+    (0.060, 0.150).
     """
     from scipy.stats import f as f_dist
 
@@ -794,13 +855,16 @@ def own_or_centred(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line: np.n
     for k in (1, 2):
         dof = len(excess) - 2 - 2 * k
         f = (rss[chosen] - rss[k]) / (2 * (k - chosen)) / max(rss[k] / dof, np.finfo(float).tiny)
+        if index is not None and smoothing is not None and np.any(np.asarray(smoothing) > 0):
+            f /= correlation_inflation(uv, t, fits[k], 2 * chosen, 2 * k, index, smoothing)
         if f > f_dist.isf(OWN_LINE_P, 2 * (k - chosen), dof):
             chosen = k
     return fits[chosen][:2]
 
 
 def _fit_cylinder(col: _Column, sign: int, trace: Trace, line: np.ndarray, radius: float, core_mm: float,
-                  step_mm: float, contrast: tuple[float, float], ball, centred: np.ndarray | None) -> tuple[np.ndarray, float]:
+                  step_mm: float, contrast: tuple[float, float], ball, centred: np.ndarray | None,
+                  smoothing: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """(line, radius) of :func:`own_or_centred` on the core's silicone in ``trace``'s slabs, each over its
     ring level and in units of the inclusion's contrast over it, from ``line`` and ``radius`` and the
     inclusion's blur (``ball``, the scan's own; half a slab without one), whose silicone is taken out
@@ -815,7 +879,8 @@ def _fit_cylinder(col: _Column, sign: int, trace: Trace, line: np.ndarray, radiu
     bg = np.interp(st[sel], trace.t_mm, trace.ring)
     scale = np.maximum(contrast[0] + contrast[1] - bg, SCALE_EPS)
     excess = (value[sel] - bg) / scale
-    return own_or_centred(col.uv[sel], st[sel], excess, line, radius, _blur_mm(ball, step_mm), core_mm, centred)
+    return own_or_centred(col.uv[sel], st[sel], excess, line, radius, _blur_mm(ball, step_mm), core_mm, centred,
+                          tuple(i[sel] for i in col.index), smoothing)
 
 
 def _contrast(fraction: np.ndarray, inc_ids: np.ndarray, label: int, col: _Column, ring_mm,
@@ -850,7 +915,8 @@ def _walked_contrast(both: list[Trace], contrast: tuple[float, float]) -> tuple[
 def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, n_inclusions: int,
                  spacing_mm, axis: np.ndarray, max_diameter_mm: float,
                  deep: np.ndarray | None = None,
-                 diameter_mm: float | None = None) -> tuple[np.ndarray, list[int], int]:
+                 diameter_mm: float | None = None,
+                 smoothing: np.ndarray | None = None) -> tuple[np.ndarray, list[int], int]:
     """The pillar under each inclusion, traced towards the base.
 
     Args:
@@ -864,6 +930,8 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
             None: the insert.
         diameter_mm: the posts' diameter as cast, where known: every post is found, placed and ended
             as without it, then drawn this wide; None: as measured.
+        smoothing: (3,) sigma per axis, in voxels, of the Gaussian the scan was denoised with (the F tests of
+            :func:`own_or_centred` read its correlated noise); None: white noise.
 
     Returns:
         (pillar mask, labels of the inclusions without a pillar, the base's surface (:class:`BaseSurface`),
@@ -960,7 +1028,8 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
         if len(final.area_mm2) >= MIN_LINE_SLABS:
             line, radius, end = found[label]
             line, fitted = _fit_cylinder(columns[label], side, final, line, radius, cores[label], step,
-                                         contrasts[label], balls[label], None if balls[label] is None else under[label])
+                                         contrasts[label], balls[label], None if balls[label] is None else under[label],
+                                         smoothing)
             if len(final.area_mm2) >= MIN_OWN_SLABS:        # its own slabs must show a post too
                 radius = fitted if radius >= MIN_RADIUS_MM else 0.0
             found[label] = (line, radius, end)

@@ -296,7 +296,8 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     pillar, inclusion, more, shapes, base, posts = split_silicone(silicone, insert, spacing,
                                                                   params.pillar_max_diameter_mm,
                                                                   params.skin_max_thickness_mm, fraction,
-                                                                  params.inclusion_shape, params.pillar_diameter_mm)
+                                                                  params.inclusion_shape, params.pillar_diameter_mm,
+                                                                  smooth_mm / spacing)
     labels = np.full(arr.shape, BACKGROUND, dtype=np.uint8)
     labels[insert] = INSERT
     labels[pillar] = PILLAR
