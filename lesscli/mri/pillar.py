@@ -855,9 +855,10 @@ def own_or_centred(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line: np.n
     for k in (1, 2):
         dof = len(excess) - 2 - 2 * k
         f = (rss[chosen] - rss[k]) / (2 * (k - chosen)) / max(rss[k] / dof, np.finfo(float).tiny)
-        if index is not None and smoothing is not None and np.any(np.asarray(smoothing) > 0):
-            f /= correlation_inflation(uv, t, fits[k], 2 * chosen, 2 * k, index, smoothing)
-        if f > f_dist.isf(OWN_LINE_P, 2 * (k - chosen), dof):
+        level = f_dist.isf(OWN_LINE_P, 2 * (k - chosen), dof)
+        if f > level and index is not None and smoothing is not None and np.any(np.asarray(smoothing) > 0):
+            f /= correlation_inflation(uv, t, fits[k], 2 * chosen, 2 * k, index, smoothing)   # only lowers f
+        if f > level:
             chosen = k
     return fits[chosen][:2]
 
