@@ -33,7 +33,6 @@ SHELL_VOXELS = 1.5              # shell thickness along the insert surface, in (
 RIM_VOXELS = 1.0                # an inclusion's image surface moves at most this far from the opening, in (largest) voxels
 JUNCTION_STEPS = 4
 LEVEL_VOXELS = (2.0, 4.0)       # the filling's level is measured this far outside an inclusion, in voxels
-AXIS_SAMPLES = 200_000
 SMALL_BALL = 0.8                # a second, smaller ball for small inclusions (of the main ball's radius)
 MAX_ELONGATION = 1.5            # ... kept where round: largest over smallest principal spread
 BALL_MARGIN_VOXELS = 0.25       # the opening ball's radius exceeds the thickest pillar's by this
@@ -108,15 +107,31 @@ def _principal(coords_mm: np.ndarray, cell_mm: np.ndarray | None = None) -> tupl
     return np.sqrt(np.maximum(values[::-1], 0.0)), vectors[:, ::-1]
 
 
+def _moments(weights: np.ndarray, spacing: np.ndarray) -> np.ndarray:
+    """(3, 3) covariance (mm^2) of the voxel centres weighted by ``weights`` (a 3D bool or float array),
+    from its three 2D projections: every voxel counted, in memory of the projections alone."""
+    w = weights if weights.dtype.kind == "f" else weights.astype(np.float32)
+    pairs = {(0, 1): w.sum(axis=2, dtype=np.float64), (0, 2): w.sum(axis=1, dtype=np.float64),
+             (1, 2): w.sum(axis=0, dtype=np.float64)}
+    margins = [pairs[0, 1].sum(axis=1), pairs[0, 1].sum(axis=0), pairs[0, 2].sum(axis=0)]
+    total = max(float(margins[0].sum()), np.finfo(float).tiny)
+    coords = [np.arange(n) * s for n, s in zip(w.shape, spacing)]
+    coords = [c - float(m @ c) / total for c, m in zip(coords, margins)]
+    cov = np.diag([float(m @ (c * c)) / total for c, m in zip(coords, margins)])
+    for (a, b), p in pairs.items():
+        cov[a, b] = cov[b, a] = float(coords[a] @ p @ coords[b]) / total
+    return cov
+
+
 def insert_axis(insert: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     """Unit vector (array-axis components, mm-scaled) of the insert's smallest principal direction.
 
-    The octagonal inserts are wider than tall, so this is the direction of the pillars.
+    The octagonal inserts are wider than tall, so this is the direction of the pillars. Every voxel
+    counts: a random 200 000 of them tilted the axis by up to 0.34 degrees (0.09 mm at the foot of a
+    post 15 mm from its sphere's centre, where the line through that centre is tested against the
+    post's own), against 0.15 over all of them (family seeds 7000-7039).
     """
-    idx = np.argwhere(insert)
-    if len(idx) > AXIS_SAMPLES:
-        idx = idx[np.random.default_rng(0).choice(len(idx), AXIS_SAMPLES, replace=False)]
-    return _principal(idx * spacing)[1][:, 2]
+    return np.linalg.eigh(_moments(insert, np.asarray(spacing, dtype=np.float64)))[1][:, 0]
 
 
 def _opened(core: np.ndarray, radius_mm: float, spacing: np.ndarray) -> np.ndarray:

@@ -762,3 +762,25 @@ def test_a_balls_fit_leaves_out_the_blur_of_its_post():
     assert row["shape"] == "ball" and row["ball_misfit"] <= 1.0
     assert abs(row["ball_diameter_mm"] - 2 * radius) <= 0.05 and dice(drawn, sphere) >= 0.99
 
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 2.0])
+def test_the_insert_axis_counts_every_voxel_of_a_fine_scan(tilt_deg):
+    """An octagonal insert 62 mm across and 30 mm tall at 0.4 mm voxels (1.4 million of them), its axis
+    along the array's first or tilted by 2 degrees: the axis read is within 0.01 degrees of it. A random
+    200 000 voxels, as read before, tilted it by up to a third of a degree on the family's scans; the
+    moments of every voxel are exact wherever the mask is."""
+    from lesscli.mri.morphology import insert_axis
+
+    spacing = np.array([0.4, 0.4, 0.4])
+    grid = [(np.arange(n) - (n - 1) / 2) * 0.4 for n in (90, 170, 170)]
+    z, y, x = np.meshgrid(*grid, indexing="ij", sparse=True)
+    t = math.radians(tilt_deg)
+    along, across = z * math.cos(t) + x * math.sin(t), x * math.cos(t) - z * math.sin(t)
+    octagon = np.maximum.reduce([np.abs(across * math.cos(a) + y * math.sin(a))
+                                 for a in np.arange(4) * math.pi / 4]) <= 31.0
+    insert = octagon & (np.abs(along) <= 15.0)
+    assert insert.sum() > 1_000_000
+    axis = insert_axis(insert, spacing)
+    expected = np.array([math.cos(t), 0.0, math.sin(t)])
+    assert math.degrees(math.acos(min(1.0, abs(float(axis @ expected))))) < 0.01
