@@ -96,30 +96,25 @@ def _rim(mask: np.ndarray, reach_mm: float, spacing: np.ndarray) -> np.ndarray:
     return out
 
 
-def _principal(coords_mm: np.ndarray, cell_mm: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Principal standard deviations (descending) of (n, 3) points and the (3, 3) axes as columns; with
-    ``cell_mm``, of the voxels of that size centred on them (each adds its own spread, side^2 / 12)."""
-    centred = coords_mm - coords_mm.mean(axis=0)
-    cov = np.einsum("ni,nj->ij", centred, centred) / max(len(coords_mm), 1)
-    if cell_mm is not None:
-        cov += np.diag(np.asarray(cell_mm, dtype=np.float64) ** 2 / 12.0)
-    values, vectors = np.linalg.eigh(cov)
-    return np.sqrt(np.maximum(values[::-1], 0.0)), vectors[:, ::-1]
-
-
-def _moments(weights: np.ndarray, spacing: np.ndarray) -> np.ndarray:
-    """(3, 3) covariance (mm^2) of the voxel centres weighted by ``weights`` (a 3D bool or float array),
-    from its three 2D projections: every voxel counts, and no list of voxels is made."""
-    pairs = {(0, 1): weights.sum(axis=2, dtype=np.float64), (0, 2): weights.sum(axis=1, dtype=np.float64),
-             (1, 2): weights.sum(axis=0, dtype=np.float64)}
+def _principal(mask: np.ndarray, spacing: np.ndarray, boxes: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Principal standard deviations (descending, mm) of the centres of ``mask``'s voxels (a 3D bool or
+    float array, each voxel weighted by its value) and the (3, 3) axes as columns; ``boxes``: of the
+    voxels as boxes of ``spacing`` (each adds its own spread, side^2 / 12). The moments are summed from
+    the mask's three 2D projections: every voxel counts, and no list of voxels is made."""
+    spacing = np.asarray(spacing, dtype=np.float64)
+    pairs = {(0, 1): mask.sum(axis=2, dtype=np.float64), (0, 2): mask.sum(axis=1, dtype=np.float64),
+             (1, 2): mask.sum(axis=0, dtype=np.float64)}
     margins = [pairs[0, 1].sum(axis=1), pairs[0, 1].sum(axis=0), pairs[0, 2].sum(axis=0)]
     total = max(float(margins[0].sum()), np.finfo(float).tiny)
-    coords = [np.arange(n) * s for n, s in zip(weights.shape, spacing)]
+    coords = [np.arange(n) * s for n, s in zip(mask.shape, spacing)]
     coords = [c - float(m @ c) / total for c, m in zip(coords, margins)]
     cov = np.diag([float(m @ (c * c)) / total for c, m in zip(coords, margins)])
-    for (a, b), p in pairs.items():
-        cov[a, b] = cov[b, a] = float(coords[a] @ p @ coords[b]) / total
-    return cov
+    for (i, j), p in pairs.items():
+        cov[i, j] = cov[j, i] = float(coords[i] @ p @ coords[j]) / total
+    if boxes:
+        cov += np.diag(spacing ** 2 / 12.0)
+    values, vectors = np.linalg.eigh(cov)
+    return np.sqrt(np.maximum(values[::-1], 0.0)), vectors[:, ::-1]
 
 
 def insert_axis(insert: np.ndarray, spacing: np.ndarray) -> np.ndarray:
@@ -130,7 +125,7 @@ def insert_axis(insert: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     post 15 mm from its sphere's centre, where the line through that centre is tested against the
     post's own), against at most 0.15 over all of them (family seeds 7000-7039).
     """
-    return np.linalg.eigh(_moments(insert, np.asarray(spacing, dtype=np.float64)))[1][:, 0]
+    return _principal(insert, spacing)[1][:, 2]
 
 
 def _opened(core: np.ndarray, radius_mm: float, spacing: np.ndarray) -> np.ndarray:
@@ -164,7 +159,7 @@ def _round(candidates: np.ndarray, bodies: np.ndarray, radius_mm: float, spacing
         own = comps[sl] == i
         if i in known or int(own.sum()) < min_voxels:
             continue
-        spread = _principal((np.argwhere(own) + [s.start for s in sl]) * spacing, spacing)[0]
+        spread = _principal(own, spacing, boxes=True)[0]
         if spread[0] <= MAX_ELONGATION * max(spread[2], 1e-6):
             out[sl] |= own
     return out

@@ -724,7 +724,7 @@ def test_a_piece_a_few_voxels_across_is_read_round_by_its_voxels_boxes():
     small, post = np.zeros((20, 20, 20), dtype=bool), np.zeros((20, 20, 20), dtype=bool)
     small[2:5, 2:5, 2:6] = True
     post[8:14, 10:12, 10:12] = True
-    centres = _principal(np.argwhere(small) * spacing)[0]
+    centres = _principal(small, spacing)[0]
     assert centres[0] > MAX_ELONGATION * centres[2]
     ball_mm = (0.75 * 45 * float(np.prod(spacing)) / math.pi) ** (1 / 3)     # a ball of 45 voxels' volume
     none = np.zeros_like(small)
