@@ -76,14 +76,23 @@ class Volume:
     case: Case
     base_index: float               # the base's surface under the filling, as a (fractional) index along axis 0
 
-    def undecided_slices(self) -> np.ndarray:
-        """(axis-0 length,) bool: the slices whose voxel centres lie nearer the base's surface than half the box
-        partial volume's sub-voxel step. A flat surface anywhere in that band leaves the same points of each
-        box on either side, so the image is the same whichever side of it the centres (and the truth) are; the
-        ramp is continuous and leaves none."""
+    def outer_indices(self) -> tuple[float, float]:
+        """The insert's outer faces normal to its axis, the base's and the top skin's, as (fractional) indices
+        along axis 0."""
+        down = (-1.0 if self.case.base_up else 1.0) / self.spacing_mm[0]
+        base_face = self.base_index - self.case.base_mm * down
+        return base_face, base_face + self.height_mm * down
+
+    def undecided_slices(self, surfaces: tuple[float, ...] | None = None) -> np.ndarray:
+        """(axis-0 length,) bool: the slices whose voxel centres lie nearer one of ``surfaces`` (flat, normal to
+        axis 0, as fractional indices; default: the base's surface under the filling) than half the box partial
+        volume's sub-voxel step. A flat surface anywhere in that band leaves the same points of each box on
+        either side, so the image is the same whichever side of it the centres (and the truth) are; the ramp is
+        continuous and leaves none."""
         k = np.arange(self.truth.shape[0])
         band = 0.5 / BOX_POINTS if self.case.partial_volume == "box" else 0.0
-        return np.abs(k - self.base_index) < band
+        at = (self.base_index,) if surfaces is None else surfaces
+        return np.any([np.abs(k - s) < band for s in at], axis=0)
 
 
 def _octagon_sd(x: np.ndarray, y: np.ndarray, apothem: float) -> np.ndarray:
@@ -296,6 +305,14 @@ def scores(labels: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """Dice per class of a segmentation against the truth."""
     return {name: dice(labels == code, truth == code)
             for code, name in ((INSERT, "insert"), (PILLAR, "pillar"), (INCLUSION, "inclusion"))}
+
+
+def insert_scores(labels: np.ndarray, volume: Volume) -> dict[str, float]:
+    """The insert's Dice, and its Dice without the slices the box partial volume leaves undecided at the
+    insert's outer faces (:meth:`Volume.outer_indices`; the same as its Dice under the ramp)."""
+    decided = ~volume.undecided_slices(volume.outer_indices())[:, None, None]
+    ours, true = labels == INSERT, volume.truth == INSERT
+    return {"dice_insert": dice(ours, true), "dice_insert_decided": dice(ours & decided, true & decided)}
 
 
 def base_error_mm(base, volume: Volume) -> float:

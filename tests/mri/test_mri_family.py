@@ -23,6 +23,7 @@ from mri_family import (
     draw_case,
     generate,
     inclusion_scores,
+    insert_scores,
     perturbed,
     pillar_voxels_wide,
     post_errors,
@@ -813,6 +814,35 @@ def test_volume_base_index_is_where_the_truths_pillar_starts(base_up):
     assert 0.0 < (vol.base_index - nearest) * (1 if base_up else -1) < 1.0
 
 
+@pytest.mark.parametrize("base_up", [False, True])
+def test_volume_outer_indices_bound_the_truths_insert(base_up):
+    """`Volume.outer_indices`: the truth's insert holds the slices between the two faces and none past them."""
+    vol = generate(Case(seed=7, spacing_mm=(0.83, 0.9, 0.9), base_up=base_up, noise=0.0), image=False)
+    rows = np.nonzero((vol.truth > 0).any(axis=(1, 2)))[0]
+    lo, hi = sorted(vol.outer_indices())
+    assert rows.min() == np.ceil(lo) and rows.max() == np.floor(hi)
+    assert abs(abs(hi - lo) * 0.83 - vol.height_mm) < 1e-9
+
+
+@pytest.mark.parametrize("gap, left_out", [(0.05, True), (0.08, False)])
+def test_insert_scores_leave_out_a_slice_undecided_at_an_outer_face(gap, left_out):
+    """`insert_scores`: the slice whose centres lie within the box's half sub-voxel step of an outer face (moved
+    there, the truth as drawn) is left out of `dice_insert_decided`, and one a little further is not; `dice_insert`
+    keeps it."""
+    import dataclasses
+
+    vol = generate(Case(seed=7, spacing_mm=(0.83, 0.9, 0.9), partial_volume="box"), image=False)
+    first = int(np.nonzero((vol.truth > 0).any(axis=(1, 2)))[0].min())
+    moved = dataclasses.replace(vol, base_index=vol.base_index + first - gap - min(vol.outer_indices()))
+    assert min(moved.outer_indices()) == pytest.approx(first - gap)
+    labels = vol.truth.copy()
+    labels[first] = 0                                           # that slice missed
+    got = insert_scores(labels, moved)
+    assert got["dice_insert"] < 0.99
+    assert (got["dice_insert_decided"] == 1.0) == left_out
+    assert insert_scores(vol.truth, moved) == {"dice_insert": 1.0, "dice_insert_decided": 1.0}
+
+
 def test_family_script_rows_and_footer(tmp_path):
     """`examples/mri_family.py` (README's table and counts): one box volume, its rows and the footer."""
     import subprocess
@@ -826,6 +856,7 @@ def test_family_script_rows_and_footer(tmp_path):
     (case,) = [r for r in rows if r["row"] == "case"]
     assert abs(case["base_error_mm"]) < 0.25 * case["spacing_mm"][0]
     assert all(0.0 <= r["dice_pillar_decided"] <= 1.0 for r in rows if r["row"] == "inclusion")
+    assert 0.0 <= case["dice_insert_decided"] <= 1.0
     assert "Volumes meeting all three targets:" in proc.stdout and "of 1" in proc.stdout
 
 
