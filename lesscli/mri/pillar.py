@@ -580,13 +580,18 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
 
     value = _clear_of_ball(col, ball)
     st = sign * col.t
-    slab = np.floor((st - start_mm) / step_mm).astype(np.int64)
+    def slab_of(t):
+        """Slabs centred on the column's planes of voxel centres (``col.start`` is one): a slab's edge on a plane
+        would split its voxels by the axis's slightest tilt, and each slab's ring level between two slices."""
+        return np.floor((t - col.start[sign]) / step_mm + 0.5).astype(np.int64)
+
+    slab = slab_of(st)
     rho = _from_line(col.uv, line, st)
     core, ring = rho <= core_mm, (rho > ring_mm[0]) & (rho <= ring_mm[1])
     sigma = _blur_mm(ball, step_mm)
     reach = math.ceil(2.0 * sigma / step_mm)
     excess, at = [], []
-    for k in range(-reach, math.ceil((end_mm - start_mm) / step_mm) + reach):
+    for k in range(int(slab_of(start_mm)) - reach, int(slab_of(end_mm)) + reach + 1):
         background = (slab == k) & ring & col.free
         if background.any():
             here = np.flatnonzero((slab == k) & core & col.inside & ~col.other)

@@ -521,6 +521,33 @@ def test_a_short_posts_radius_is_measured_on_the_line_it_is_drawn_on(shift_voxel
     assert all(abs(r - 1.5) < 0.1 for r in radii)
 
 
+@pytest.mark.parametrize("tilt_deg", [0.0, 0.05, 0.2])
+def test_a_short_posts_radius_holds_where_a_slice_lies_on_the_inclusions_surface(tilt_deg):
+    """`_post_radius` of a 3 mm post 1.5 mm tall under a 10 mm ball at 1.1 mm slices, the ball's surface over the
+    post on a plane of voxel centres, the axis along the slices or tilted by up to 0.2 degrees: within 0.05 mm
+    of the truth (1.477 mm each). Its slabs are centred on the planes of voxel centres; laid out from the
+    surface, their edges fell on the planes, and rounding or a tilt of hundredths of a degree split a slice
+    between two slabs, each slab's ring level read between two slices: 1.749, 1.348 and 1.343 mm (the family's
+    held-out box 7186 drew its 2.04 mm post 0.44 mm narrow so)."""
+    from lesscli.mri.morphology import Ball
+    from lesscli.mri.pillar import _ball_axis, _ball_surface, _column, _post_radius
+
+    spacing, gap = np.array([1.1, 0.8, 0.8]), 1.5
+    fraction, insert, _post = _post_under_ball(spacing, 1.5, gap, (0.14, -0.23), 0.05, 3)
+    centre = np.array([4.0 + gap + 5.0, 24.0 + 0.14 * spacing[1], 24.0 - 0.23 * spacing[2]])
+    tilt = math.radians(tilt_deg)
+    axis = np.array([math.cos(tilt), math.sin(tilt) * 0.6, math.sin(tilt) * 0.8])
+    grid = _grid(fraction.shape, spacing, sparse=True)
+    ball_ids = (sum((g - c) ** 2 for g, c in zip(grid, centre)) <= 5.0 ** 2).astype(np.int32)
+    ball = Ball(centre, 5.0, 0.55, 1.0, 0.0, 0.5, (), np.zeros((0, 0, 0)), spacing)
+    col = _column(fraction, insert, insert, ball_ids, 1, centre, axis, spacing, 7.0)
+    start = _ball_surface(ball, centre, axis, -1)
+    assert abs(((centre[0] - start) / spacing[0]) % 1.0 - 0.5) > 0.49   # a plane of centres on the surface
+    radius = _post_radius(col, -1, start, 5.0 + gap, ball, (0.0, 1.0), 3.9, (4.45, 7.0), float(np.abs(axis) @ spacing),
+                          float(np.prod(spacing)), _ball_axis(ball, centre, axis))
+    assert abs(radius - 1.5) < 0.05
+
+
 def test_a_balls_shell_is_its_excess_per_millimetre_of_radius():
     """`Ball.shell` is the derivative of `Ball.excess` with respect to the radius (central difference), inside,
     at and beyond the surface."""
@@ -537,19 +564,18 @@ def test_a_balls_shell_is_its_excess_per_millimetre_of_radius():
     assert ball(5.0).shell(points).max() > 0.5       # about 0.8 / (0.55 sqrt(2 pi)) at the surface
 
 
-NO_POST_GAPS = [(gap, off) for gap in (0.5, 0.8) for off in (-0.1, -0.05, 0.0, 0.05)] + [pytest.param(
-    0.5, 0.1, marks=pytest.mark.xfail(strict=True, reason="a ball fitted 0.1 mm wide over a gap of 0.5 mm: its cap and a "
-                                      "post trade, the fit takes the ball 0.21 mm narrower and an empty gap a post of 1.47 mm "
-                                      "(0.75 mm with the ball taken out as fitted)"))]
+NO_POST_GAPS = [(gap, off) for gap in (0.5, 0.8) for off in (-0.1, -0.05, 0.0, 0.05)] + [(0.5, 0.1)]
 
 
 @pytest.mark.parametrize("gap,off", NO_POST_GAPS)
 def test_a_gap_under_a_ball_fitted_a_little_off_holds_no_post_and_a_thin_post_stays(gap, off):
     """`_post_radius` across a gap of 0.5 or 0.8 mm under a 10 mm ball whose fitted radius is 0.1 mm short to
     0.05 mm long (its fit leaves out the cap over the post): with no post, under MIN_RADIUS_MM; a post 1.5 mm
-    across reads within 0.08 mm of its 0.75 mm radius. Taking the ball out as fitted (its radius not fitted
-    again with the post), the gap of 0.5 mm read posts of 0.51 and 0.65 mm for the ball 0.05 and 0.1 mm
-    short, and the thin post up to 0.97 mm."""
+    across reads within 0.08 mm of its 0.75 mm radius; so too under the ball 0.1 mm long over the gap of 0.5
+    mm, whose surface lies on a plane of voxel centres: while the fit's slabs were laid out from the surface,
+    rounding split that slice between two slabs and the empty gap read a post of 1.47 mm. Taking the ball
+    out as fitted (its radius not fitted again with the post), the gap of 0.5 mm read posts of 0.51 and 0.65
+    mm for the ball 0.05 and 0.1 mm short, and the thin post up to 0.97 mm."""
     from lesscli.mri.morphology import Ball
     from lesscli.mri.pillar import MIN_RADIUS_MM, _ball_axis, _ball_surface, _column, _post_radius
 
