@@ -219,6 +219,14 @@ def _column(fraction, insert, deep, inc_ids, label, centre_mm, axis, spacing, re
                    inside, inside & (ids == 0), deep[index], (ids != 0) & ~own, offsets + np.asarray(centre_mm), start)
 
 
+def _slab(col: _Column, sign: int, st, step_mm: float) -> np.ndarray:
+    """Slab index of depth ``st`` (mm beyond the inclusion on side ``sign``): slabs ``step_mm`` thick centred on
+    the column's planes of voxel centres (slab 0 on ``col.start[sign]``, a voxel's). A slab's edge on a plane
+    would split that slice's voxels between two slabs by the axis's slightest tilt (or by rounding), and read
+    each slab's ring level between two slices."""
+    return np.floor((np.asarray(st) - col.start[sign]) / step_mm + 0.5).astype(np.int64)
+
+
 def _clear_of_ball(col: _Column, ball) -> np.ndarray:
     """The column's values with the inclusion's blurred ball (:class:`lesscli.mri.morphology.Ball`) taken
     out; None leaves them as read."""
@@ -283,7 +291,7 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
     value = _clear_of_ball(col, ball)
     half = contrast[0] + HALF * contrast[1]
     st = sign * col.t
-    slab = np.floor((st - col.start[sign]) / step_mm - 0.5).astype(np.int64)    # slab k centred k + 1 steps out
+    slab = _slab(col, sign, st, step_mm) - 1            # slab k centred k + 1 steps out
     beyond = slab >= 0
     rho = _from_line(col.uv, line, st)
     core, ring = rho <= core_mm, (rho > ring_mm[0]) & (rho <= ring_mm[1])
@@ -580,18 +588,13 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
 
     value = _clear_of_ball(col, ball)
     st = sign * col.t
-    def slab_of(t):
-        """Slabs centred on the column's planes of voxel centres (``col.start`` is one): a slab's edge on a plane
-        would split its voxels by the axis's slightest tilt, and each slab's ring level between two slices."""
-        return np.floor((t - col.start[sign]) / step_mm + 0.5).astype(np.int64)
-
-    slab = slab_of(st)
+    slab = _slab(col, sign, st, step_mm)
     rho = _from_line(col.uv, line, st)
     core, ring = rho <= core_mm, (rho > ring_mm[0]) & (rho <= ring_mm[1])
     sigma = _blur_mm(ball, step_mm)
     reach = math.ceil(2.0 * sigma / step_mm)
     excess, at = [], []
-    for k in range(int(slab_of(start_mm)) - reach, int(slab_of(end_mm)) + reach + 1):
+    for k in range(int(_slab(col, sign, start_mm, step_mm)) - reach, int(_slab(col, sign, end_mm, step_mm)) + reach + 1):
         background = (slab == k) & ring & col.free
         if background.any():
             here = np.flatnonzero((slab == k) & core & col.inside & ~col.other)
