@@ -44,7 +44,7 @@ PROFILE_RADIUS = (0.5, 1.5)     # ... its radius within these factors of the bod
 PROFILE_SIGMA_VOXELS = (0.1, 3.0)   # ... its blur within these, in voxels
 PROFILE_CONTRAST = (0.5, 2.0)   # ... its contrast within these factors of the interior's over the filling
 BALL_MISFIT = 1.25              # an inclusion whose blurred ball fits its voxels this close to the noise is that ball
-POST_BLUR_VOXELS = 1.0          # ... the fit leaves out the voxels this close to a post (its blur), in (largest) voxels
+BLUR_VOXELS = 1.0               # ... the fit leaves out the voxels this close to a post or the base (their blur), in voxels
 
 
 def crop_box(mask: np.ndarray, pad: int) -> tuple[slice, ...]:
@@ -238,7 +238,7 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
     elsewhere (a body that is not a ball fits worse). ``unfitted``: voxels no ball is fitted to (the base's
     silicone), None: none; neither a body's nor its image's surface takes them (a body can run on through a
     short post into the base). ``blurred``: voxels no ball is fitted to either, but which either surface
-    may take (the blur of a post beside its inclusion).
+    may take (the blur of a post beside its inclusion, and of the base's surface on the filling's side).
 
     Returns:
         (inclusion mask, one dict per body: ``shape`` "ball" or "image", ``centre_index`` (the fitted
@@ -485,10 +485,14 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     pillar, missing, base, posts, run_on = find_pillars(frac, ins, inc_ids, n_inclusions, spacing,
                                                         axis, pillar_max_diameter_mm, deep,
                                                         pillar_diameter_mm, smoothing)
-    post_blur = _rim(pillar, POST_BLUR_VOXELS * voxel_mm, spacing) & ~bodies
+    blurred = _rim(pillar, BLUR_VOXELS * voxel_mm, spacing) & ~bodies
+    beyond = None
+    if base is not None:
+        past = base.past_mm(spacing, ins.shape)
+        beyond = past > 0
+        blurred |= (past > -BLUR_VOXELS * voxel_mm) & ~beyond
     inclusion, shapes = _local_surface(bodies & ~run_on, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm,
-                                       inclusion_shape, None if base is None else base.beyond(spacing, ins.shape),
-                                       post_blur)
+                                       inclusion_shape, beyond, blurred)
     inclusion |= _junctions(inclusion, pillar, spacing, shapes)
     pillar &= ~inclusion
     for i in missing:

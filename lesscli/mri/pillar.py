@@ -1116,11 +1116,12 @@ class BaseSurface:
     normal: np.ndarray
     offset_mm: float
 
-    def beyond(self, spacing: np.ndarray, shape: tuple) -> np.ndarray:
-        """bool mask of the voxels past the surface: the base's silicone, which no inclusion's ball holds."""
+    def past_mm(self, spacing: np.ndarray, shape: tuple) -> np.ndarray:
+        """How far each voxel's centre lies past the surface, mm: positive in the base's silicone (which no
+        inclusion's ball holds), negative on the filling's side."""
         d = np.meshgrid(*(np.arange(n) * s * a for n, s, a in zip(shape, spacing, self.normal)), indexing="ij",
                         sparse=True)
-        return d[0] + d[1] + d[2] > self.offset_mm
+        return d[0] + d[1] + d[2] - self.offset_mm
 
     def shifted(self, origin_index: np.ndarray, spacing: np.ndarray) -> BaseSurface:
         """The same plane on a grid (of the same spacing) whose index 0 lies at this one's ``origin_index``."""

@@ -109,9 +109,10 @@ def test_base_surface_is_found_within_a_quarter_slice(results, name):
 
 # Posts whose measures miss those bounds today, with why (strict).
 POST_OFF: dict[str, str] = {
-    "coarse-1.2mm-4mm-pillar-1mm-tall-16mm-bright": "a 4 mm post 1 mm tall in 1.2 mm slices is measured 3.34 mm "
+    "coarse-1.2mm-4mm-pillar-1mm-tall-16mm-bright": "a 4 mm post 1 mm tall in 1.2 mm slices is measured 3.46 mm "
     "wide: no slab of its own, its radius fitted to the silicone the blur spreads into the ball's and the base's, "
-    "the base's surface found 0.16 mm short of it (3.17 mm before the ball's fit left its cap out, 3.56 mm while "
+    "the base's surface found 0.16 mm short of it (3.34 mm before its slabs were centred on the slices, 3.17 mm "
+    "before the ball's fit left its cap out, 3.56 mm while "
     "the fit started at the plane under the ball, whose excess made up for that; its Dice meets the target: its "
     "truth is one slice, 8 voxels)",
 }
@@ -204,7 +205,7 @@ SMALL_ON_THICK = {
 def test_a_small_sphere_on_a_thick_post_is_drawn_as_its_ball(name):
     """A sphere of 6-7 mm at coarse voxels on a post of more than a third its width: the voxels within a voxel
     of the drawn post (outside the inclusion's body) hold the post's blur, which is no part of the ball, and
-    are left out of its fit (morphology.POST_BLUR_VOXELS); the ball then fits to the noise and is drawn."""
+    are left out of its fit (morphology.BLUR_VOXELS); the ball then fits to the noise and is drawn."""
     vol = generate(SMALL_ON_THICK[name])
     seg = segment(vol.image, vol.spacing_mm, where=name)
     assert seg.warnings == []
@@ -310,6 +311,29 @@ def test_post_one_slice_tall_under_large_inclusions_leaves_them_balls(seed):
     seg = segment(vol.image, vol.spacing_mm, where="short posts")
     assert seg.warnings == [] and [row["shape"] for row in seg.inclusion_shapes] == ["ball", "ball"]
     assert all(row["dice_pillar"] >= MIN_DICE["pillar"] for row in inclusion_scores(seg.labels, vol))
+
+
+BALLS_A_SLICE_OFF_THE_BASE = {
+    # a 9.5 mm sphere on a 2.6 mm post 1.1 mm tall at 0.95 mm slices, bright silicone: misfit 2.2, the image's
+    # surface took the base's blurred slice around the post (inclusion 0.978, pillar 0.50)
+    "9.5mm-1.1mm-off": Case(seed=904, spacing_mm=(0.95, 1.15, 1.15), inclusion_mm=(9.5,), pillar_mm=2.6,
+                            pillar_height_mm=(1.1,), silicone_brighter=True, noise=0.03, partial_volume="box"),
+    # a 14 mm sphere on a 2.5 mm post 1.2 mm tall at 1.0 mm slices, dark silicone: misfit 1.65 (inclusion 0.984)
+    "14mm-1.2mm-off": Case(seed=906, spacing_mm=(1.0, 1.2, 1.1), inclusion_mm=(14.0,), pillar_mm=2.5,
+                           pillar_height_mm=(1.2,), noise=0.04, partial_volume="box"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BALLS_A_SLICE_OFF_THE_BASE))
+def test_a_ball_a_slice_off_the_base_leaves_the_bases_blur_out_of_its_fit(name):
+    """A ball on a post about a slice tall: the slice between them holds the base's blurred and partial-volume
+    silicone on the filling's side of its surface, no part of the ball; fitted with it, the ball misfit over
+    BALL_MISFIT and the image's surface, drawn instead, took that slice around the post. The voxels within
+    a voxel of the base's surface are left out of the fit (morphology.BLUR_VOXELS, as around a post)."""
+    vol = generate(BALLS_A_SLICE_OFF_THE_BASE[name])
+    seg = segment(vol.image, vol.spacing_mm, where=name)
+    assert seg.warnings == [] and [row["shape"] for row in seg.inclusion_shapes] == ["ball"]
+    assert inclusion_scores(seg.labels, vol)[0]["dice_inclusion"] >= 0.99
 
 
 LONE_SHORT_POSTS = [(voxel, post, tall) for voxel in (0.6, 0.95) for post in (2.0, 3.0) for tall in (1.2, 2.0)]
