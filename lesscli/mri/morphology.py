@@ -44,7 +44,7 @@ PROFILE_RADIUS = (0.5, 1.5)     # ... its radius within these factors of the bod
 PROFILE_SIGMA_VOXELS = (0.1, 3.0)   # ... its blur within these, in voxels
 PROFILE_CONTRAST = (0.5, 2.0)   # ... its contrast within these factors of the interior's over the filling
 BALL_MISFIT = 1.25              # an inclusion whose blurred ball fits its voxels this close to the noise is that ball
-BLUR_VOXELS = 1.0               # ... the fit leaves out the voxels this close to a post or the base (their blur), in voxels
+BLUR_VOXELS = 1.0               # ... the fit leaves out the voxels this close to a post or the base, in voxels
 
 
 def crop_box(mask: np.ndarray, pad: int) -> tuple[slice, ...]:

@@ -594,7 +594,8 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
     sigma = _blur_mm(ball, step_mm)
     reach = math.ceil(2.0 * sigma / step_mm)
     excess, at = [], []
-    for k in range(int(_slab(col, sign, start_mm, step_mm)) - reach, int(_slab(col, sign, end_mm, step_mm)) + reach + 1):
+    first, last = (int(_slab(col, sign, t, step_mm)) for t in (start_mm, end_mm))
+    for k in range(first - reach, last + reach + 1):
         background = (slab == k) & ring & col.free
         if background.any():
             here = np.flatnonzero((slab == k) & core & col.inside & ~col.other)
