@@ -28,6 +28,9 @@ the footer gives their diameter error. `lesscli.mri.pillar.CAP_SHUT_VOXELS` was 
 stay 2 mm or more from it): the first inclusion's post made tall enough, and its sphere wide enough that the
 post need not pass 15 mm, for it to reach there in an insert of 28 mm or more; rows keep ``skin_gap_mm``.
 
+``--tilted`` tilts each seed's insert axis 0-10 degrees off the array's first axis about an in-plane axis at any
+azimuth, as a phantom laid in a coil by hand is (the family's are upright); rows keep ``tilt_deg``.
+
 ``--known-diameter`` segments each volume with its posts' true diameter given, as a lab that knows its
 mould's would (``less mri-label --pillar-diameter-mm``): the posts are found, placed and ended from the
 scan as without it, and drawn that wide (the rows' ``post_diameter_error_mm`` stays the measured one's).
@@ -44,6 +47,7 @@ volume.
     python examples/mri_family.py --seeds 0-99 --margins 0.025,0.05,0.1
     python examples/mri_family.py --seeds 900-939 --partial-volume box --lone-short
     python examples/mri_family.py --seeds 0-99 --partial-volume box --near-skin
+    python examples/mri_family.py --seeds 1000-1099 --partial-volume box --tilted
     python examples/mri_family.py --seeds 1000-1059 --known-diameter
 """
 
@@ -81,6 +85,7 @@ from mri_family import (
 MIN_PILLAR_VOXELS = 2.0
 LONE_SHORT_MM = (1.0, 2.5)      # --lone-short: the post's height range
 NEAR_SKIN_MM = (0.5, 2.0)       # --near-skin: the highest sphere's gap to the skin
+TILT_DEG = (0.0, 10.0)          # --tilted: the insert's axis off array axis 0
 SMALL_COARSE = {"first_mm": (6.0, 7.0), "spacing_mm": (0.9, 1.2), "noise": (0.05, 0.1)}   # --small-coarse
 ACCEPT = {"insert": 0.97, "inclusion": 0.93, "pillar": 0.80}
 
@@ -132,8 +137,16 @@ def near_skin(case):
                                pillar_height_mm=(tall, *case.pillar_height_mm[1:]))
 
 
+def tilted(case):
+    """``case`` with the insert's axis tilted off array axis 0 by 0-10 degrees about an in-plane axis at any
+    azimuth (seeded by the case)."""
+    rng = np.random.default_rng([50, case.seed])
+    return dataclasses.replace(case, tilt_deg=float(np.round(rng.uniform(*TILT_DEG), 2)),
+                               tilt_azimuth_deg=float(np.round(rng.uniform(0.0, 360.0), 1)))
+
+
 def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lone: bool = False,
-             known: bool = False, near: bool = False, small: bool = False) -> list[dict]:
+             known: bool = False, near: bool = False, small: bool = False, tilt: bool = False) -> list[dict]:
     """One volume: a case row (insert Dice, pillar voxels drawn, warnings) and one row per inclusion, each with
     the case's parameters; ``small``: drawn by :func:`small_coarse`, not ``draw_case``; ``floating``: the
     volume drawn without posts; ``lone``: :func:`lone_short`; ``near``: :func:`near_skin`; ``known``: segmented
@@ -147,6 +160,8 @@ def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lo
         case = lone_short(case)
     if near:
         case = near_skin(case)
+    if tilt:
+        case = tilted(case)
     volume = generate(case)
     t0 = time.perf_counter()
     params = SegmentParams(pillar_diameter_mm=case.pillar_mm if known and case.pillar_mm > 0 else None)
@@ -155,7 +170,7 @@ def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lo
               "pillar_mm": case.pillar_mm, "pillar_voxels": round(pillar_voxels_wide(case), 2),
               "contrast": "silicone-brighter" if case.silicone_brighter else "silicone-darker",
               "base": "up" if case.base_up else "down", "noise": case.noise, "bias": case.bias,
-              "inclusions": len(case.inclusion_mm), "skin_gap_mm": case.skin_gap_mm}
+              "inclusions": len(case.inclusion_mm), "skin_gap_mm": case.skin_gap_mm, "tilt_deg": case.tilt_deg}
     base = None if seg.base_surface is None else round(base_error_mm(seg.base_surface, volume), 4)
     rows = [{"row": "case", **common, **insert_scores(seg.labels, volume),
              "base_error_mm": base, "pillar_voxels_drawn": int((seg.labels == PILLAR).sum()),
@@ -225,6 +240,7 @@ BANDS = [
     ("base", "base", ["down", "up"]),
 ]
 NEAR_SKIN_BANDS = [("highest sphere under the skin (mm)", "skin_gap_mm", [(0.5, 1.0), (1.0, 1.5), (1.5, 2.0)])]
+TILT_BANDS = [("insert axis tilt (degrees)", "tilt_deg", [(0.0, 3.3), (3.3, 6.7), (6.7, 10.0)])]
 
 
 def _in(value, band) -> bool:
@@ -242,7 +258,8 @@ def table(rows: list[dict]) -> str:
     lines = [("| parameter | band | volumes | inclusions | insert min / median | inclusion min / median "
               "| pillar (>= 2 voxels) min / median |"), "|---|---|---|---|---|---|---|"]
     near = any(r.get("skin_gap_mm") is not None for r in cases)
-    for title, key, bands in BANDS + (NEAR_SKIN_BANDS if near else []):
+    tilt = any(r.get("tilt_deg") for r in cases)
+    for title, key, bands in BANDS + (NEAR_SKIN_BANDS if near else []) + (TILT_BANDS if tilt else []):
         for band in bands:
             inc = [r for r in incs if _in(r[key], band)]
             pil = [r["dice_pillar"] for r in inc if r["pillar_voxels"] >= MIN_PILLAR_VOXELS]
@@ -296,6 +313,8 @@ def main() -> None:
     parser.add_argument("--small-coarse", action="store_true",
                         help="draw small spheres at coarse voxels (the first 6-7 mm, voxels 0.9-1.2 mm, noise "
                              "0.05-0.1; seeded by seed // 100 and seed %% 100) instead of the family's draw")
+    parser.add_argument("--tilted", action="store_true",
+                        help="tilt each volume's insert axis 0-10 degrees off the array's first axis")
     parser.add_argument("--known-diameter", action="store_true",
                         help="segment with the posts' true diameter given (less mri-label --pillar-diameter-mm)")
     parser.add_argument("--margins", default=None,
@@ -312,7 +331,7 @@ def main() -> None:
         return
     for seed in _seeds(args.seeds):
         new = run_case(seed, args.partial_volume, args.floating, args.lone_short, args.known_diameter,
-                       args.near_skin, args.small_coarse)
+                       args.near_skin, args.small_coarse, args.tilted)
         rows += new
         fails = shortfalls(new[0], new[1:])
         print(f"seed {seed}: {new[0]['seconds']} s" + (f"  below: {', '.join(fails)}" if fails else ""),

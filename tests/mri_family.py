@@ -8,7 +8,9 @@ segmentation is tested on volumes it was not developed with:
   cylindrical pillar standing on the base (``pillar_height_mm`` from the base to the sphere's bottom);
   ``inclusion_aspect`` other than 1 stretches each inclusion along the phantom's x into a spheroid
   (diameter ``inclusion_mm`` across, ``aspect`` times that along x: an inclusion that is not a ball);
-- posed with the base down or up along array axis 0 and an arbitrary rotation about it, shifted;
+- posed with the base down or up along array axis 0 and an arbitrary rotation about it, shifted, and
+  (``tilt_deg``) tilted off axis 0 by a few degrees about an in-plane axis at ``tilt_azimuth_deg``, as a
+  phantom laid in a coil by hand is;
 - partial volume (``partial_volume``): ``ramp``, a voxel's fill is a linear ramp of the signed
   distance at its centre over its width measured along the surface normal (the box projected on the
   normal; exact for a flat surface, but it adds tissue around a thin convex structure: a post's
@@ -58,6 +60,8 @@ class Case:
     partial_volume: str = "ramp"
     sphere_margin_mm: float = 0.0   # each sphere drawn this much wider in radius, where it was laid out (`perturbed`)
     skin_gap_mm: float | None = None    # the highest sphere this far under the skin (None: MIN_GAP_MM and 0-4 mm more)
+    tilt_deg: float = 0.0               # the insert's axis tilted off array axis 0 by this much
+    tilt_azimuth_deg: float = 0.0       # about the in-plane axis at this angle from array axis 1 to axis 2
 
 
 PARTIAL_VOLUMES = ("ramp", "box")
@@ -75,6 +79,9 @@ class Volume:
     height_mm: float
     case: Case
     base_index: float               # the base's surface under the filling, as a (fractional) index along axis 0
+    #                                   (at the scan's lateral centre)
+    feet_index: np.ndarray          # (n, 3) where each inclusion's axis meets the base's surface, as array indices
+    axis_mm: np.ndarray             # the insert's axis in the array frame (unit, mm), from the base to the top
 
     def outer_indices(self) -> tuple[float, float]:
         """The insert's outer faces normal to its axis, the base's and the top skin's, as (fractional) indices
@@ -88,9 +95,10 @@ class Volume:
         axis 0, as fractional indices; default: the base's surface under the filling) than half the box partial
         volume's sub-voxel step. A flat surface anywhere in that band leaves the same points of each box on
         either side, so the image is the same whichever side of it the centres (and the truth) are; the ramp is
-        continuous and leaves none."""
+        continuous and leaves none, and a tilted insert's surfaces are not normal to axis 0."""
         k = np.arange(self.truth.shape[0])
-        band = 0.5 / BOX_POINTS if self.case.partial_volume == "box" else 0.0
+        flat = self.case.partial_volume == "box" and self.case.tilt_deg == 0.0
+        band = 0.5 / BOX_POINTS if flat else 0.0
         at = (self.base_index,) if surfaces is None else surfaces
         return np.any([np.abs(k - s) < band for s in at], axis=0)
 
@@ -100,6 +108,14 @@ def _octagon_sd(x: np.ndarray, y: np.ndarray, apothem: float) -> np.ndarray:
     c = math.sqrt(0.5)
     faces = [np.abs(x), np.abs(y), np.abs(c * (x + y)), np.abs(c * (x - y))]
     return np.maximum.reduce(faces) - apothem
+
+
+def _tilt(tilt_deg: float, azimuth_deg: float) -> np.ndarray:
+    """Rotation by ``tilt_deg`` about the unit axis (0, cos azimuth, sin azimuth) of the array frame."""
+    t, a = math.radians(tilt_deg), math.radians(azimuth_deg)
+    k = np.array([0.0, math.cos(a), math.sin(a)])
+    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return math.cos(t) * np.eye(3) + math.sin(t) * cross + (1.0 - math.cos(t)) * np.outer(k, k)
 
 
 def _slab_sd(z: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -195,7 +211,9 @@ def generate(case: Case, image: bool = True) -> Volume:
     spacing = np.asarray(case.spacing_mm, dtype=float)
     radius_xy = 0.5 * case.width_mm / math.cos(math.pi / 8)
     margin = float(rng.uniform(3.0, 6.0))
-    extent = np.array([height, 2 * radius_xy, 2 * radius_xy]) + 2 * margin
+    tilt = math.radians(case.tilt_deg)
+    extent = np.array([height * math.cos(tilt) + 2 * radius_xy * math.sin(tilt),
+                       2 * radius_xy + height * math.sin(tilt), 2 * radius_xy + height * math.sin(tilt)]) + 2 * margin
     shape = tuple(math.ceil(e / s) for e, s in zip(extent, spacing))
     grid = [(np.arange(n) - (n - 1) / 2) * s for n, s in zip(shape, spacing)]
     a0, a1, a2 = np.meshgrid(*grid, indexing="ij", sparse=True)
@@ -203,12 +221,16 @@ def generate(case: Case, image: bool = True) -> Volume:
     shift = rng.uniform(-2.0, 2.0, 3)
     c, s = math.cos(yaw), math.sin(yaw)
     radii = 0.5 * np.asarray(case.inclusion_mm) + case.sphere_margin_mm
+    rot = _tilt(case.tilt_deg, case.tilt_azimuth_deg)       # the upright frame's axes in the array frame (columns)
 
     def distances(a0, a1, a2):
         """Signed distances (mm) of body, cavity, spheres and pillars at array-frame points (broadcast)."""
-        u, v = a2 - shift[2], a1 - shift[1]
+        p = (a0 - shift[0], a1 - shift[1], a2 - shift[2])
+        if case.tilt_deg:
+            p = tuple(rot[0, i] * p[0] + rot[1, i] * p[1] + rot[2, i] * p[2] for i in range(3))
+        u, v = p[2], p[1]
         x, y = c * u + s * v, -s * u + c * v                    # phantom x, y (rotation about axis 0)
-        z = (a0 - shift[0]) * (-1.0 if case.base_up else 1.0) + 0.5 * height
+        z = p[0] * (-1.0 if case.base_up else 1.0) + 0.5 * height
         body = np.maximum(_octagon_sd(x, y, 0.5 * case.width_mm), _slab_sd(z, 0.0, height))
         cavity = np.maximum(_octagon_sd(x, y, 0.5 * case.width_mm - case.skin_mm),
                             _slab_sd(z, case.base_mm, height - case.skin_mm))
@@ -232,11 +254,17 @@ def generate(case: Case, image: bool = True) -> Volume:
         truth[(np.minimum.reduce(pillars) <= 0) & (cavity <= 0) & (body <= 0)] = PILLAR
     truth[(np.minimum.reduce(spheres) <= 0) & (body <= 0)] = INCLUSION
     sign = -1.0 if case.base_up else 1.0
-    world = np.column_stack([(centres[:, 2] - 0.5 * height) * sign + shift[0],
-                             s * centres[:, 0] + c * centres[:, 1] + shift[1],
-                             c * centres[:, 0] - s * centres[:, 1] + shift[2]])
-    base = ((case.base_mm - 0.5 * height) * sign + shift[0]) / spacing[0] + (shape[0] - 1) / 2
-    volume = Volume(None, truth, spacing, world / spacing + (np.asarray(shape) - 1) / 2, height, case, float(base))
+
+    def index_of(x, y, z):
+        """Array indices of phantom points (mm)."""
+        upright = np.column_stack([(z - 0.5 * height) * sign, s * x + c * y, c * x - s * y])
+        return (upright @ rot.T + shift) / spacing + (np.asarray(shape) - 1) / 2
+
+    centres_index = index_of(centres[:, 0], centres[:, 1], centres[:, 2])
+    feet_index = index_of(centres[:, 0], centres[:, 1], np.full(len(centres), case.base_mm))
+    base_mm = ((case.base_mm - 0.5 * height) * sign + rot[1, 0] * shift[1] + rot[2, 0] * shift[2]) / rot[0, 0]
+    base = (base_mm + shift[0]) / spacing[0] + (shape[0] - 1) / 2       # at the lateral centre (a1 = a2 = 0 mm)
+    volume = Volume(None, truth, spacing, centres_index, height, case, float(base), feet_index, sign * rot[:, 0])
     if not image:
         return volume
     if case.silicone_brighter:
@@ -333,8 +361,8 @@ def post_errors(posts: list, volume: Volume, reach_mm: float = 3.0) -> list[dict
     spacing = volume.spacing_mm
     feet = np.array([p.foot_mm[1:] for p in posts]).reshape(-1, 2)
     rows = []
-    for k, centre in enumerate(volume.centres_index):
-        off = np.linalg.norm(feet - centre[1:] * spacing[1:], axis=1)
+    for k, foot in enumerate(volume.feet_index):
+        off = np.linalg.norm(feet - foot[1:] * spacing[1:], axis=1)
         if not len(off) or off.min() > reach_mm:
             rows.append({"post_diameter_error_mm": None, "post_height_error_mm": None, "post_offset_mm": None})
             continue
@@ -351,11 +379,20 @@ def inclusion_scores(labels: np.ndarray, volume: Volume) -> list[dict]:
     the pillar's Dice without the slices the box partial volume leaves undecided at the base
     (:meth:`Volume.undecided_slices`; the same as the pillar's Dice under the ramp).
 
-    The insert axis is array axis 0, so cells split the plane of axes 1 and 2 between the inclusions.
+    Cells split the volume between the inclusions by the distance across the insert's axis from each
+    inclusion's centre (the plane of axes 1 and 2 where the insert is not tilted).
     """
     truth, spacing = volume.truth, volume.spacing_mm
-    a1, a2 = np.meshgrid(*(np.arange(k) * h for k, h in zip(truth.shape[1:], spacing[1:])), indexing="ij")
-    d2 = [(a1 - c[1] * spacing[1]) ** 2 + (a2 - c[2] * spacing[2]) ** 2 for c in volume.centres_index]
+    if volume.case.tilt_deg:
+        grid = np.meshgrid(*(np.arange(k) * h for k, h in zip(truth.shape, spacing)), indexing="ij", sparse=True)
+        d2 = []
+        for c in volume.centres_index:
+            d = [g - ci * h for g, ci, h in zip(grid, c, spacing)]
+            along = sum(n * di for n, di in zip(volume.axis_mm, d))
+            d2.append(sum(di * di for di in d) - along * along)
+    else:
+        a1, a2 = np.meshgrid(*(np.arange(k) * h for k, h in zip(truth.shape[1:], spacing[1:])), indexing="ij")
+        d2 = [(a1 - c[1] * spacing[1]) ** 2 + (a2 - c[2] * spacing[2]) ** 2 for c in volume.centres_index]
     cell_of = np.argmin(np.stack(d2), axis=0)
     decided = ~volume.undecided_slices()[:, None, None]
     rows = []

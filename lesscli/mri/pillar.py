@@ -296,7 +296,7 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
     rho = _from_line(col.uv, line, st)
     core, ring = rho <= core_mm, (rho > ring_mm[0]) & (rho <= ring_mm[1])
     ts, areas, cents = [], [], []
-    levels, cover = [], []
+    levels, cover, ring_ts = [], [], []
     last = int(slab[beyond].max()) if beyond.any() else -1
     for k in range(last + 1):
         here = beyond & (slab == k)
@@ -308,6 +308,7 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
         cover.append(float(col.inside[ring_here].mean()))
         levels.append(level)
         ts.append(float(st[here].mean()))
+        ring_ts.append(float(np.median(st[ring_free])))
         if level > half or cover[-1] < HALF:
             break
         sel = here & core & col.free
@@ -320,7 +321,7 @@ def _trace(col: _Column, sign: int, line: np.ndarray, core_mm: float, ring_mm: t
     if not ts:
         end = col.start[sign]
     elif levels[-1] > half:
-        end, n, profiled = _base_crossing(col, st, slab, ring, ts, levels, contrast, last, step_mm)
+        end, n, profiled = _base_crossing(col, st, slab, ring, ring_ts, levels, contrast, last, step_mm)
         n = min(n, len(areas))
     elif cover[-1] < HALF:
         end = _crossing(np.asarray(ts), 1.0 - np.asarray(cover), len(ts) - 1)
@@ -361,7 +362,7 @@ def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndar
     before_t, before = list(ts[max(j - PROFILE_GEL_SLABS, 0):j]), list(levels[max(j - PROFILE_GEL_SLABS, 0):j])
     inclusion_side = (slab == -1) & ring & col.free          # the inclusion's last slice
     if j == 0 and inclusion_side.any():
-        before_t, before = [float(st[inclusion_side].mean())], [_ring_level(col.value[inclusion_side])]
+        before_t, before = [float(np.median(st[inclusion_side]))], [_ring_level(col.value[inclusion_side])]
         t = np.array(before_t + [ts[0]])
         norm = np.array([(before[0] - contrast[0]) / scale, norm[0]])
     linear = _crossing(t, norm, len(t) - 1)
@@ -370,7 +371,7 @@ def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndar
         sel = (slab == k) & ring & ~(col.inside & ~col.free)
         if not sel.any() or len(air) >= PROFILE_AIR_SLABS:
             break
-        after_t.append(float(st[sel].mean()))
+        after_t.append(float(np.median(st[sel])))
         after.append(_ring_level(col.value[sel]))
         if float(col.inside[(slab == k) & ring].mean()) < HALF:
             air.append(after_t[-1])
@@ -593,17 +594,21 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
     core, ring = rho <= core_mm, (rho > ring_mm[0]) & (rho <= ring_mm[1])
     sigma = _blur_mm(ball, step_mm)
     reach = math.ceil(2.0 * sigma / step_mm)
-    excess, at = [], []
+    at, ring_t, ring_level = [], [], []
     first, last = (int(_slab(col, sign, t, step_mm)) for t in (start_mm, end_mm))
+    half = _slab(col, sign, st, 0.5 * step_mm)
     for k in range(first - reach, last + reach + 1):
-        background = (slab == k) & ring & col.free
-        if background.any():
-            here = np.flatnonzero((slab == k) & core & col.inside & ~col.other)
-            excess.append((value[here] - _ring_level(value[background])) / contrast[1])
-            at.append(here)
-    if not excess:
+        if ((slab == k) & ring & col.free).any():
+            at.append(np.flatnonzero((slab == k) & core & col.inside & ~col.other))
+        for h in (2 * k - 1, 2 * k):
+            background = (half == h) & ring & col.free
+            if background.any():
+                ring_t.append(float(np.median(st[background])))
+                ring_level.append(_ring_level(value[background]))
+    if not at:
         return 0.0
-    excess, at = np.concatenate(excess), np.concatenate(at)
+    at = np.concatenate(at)
+    excess = (value[at] - np.interp(st[at], ring_t, ring_level)) / contrast[1]
     def axial(wider: float) -> np.ndarray:
         """The post along its length, from the surface of the ball ``wider`` (mm) than fitted above each voxel."""
         top = start_mm if ball is None else start_mm - ball.radius_mm + np.sqrt(np.maximum(
