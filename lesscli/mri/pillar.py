@@ -2,9 +2,11 @@
 
 Nothing here assumes a pillar's diameter, intensity or which end of the insert the base is at. For
 each inclusion, the insert's voxels near the line through its centre along the insert axis are cut
-into slabs one voxel thick, on both sides of the inclusion, each centred on a plane of voxel centres
-one step further from the inclusion (where the insert axis is an array axis, a slab is one slice;
-boundaries through voxel centres would split each slice between two slabs). Per slab
+into slabs one plane of voxel centres thick, on both sides of the inclusion, each centred on a plane of
+voxel centres one step further from the inclusion (where the insert axis is an array axis, a slab is one
+slice; boundaries through voxel centres would split each slice between two slabs; along a tilted axis the
+planes normal to the array axis nearest it lie that axis's spacing over the tilt's cosine apart, and a slab
+as thick holds one of them wherever the tilt keeps them apart across the ring). Per slab
 (``fraction``: 0 hydrogel, 1 silicone):
 
 - the ring (an annulus around the core) gives the local background: hydrogel between the inclusion
@@ -566,13 +568,16 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
                  core_mm: float, ring_mm: tuple[float, float], step_mm: float, voxel_mm3: float,
                  line: np.ndarray) -> float:
     """Radius of a short post, from ``start_mm`` (the inclusion's surface) to ``end_mm`` (the base's), fitted
-    by least squares to all its silicone: the core's excess over each slab's ring level (the inclusion's
+    by least squares to all its silicone: the core's excess over the ring's level (the inclusion's
     blurred ball taken out first, in units of the inclusion's contrast) from the blur's reach (two sigmas
     of the ball's blur) inside the inclusion to as far past the base surface, against a cylinder under the
     post's ``line`` (:func:`_ball_axis`, where it is drawn) blurred like the inclusion (:func:`disc_profile`
     across, a normal's integral along), the core and ring centred on that line.
     The blur carries much of a post a slab or two tall into the inclusion's and the base's slabs, so its
-    own slabs read it too thin; the start is the radius of the whole excess over the gap's length. The
+    own slabs read it too thin; the start is the radius of the whole excess over the gap's length. Each
+    voxel's excess is over the ring's level at its own depth, read over half-slabs and interpolated (where the
+    axis is tilted a slab's voxels spread over its depth, and about the base's surface one level per slab is
+    the wrong background for most of them; upright, every voxel lies at a half-slab's depth). The
     post fills the ball's curve: at each voxel's distance from the line it starts at the ball's surface,
     not at the plane through its lowest point (which left the silicone between them, pi r^4 / (4 R), to
     widen the post: by about 0.1 mm in diameter for a 3 mm post 1.5 mm tall under a 10 mm ball).
@@ -963,7 +968,8 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
     from scipy import ndimage
 
     voxel = float(spacing.max())
-    step, voxel_mm3 = float(np.abs(axis) @ spacing), float(np.prod(spacing))
+    along = int(np.argmax(np.abs(axis)))          # slabs one plane of voxel centres thick (the module's docstring)
+    step, voxel_mm3 = float(spacing[along] / abs(axis[along])), float(np.prod(spacing))
 
     def rings(core):
         inner = core + RING_GAP_VOXELS * voxel
