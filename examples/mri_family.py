@@ -80,12 +80,12 @@ from mri_family import (
     perturbed,
     pillar_voxels_wide,
     post_errors,
+    tilted,
 )
 
 MIN_PILLAR_VOXELS = 2.0
 LONE_SHORT_MM = (1.0, 2.5)      # --lone-short: the post's height range
 NEAR_SKIN_MM = (0.5, 2.0)       # --near-skin: the highest sphere's gap to the skin
-TILT_DEG = (0.0, 10.0)          # --tilted: the insert's axis off array axis 0
 SMALL_COARSE = {"first_mm": (6.0, 7.0), "spacing_mm": (0.9, 1.2), "noise": (0.05, 0.1)}   # --small-coarse
 ACCEPT = {"insert": 0.97, "inclusion": 0.93, "pillar": 0.80}
 
@@ -135,14 +135,6 @@ def near_skin(case):
     tall = up(case.pillar_height_mm[0], reach - wide)
     return dataclasses.replace(case, skin_gap_mm=gap, inclusion_mm=(wide, *case.inclusion_mm[1:]),
                                pillar_height_mm=(tall, *case.pillar_height_mm[1:]))
-
-
-def tilted(case):
-    """``case`` with the insert's axis tilted off array axis 0 by 0-10 degrees about an in-plane axis at any
-    azimuth (seeded by the case)."""
-    rng = np.random.default_rng([50, case.seed])
-    return dataclasses.replace(case, tilt_deg=float(np.round(rng.uniform(*TILT_DEG), 2)),
-                               tilt_azimuth_deg=float(np.round(rng.uniform(0.0, 360.0), 1)))
 
 
 def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lone: bool = False,

@@ -291,6 +291,7 @@ RANGES = {
     "pillar_mm": (1.5, 4.0), "pillar_height_mm": (1.0, 15.0), "inclusion_mm": (6.0, 16.0), "noise": (0.02, 0.1),
     "bias": (0.1, 0.4), "spacing_mm": (0.4, 1.2),
 }
+TILT_DEG = (0.0, 10.0)          # `tilted`: the insert's axis off array axis 0, degrees
 
 
 def draw_case(seed: int) -> Case:
@@ -306,6 +307,14 @@ def draw_case(seed: int) -> Case:
                 base_up=bool(rng.random() < 0.5), silicone_brighter=bool(rng.random() < 0.5),
                 noise=float(np.round(rng.uniform(*RANGES["noise"]), 3)),
                 bias=float(np.round(rng.uniform(*RANGES["bias"]), 3)))
+
+
+def tilted(case: Case) -> Case:
+    """``case`` with the insert's axis tilted off array axis 0 by TILT_DEG about an in-plane axis at any azimuth
+    (seeded by the case)."""
+    rng = np.random.default_rng([50, case.seed])
+    return replace(case, tilt_deg=float(np.round(rng.uniform(*TILT_DEG), 2)),
+                   tilt_azimuth_deg=float(np.round(rng.uniform(0.0, 360.0), 1)))
 
 
 def perturbed(case: Case, radius_mm: float = 0.0, base_mm: float = 0.0, sphere_mm: float = 0.0) -> Case:

@@ -754,9 +754,27 @@ def test_a_piece_a_few_voxels_across_is_read_round_by_its_voxels_boxes():
     assert centres[0] > MAX_ELONGATION * centres[2]
     ball_mm = (0.75 * 45 * float(np.prod(spacing)) / math.pi) ** (1 / 3)     # a ball of 45 voxels' volume
     none = np.zeros_like(small)
-    np.testing.assert_array_equal(_round(small | post, none, ball_mm, spacing), small)
+    elongated = np.zeros_like(small)
+    np.testing.assert_array_equal(_round(small | post, none, ball_mm, spacing, elongated), small)
+    np.testing.assert_array_equal(elongated, post)      # the post's piece, left out as elongated
     assert not _round(small, small, ball_mm, spacing).any()
     assert not _round(small, none, 1.3 * ball_mm, spacing).any()
+
+
+def test_an_elongated_piece_off_every_bodys_axis_is_told_and_one_under_a_body_is_not():
+    """`_unexplained`: of the elongated pieces `_round` leaves out, the one beside an inclusion (laterally
+    beyond its equal-volume radius) is reported by its centre; the one under it, along the insert axis (its
+    post's), is not."""
+    from lesscli.mri.morphology import _unexplained
+
+    spacing = np.array([1.0, 1.0, 1.0])
+    bodies, elongated = np.zeros((30, 30, 30), dtype=bool), np.zeros((30, 30, 30), dtype=bool)
+    bodies[10:16, 10:16, 10:16] = True                  # 216 mm^3: equal-volume radius 3.7 mm
+    elongated[19:25, 12:14, 12:14] = True               # under it: centre 0.5 mm off its axis
+    elongated[11:15, 11:14, 21:24] = True               # beside it: 9.5 mm off
+    axis = np.array([1.0, 0.0, 0.0])
+    (centre,) = _unexplained(elongated, bodies, axis, spacing)
+    np.testing.assert_allclose(centre, [12.5, 12.0, 22.0])
 
 
 def test_a_balls_fit_leaves_out_the_blur_of_its_post():
