@@ -174,18 +174,20 @@ def _unexplained(elongated: np.ndarray, bodies: np.ndarray, axis: np.ndarray, sp
     the centre indices of those off the axis of every body kept (laterally beyond its equal-volume radius
     from its centre): no piece of a body's post, no skin's corner, so perhaps a small inclusion the noise
     left too ragged to read as round (:func:`split_silicone` leaves out those past the base's surface)."""
+    held = _centres_radii(bodies, spacing)[1]
+    return [c / spacing for c, _r in _centres_radii(elongated, spacing)[1]
+            if all(_lateral(c - centre, axis) >= r for centre, r in held)]
+
+
+def _centres_radii(mask: np.ndarray, spacing: np.ndarray) -> tuple[np.ndarray, list]:
+    """The components of ``mask`` labelled, and each one's (centre in mm, equal-volume radius in mm)."""
     from scipy import ndimage
 
-    def centres_radii(mask):
-        labels, n = ndimage.label(mask)
-        index = np.arange(1, n + 1)
-        volumes = ndimage.sum_labels(mask, labels, index) * float(np.prod(spacing))
-        return (np.asarray(ndimage.center_of_mass(mask, labels, index)).reshape(-1, 3),
-                (0.75 * volumes / math.pi) ** (1.0 / 3.0))
-
-    held, radii = centres_radii(bodies)
-    return [c for c in centres_radii(elongated)[0]
-            if all(_lateral((c - centre) * spacing, axis) >= r for centre, r in zip(held, radii))]
+    labels, n = ndimage.label(mask)
+    index = np.arange(1, n + 1)
+    volumes = ndimage.sum_labels(mask, labels, index) * float(np.prod(spacing))
+    centres = np.asarray(ndimage.center_of_mass(mask, labels, index)).reshape(-1, 3) * spacing
+    return labels, list(zip(centres, (0.75 * volumes / math.pi) ** (1.0 / 3.0)))
 
 
 def _off_axis(pieces: np.ndarray, bodies: np.ndarray, axis: np.ndarray, spacing: np.ndarray) -> np.ndarray:
@@ -198,18 +200,9 @@ def _off_axis(pieces: np.ndarray, bodies: np.ndarray, axis: np.ndarray, spacing:
     (:func:`_round`), pieces of a 4 mm post under its inclusion to more than half, and the foot of a 2.5 mm
     post on the base, under a 15.3 mm inclusion, to 1.01 of it.
     """
-    from scipy import ndimage
-
-    def centres_radii(mask):
-        labels, n = ndimage.label(mask)
-        index = np.arange(1, n + 1)
-        volumes = ndimage.sum_labels(mask, labels, index) * float(np.prod(spacing))
-        centres = np.asarray(ndimage.center_of_mass(mask, labels, index)).reshape(-1, 3) * spacing
-        return labels, list(zip(centres, (0.75 * volumes / math.pi) ** (1.0 / 3.0)))
-
     out = np.zeros(pieces.shape, dtype=bool)
-    held = centres_radii(bodies)[1]
-    labels, found = centres_radii(pieces)
+    held = _centres_radii(bodies, spacing)[1]
+    labels, found = _centres_radii(pieces, spacing)
     for i in np.argsort([-r for _c, r in found]):
         centre, radius = found[i]
         if all(_lateral(centre - c, axis) >= min(radius, r) for c, r in held):
@@ -505,7 +498,6 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     offset = np.array([b.start for b in box]) - 1              # padded crop -> input voxel index
     inc_ids, n_inclusions = ndimage.label(bodies)
     warnings = [] if n_inclusions else ["no inclusion found"]
-    # rare, as the pieces are
     lost = _unexplained(_in_filling(elongated, sil, ins, spacing), bodies, axis, spacing) if elongated.any() else []
     deep = ins & (depth > shell_mm)
     pillar, missing, base, posts, run_on = find_pillars(frac, ins, inc_ids, n_inclusions, spacing,

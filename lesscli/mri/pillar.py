@@ -601,12 +601,12 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
     reach = math.ceil(2.0 * sigma / step_mm)
     at, ring_t, ring_level = [], [], []
     first, last = (int(_slab(col, sign, t, step_mm)) for t in (start_mm, end_mm))
-    half = _slab(col, sign, st, 0.5 * step_mm)
+    half, ring_free = _slab(col, sign, st, 0.5 * step_mm), ring & col.free
     for k in range(first - reach, last + reach + 1):
-        if ((slab == k) & ring & col.free).any():
+        if (ring_free & (slab == k)).any():
             at.append(np.flatnonzero((slab == k) & core & col.inside & ~col.other))
         for h in (2 * k - 1, 2 * k):
-            background = (half == h) & ring & col.free
+            background = ring_free & (half == h)
             if background.any():
                 ring_t.append(float(np.median(st[background])))
                 ring_level.append(_ring_level(value[background]))
