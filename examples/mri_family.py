@@ -21,7 +21,7 @@ drawn or an inclusion lacks its "no pillar found" warning (each case row has ``p
 
 ``--lone-short`` draws each seed's volume with its first inclusion alone, on a post 1-2.5 mm tall: the
 posts whose radius is fitted to all their silicone, below the blurred ball (no other post to pool with);
-the footer gives their diameter error. `lesscli.mri.pillar.CAP_SHUT_VOXELS` was chosen on seeds
+the footer gives their diameter error. `lesscli.mri.ball.CAP_SHUT_VOXELS` was chosen on seeds
 900-939 of it (box partial volume).
 
 ``--near-skin`` draws each seed's volume with its highest sphere 0.5-2 mm under the skin (the family's

@@ -23,26 +23,19 @@ in millimetres whatever the voxel shape.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
-from lesscli.mri.pillar import MAD_TO_SIGMA, find_pillars
+from lesscli.mri.ball import RIM_VOXELS, fitted_ball
+from lesscli.mri.pillar import find_pillars
 
 SHELL_VOXELS = 1.5              # shell thickness along the insert surface, in (largest) voxels
-RIM_VOXELS = 1.0                # an inclusion's image surface moves at most this far from the opening, in (largest) voxels
 JUNCTION_STEPS = 4
-LEVEL_VOXELS = (2.0, 4.0)       # the filling's level is measured this far outside an inclusion, in voxels
 SMALL_BALL = 0.8                # a second, smaller ball for small inclusions (of the main ball's radius)
 MAX_ELONGATION = 1.5            # ... kept where round: largest over smallest principal spread
 BALL_MARGIN_VOXELS = 0.25       # the opening ball's radius exceeds the thickest pillar's by this
 BOUNDARY_VOXELS = (1.0, 2.5)    # the layer around a body in which its surroundings are measured
 MAX_BOUNDARY_SILICONE = 0.3     # an inclusion lies in the filling; more silicone around: a pillar's foot, a corner
-PROFILE_VOXELS = 2.0            # the blurred-ball profile is fitted to the voxels this close to a body, in voxels
-PROFILE_SHIFT_VOXELS = 1.0      # ... its centre within this of the body's centroid
-PROFILE_RADIUS = (0.5, 1.5)     # ... its radius within these factors of the body's equal-volume radius
-PROFILE_SIGMA_VOXELS = (0.1, 3.0)   # ... its blur within these, in voxels
-PROFILE_CONTRAST = (0.5, 2.0)   # ... its contrast within these factors of the interior's over the filling
 BALL_MISFIT = 1.25              # an inclusion whose blurred ball fits its voxels this close to the noise is that ball
 BLUR_VOXELS = 1.0               # ... the fit leaves out the voxels this close to a post or the base, in voxels
 
@@ -282,128 +275,6 @@ def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray
                        "ball_diameter_mm": 2 * fit.radius_mm if fit.radius_mm > 0 else None,
                        "ball_misfit": fit.misfit if math.isfinite(fit.misfit) else None})
     return out, shapes
-
-
-@dataclass
-class Ball:
-    """A blurred ball fitted to a body: ``centre_mm`` (array-axis mm), ``radius_mm``, ``sigma_mm`` (blur),
-    ``contrast`` over ``filling`` (fraction units); ``level`` the surface level; ``box`` and ``near`` the
-    region (within the rim of the body) where the surface is re-thresholded, on a grid of ``spacing_mm``;
-    ``misfit`` the root-mean-square residual of the fit over the scan's noise (the robust spread of the
-    filling around it): about 1 where a ball is all the voxels show, inf where no fit was made."""
-
-    centre_mm: np.ndarray
-    radius_mm: float
-    sigma_mm: float
-    contrast: float
-    filling: float
-    level: float
-    box: tuple
-    near: np.ndarray
-    spacing_mm: np.ndarray
-    misfit: float = math.inf
-
-    def inside(self) -> np.ndarray:
-        """(``near``'s shape) bool: the voxels of ``box`` whose centres lie in the ball."""
-        origin = np.array([b.start for b in self.box], dtype=np.float64) * self.spacing_mm
-        axes = [(np.arange(n) * s + o - c) ** 2
-                for n, s, o, c in zip(self.near.shape, self.spacing_mm, origin, self.centre_mm)]
-        return axes[0][:, None, None] + axes[1][None, :, None] + axes[2][None, None, :] <= self.radius_mm ** 2
-
-    def excess(self, points_mm: np.ndarray) -> np.ndarray:
-        """The ball's blurred silicone over the filling at ``points_mm`` (n, 3)."""
-        r = np.linalg.norm(points_mm - self.centre_mm, axis=1)
-        return self.contrast * ball_profile(r, self.radius_mm, self.sigma_mm)
-
-    def shell(self, points_mm: np.ndarray) -> np.ndarray:
-        """How much :meth:`excess` grows at ``points_mm`` (n, 3) per millimetre of radius: the blur's normal
-        summed over the ball's surface, ``R / (r sigma sqrt(2 pi)) (exp(-(R - r)^2 / 2 sigma^2) - exp(-(R +
-        r)^2 / 2 sigma^2))`` times the contrast."""
-        r = np.maximum(np.linalg.norm(points_mm - self.centre_mm, axis=1), 1e-6 * self.radius_mm)
-        s2 = 2.0 * self.sigma_mm ** 2
-        return self.contrast * self.radius_mm / (r * self.sigma_mm * math.sqrt(2.0 * math.pi)) * (
-            np.exp(-(self.radius_mm - r) ** 2 / s2) - np.exp(-(self.radius_mm + r) ** 2 / s2))
-
-
-def fitted_ball(own_full: np.ndarray, fraction: np.ndarray, allowed: np.ndarray, spacing: np.ndarray,
-                sl: tuple, reach_mm: float, unfitted: np.ndarray | None = None) -> Ball | None:
-    """The blurred ball of one body (``own_full``, bounding slices ``sl``) fitted in ``allowed`` voxels
-    (:func:`_fit_ball`); None where no filling surrounds it. ``unfitted``: voxels left out of the fit and
-    of its misfit (silicone that is not the ball's: the base), where the ball may still be drawn."""
-    from scipy import ndimage
-
-    voxel = float(spacing.max())
-    pad = int(np.ceil(LEVEL_VOXELS[1] * voxel / float(spacing.min()))) + 1
-    box = tuple(slice(max(a.start - pad, 0), a.stop + pad) for a in sl)
-    own, frac = own_full[box], fraction[box]
-    outside = ndimage.distance_transform_edt(~own, sampling=spacing)
-    inside = ndimage.distance_transform_edt(own, sampling=spacing)
-    interior = own & (inside > voxel) if (own & (inside > voxel)).any() else own
-    fitted = allowed[box] if unfitted is None else allowed[box] & ~unfitted[box]
-    ring = fitted & (outside > LEVEL_VOXELS[0] * voxel) & (outside <= LEVEL_VOXELS[1] * voxel)
-    if not ring.any():
-        return None
-    filling = float(np.median(frac[ring]))
-    level = 0.5 * (float(np.median(frac[interior])) + filling)
-    near = (outside <= PROFILE_VOXELS * voxel) & fitted
-    body = own | ((outside <= reach_mm) & allowed[box] & (frac > level))
-    origin = np.array([b.start for b in box], dtype=np.float64) * spacing
-    points = np.argwhere(near) * spacing
-    params = _fit_ball(frac[near], points, body, spacing, filling, 2 * (level - filling))
-    misfit = math.inf
-    if params is None:                               # no fit: the half-way level stands
-        centre, radius, sigma, contrast = origin + np.argwhere(own).mean(axis=0) * spacing, 0.0, 0.0, 0.0
-    else:
-        centre, radius, sigma, contrast = origin + params[:3], params[3], params[4], params[5]
-        level = filling + contrast * float(ball_profile(np.array([radius]), radius, sigma)[0])
-        model = filling + contrast * ball_profile(np.linalg.norm(points - params[:3], axis=1), radius, sigma)
-        noise = MAD_TO_SIGMA * float(np.median(np.abs(frac[ring] - filling)))
-        misfit = float(np.sqrt(np.mean((frac[near] - model) ** 2))) / max(noise, 1e-9)
-    return Ball(centre, float(radius), float(sigma), float(contrast), filling, level, box,
-                (outside <= reach_mm) & allowed[box], spacing, misfit)
-
-
-def ball_profile(r_mm: np.ndarray, radius_mm: float, sigma_mm: float) -> np.ndarray:
-    """A ball of ``radius_mm`` blurred by an isotropic Gaussian of ``sigma_mm``, at ``r_mm`` from its centre (0-1).
-
-    At the ball's surface this is ``1/2 - sigma / (R sqrt(2 pi))`` for sigma << R: the half-way level of a
-    flat boundary lies inside a curved one, by about ``sigma^2 / R``.
-    """
-    from scipy.special import erf
-
-    r = np.maximum(np.asarray(r_mm, dtype=np.float64), 1e-6 * radius_mm)
-    s = math.sqrt(2.0) * sigma_mm
-    a, b = (radius_mm - r) / s, (radius_mm + r) / s
-    return 0.5 * (erf(a) + erf(b)) - sigma_mm / (r * math.sqrt(2 * math.pi)) * (np.exp(-a * a) - np.exp(-b * b))
-
-
-def _fit_ball(values: np.ndarray, points_mm: np.ndarray, body: np.ndarray, spacing: np.ndarray,
-              filling: float, contrast: float) -> np.ndarray | None:
-    """(centre (3), radius, blur, contrast over ``filling``) of a blurred ball fitted by least squares to
-    ``values`` at ``points_mm`` (n, 3); None where too few values or no contrast.
-
-    A compact body blurred by the scan and the denoising reads below half its contrast at its surface
-    (:func:`ball_profile`), so the half-way level cuts a small inclusion too small; the blur is the
-    scan's own, read from the body's profile. ``body``: its voxels (start of the fit).
-    """
-    from scipy.optimize import least_squares
-
-    voxel = float(spacing.max())
-    centre = np.argwhere(body).mean(axis=0) * spacing
-    radius = (3.0 * float(body.sum()) * float(np.prod(spacing)) / (4 * math.pi)) ** (1 / 3)
-
-    def residuals(p):
-        r = np.linalg.norm(points_mm - p[:3], axis=1)
-        return filling + p[5] * ball_profile(r, p[3], p[4]) - values
-
-    lo = np.r_[centre - PROFILE_SHIFT_VOXELS * voxel, PROFILE_RADIUS[0] * radius, PROFILE_SIGMA_VOXELS[0] * voxel,
-               PROFILE_CONTRAST[0] * contrast]
-    hi = np.r_[centre + PROFILE_SHIFT_VOXELS * voxel, PROFILE_RADIUS[1] * radius, PROFILE_SIGMA_VOXELS[1] * voxel,
-               PROFILE_CONTRAST[1] * contrast]
-    if len(values) < len(lo) or contrast <= 0:
-        return None
-    start = np.clip(np.r_[centre, radius, 0.5 * voxel, contrast], lo, hi)
-    return least_squares(residuals, start, bounds=(lo, hi)).x
 
 
 def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray, shapes: list[dict]) -> np.ndarray:

@@ -27,7 +27,8 @@ import numpy as np
 
 from lesscli.errors import DataError
 from lesscli.io.labels import BACKGROUND, INCLUSION, INSERT, PILLAR
-from lesscli.mri.pillar import MAD_TO_SIGMA, BaseSurface, Post
+from lesscli.mri.column import MAD_TO_SIGMA
+from lesscli.mri.pillar import BaseSurface, Post
 
 NORM_PERCENTILE = 99.5
 MIN_SHAPE = 8                   # voxels per axis

@@ -331,7 +331,7 @@ def test_post_one_slice_tall_under_large_inclusions_leaves_them_balls(seed):
     With the bias field refitted clear of the tissues' boundaries the noise read around the 15 mm ball of
     seed 760 was no longer widened by the field's bend, and its misfit rose to 1.251 (image surface, pillar
     Dice 0.77); the post's own blurred silicone, read in the ball's cap and fitted with it, was the rest:
-    left out (the core from a voxel inside the body's end, `pillar.CAP_SHUT_VOXELS`), 1.226."""
+    left out (the core from a voxel inside the body's end, `ball.CAP_SHUT_VOXELS`), 1.226."""
     vol = generate(Case(seed=seed, spacing_mm=(1.03, 0.73, 0.73), inclusion_mm=(15.8, 15.0), pillar_mm=3.36,
                         pillar_height_mm=(1.1, 1.3), noise=0.035, bias=0.3))
     seg = segment(vol.image, vol.spacing_mm, where="short posts")
@@ -378,7 +378,7 @@ def test_a_lone_short_posts_diameter_holds_no_excess_from_the_balls_curve():
     With the bias field refitted clear of the tissues' boundaries they came out -0.052 mm on average (7 of
     8 thin; -0.17 mm for the 3 mm post 1.2 mm tall at 0.95 mm): the post's blurred silicone in the ball's
     cap drew the fitted ball 0.1 mm towards it, and the post's start with it. The ball's fit now leaves
-    the core out from a voxel inside the body's end (`pillar.CAP_SHUT_VOXELS`, chosen on 24 other lone
+    the core out from a voxel inside the body's end (`ball.CAP_SHUT_VOXELS`, chosen on 24 other lone
     short posts, seeds 900-923): -0.020 mm."""
     errors = []
     for k, (voxel, post, tall) in enumerate(LONE_SHORT_POSTS):
@@ -396,7 +396,7 @@ ALL_SHORT_POSTS = [(post, talls) for post in (2.0, 3.0) for talls in ((1.2, 2.0)
 
 def test_posts_all_short_are_drawn_from_their_fits_not_their_own_slabs():
     """No noise, bias 0.1, 0.95 mm isotropic voxels: two or three inclusions (8-10 mm), each on a post 2 or
-    3 mm wide and 1-2.5 mm tall, none measured over `pillar.MIN_OWN_SLABS` slabs: every post is drawn
+    3 mm wide and 1-2.5 mm tall, none measured over `section.MIN_OWN_SLABS` slabs: every post is drawn
     within 0.05 mm of its diameter.
 
     The posts of such a scan took the median cross-section of their own few slabs, pooled; the blur
@@ -542,7 +542,7 @@ def test_a_sphere_just_under_the_skin_keeps_its_post_on_the_base_side():
     1.15-1.2 mm along the axis, base down and up. The short gap to the skin holds no voxel, or one that the
     skin's and the sphere's blur fill, and it was taken for the side of the post: in 7 of these 8 scans
     the post under the sphere was lost (Dice 0, with a warning in 3). A significant post at least
-    `pillar.CLEAR_POST_RADIUS_MM` wide on the other side now decides."""
+    `section.CLEAR_POST_RADIUS_MM` wide on the other side now decides."""
     for k, (spacing, gap, up) in enumerate(SKIN_GAP_CASES):
         vol = generate(Case(seed=680 + k, spacing_mm=spacing, inclusion_mm=(12.0,), pillar_mm=3.0,
                             pillar_height_mm=(10.0,), skin_gap_mm=gap, base_up=up, noise=0.05, bias=0.25))
@@ -704,7 +704,7 @@ def test_a_floating_sphere_just_under_the_skin_gets_no_post(seed):
     the ball taken out as fitted (its fit leaves out that cap), what was left there read as a post of
     0.50-0.71 mm, over MIN_RADIUS_MM, and 1-6 voxels were drawn in place of a warning. The post's radius is
     now fitted with the ball's, and a post too short to measure on its own slabs must show one so fitted
-    before it takes the scan's pooled radius (`pillar._post_radius`, `pillar._pooled_radii`). Under 86's and
+    before it takes the scan's pooled radius (`section._post_radius`, `section._pooled_radii`). Under 86's and
     1019's spheres a trace of noise 10-17 mm long read a disc of 0.48 and 0.26 mm on its slabs and a cylinder
     over 0.5 mm fitted to them, and 10-11 voxels were drawn: a post must show MIN_RADIUS_MM both ways."""
     vol = generate(FLOATING_UNDER_SKIN[seed])
@@ -905,7 +905,7 @@ def test_box_partial_volume_leaves_a_flat_surface_near_a_voxel_centre_undecided(
 @pytest.mark.parametrize("voxel_mm, radius_mm", [(0.8, 0.75), (1.1, 0.75), (1.1, 1.5)])
 def test_the_ramp_draws_a_post_as_a_wider_one_the_scan_cannot_tell_apart(voxel_mm, radius_mm):
     """The family's generator itself: a vertical post under each partial volume and the generator's blur, with
-    no noise, fitted by the segmenter's own model (`pillar.fit_blurred_cylinder`, the blurred disc it draws
+    no noise, fitted by the segmenter's own model (`cylinder.fit_blurred_cylinder`, the blurred disc it draws
     posts by). Under the box the fit finds the post's radius; under the ramp, whose fill adds silicone around
     a curved surface, one wider by about voxel^2 / (24 radius), and the profile fits that wider disc as
     closely as the box's fits the true one, far inside the family's least noise (0.02 of the brighter
@@ -914,7 +914,7 @@ def test_the_ramp_draws_a_post_as_a_wider_one_the_scan_cannot_tell_apart(voxel_m
     import mri_family
     from scipy import ndimage
 
-    from lesscli.mri.pillar import _cylinder_misfit, fit_blurred_cylinder
+    from lesscli.mri.cylinder import _cylinder_misfit, fit_blurred_cylinder
 
     spacing = np.array([voxel_mm, voxel_mm, 1.0])
     n, offset = 15, np.array([0.23, -0.31]) * voxel_mm      # the post's axis off the voxel centres
@@ -996,7 +996,7 @@ def test_family_script_rows_and_footer(tmp_path):
 
 
 def test_family_script_lone_short(tmp_path):
-    """`examples/mri_family.py --lone-short` (the set `pillar.CAP_SHUT_VOXELS` was chosen on): the case's first
+    """`examples/mri_family.py --lone-short` (the set `ball.CAP_SHUT_VOXELS` was chosen on): the case's first
     inclusion alone on a post 1-2.5 mm tall, and the footer's diameter error of the posts found."""
     import subprocess
     import sys

@@ -291,7 +291,7 @@ def test_disc_profile_keeps_the_area_and_matches_a_blurred_drawn_disc():
     """The blurred disc integrates to its area and equals a disc drawn at 1/20 mm and blurred."""
     from scipy import ndimage
 
-    from lesscli.mri.pillar import disc_profile
+    from lesscli.mri.cylinder import disc_profile
 
     rho = np.linspace(0.0, 8.0, 4001)
     for radius, sigma in [(0.8, 0.8), (1.5, 0.4), (3.0, 1.0)]:
@@ -312,7 +312,7 @@ def test_cylinder_fit_reads_the_blur_across_the_post(radius, blur, start):
     where the slices are thicker or thinner than the in-plane voxels): the radius within 1 % wherever the
     axis lies within a voxel, and the blur that of the blur and the voxel together. Held at its start the
     blur puts the radius 2-12 % off."""
-    from lesscli.mri.pillar import disc_profile, fit_blurred_cylinder
+    from lesscli.mri.cylinder import disc_profile, fit_blurred_cylinder
 
     voxel, slabs = 0.8, 6
     grid = (np.arange(9) - 4) * voxel
@@ -341,7 +341,7 @@ def test_a_post_is_held_on_its_inclusions_axis_unless_its_own_line_fits_better(s
     is kept (nearer the post than the axis at mid-height, not tilted); tilted by 0.15 (8.5 degrees), its own
     tilted line, within 0.25 mm of the post at both ends (the best straight one is 0.375 mm off at
     them); without an axis it is always its own."""
-    from lesscli.mri.pillar import disc_profile, own_or_centred
+    from lesscli.mri.cylinder import disc_profile, own_or_centred
 
     voxel, slabs, radius, blur = 0.8, 6, 1.0, 0.5
     grid = (np.arange(9) - 4) * voxel
@@ -378,7 +378,7 @@ def test_the_own_line_tests_read_denoised_noise_at_their_level():
     the smoothed noise as white (each statistic about 2.5 times too large)."""
     from scipy import ndimage
 
-    from lesscli.mri.pillar import disc_profile, own_or_centred
+    from lesscli.mri.cylinder import disc_profile, own_or_centred
 
     voxel, slabs, radius, blur, smoothing, draws = 0.8, 8, 1.0, 0.6, 0.6, 40
     grid = (np.arange(9) - 4) * voxel
@@ -408,15 +408,10 @@ def test_a_thin_posts_significance_is_read_in_a_narrow_core_too():
     300 noise draws. The narrow core reads the same cross-section (means within 10 %) with at most 0.75 of
     the wide core's scatter, and either core passes the test at least 0.15 more often than the wide one alone;
     without the post, either passes in at most 5 % of the draws."""
-    from lesscli.mri.pillar import (
-        CORE_MARGIN_VOXELS,
-        RING_GAP_VOXELS,
-        RING_WIDTH_MM,
-        _column,
-        _inner,
-        _pooled_scatter,
-        _trace,
-    )
+    from lesscli.mri.column import _column
+    from lesscli.mri.pillar import CORE_MARGIN_VOXELS, RING_GAP_VOXELS, RING_WIDTH_MM
+    from lesscli.mri.section import _inner
+    from lesscli.mri.trace import _pooled_scatter, _trace
 
     spacing, widest, rng = np.array([1.0, 0.8, 0.8]), 4.5, np.random.default_rng(43)
     centre = np.array([14.0, 24.16, 23.76])                   # the ball of `_post_under_ball`, 5 mm over the base
@@ -502,8 +497,9 @@ def test_a_short_posts_radius_is_measured_on_the_line_it_is_drawn_on(shift_voxel
     taken as 0.55 mm): fitted on the line through the ball's centre (`_ball_axis`, where the post is drawn),
     the radius is the same within 0.03 mm whether the column around the inclusion is centred on the ball or
     0.8 mm off it (the body mask's centre, which a post's stub moves), and within 0.1 mm of the truth."""
-    from lesscli.mri.morphology import Ball
-    from lesscli.mri.pillar import _ball_axis, _ball_surface, _column, _post_radius
+    from lesscli.mri.ball import Ball
+    from lesscli.mri.column import _ball_axis, _ball_surface, _column
+    from lesscli.mri.section import _post_radius
 
     spacing, gap, axis = np.array([1.1, 0.8, 0.8]), 1.2, np.array([1.0, 0.0, 0.0])
     fraction, insert, _post = _post_under_ball(spacing, 1.5, gap, shift_voxels, 0.05, 3)
@@ -529,8 +525,9 @@ def test_a_short_posts_radius_holds_where_a_slice_lies_on_the_inclusions_surface
     surface, their edges fell on the planes, and rounding or a tilt of hundredths of a degree split a slice
     between two slabs, each slab's ring level read between two slices: 1.749, 1.348 and 1.343 mm (the family's
     held-out box 7186 drew its 2.04 mm post 0.44 mm narrow so)."""
-    from lesscli.mri.morphology import Ball
-    from lesscli.mri.pillar import _ball_axis, _ball_surface, _column, _post_radius
+    from lesscli.mri.ball import Ball
+    from lesscli.mri.column import _ball_axis, _ball_surface, _column
+    from lesscli.mri.section import _post_radius
 
     spacing, gap = np.array([1.1, 0.8, 0.8]), 1.5
     fraction, insert, _post = _post_under_ball(spacing, 1.5, gap, (0.14, -0.23), 0.05, 3)
@@ -551,7 +548,7 @@ def test_a_short_posts_radius_holds_where_a_slice_lies_on_the_inclusions_surface
 def test_a_balls_shell_is_its_excess_per_millimetre_of_radius():
     """`Ball.shell` is the derivative of `Ball.excess` with respect to the radius (central difference), inside,
     at and beyond the surface."""
-    from lesscli.mri.morphology import Ball
+    from lesscli.mri.ball import Ball
 
     spacing, h = np.array([1.1, 0.8, 0.8]), 1e-5
     points = np.array([[5.0, 0.0, 0.0]]) + np.linspace(0.0, 12.0, 25)[:, None] * np.array([[0.6, 0.8, 0.0]])
@@ -576,8 +573,10 @@ def test_a_gap_under_a_ball_fitted_a_little_off_holds_no_post_and_a_thin_post_st
     rounding split that slice between two slabs and the empty gap read a post of 1.47 mm. Taking the ball
     out as fitted (its radius not fitted again with the post), the gap of 0.5 mm read posts of 0.51 and 0.65
     mm for the ball 0.05 and 0.1 mm short, and the thin post up to 0.97 mm."""
-    from lesscli.mri.morphology import Ball
-    from lesscli.mri.pillar import MIN_RADIUS_MM, _ball_axis, _ball_surface, _column, _post_radius
+    from lesscli.mri.ball import Ball
+    from lesscli.mri.column import _ball_axis, _ball_surface, _column
+    from lesscli.mri.section import _post_radius
+    from lesscli.mri.trace import MIN_RADIUS_MM
 
     spacing, axis = np.array([1.1, 0.8, 0.8]), np.array([1.0, 0.0, 0.0])
     centre = np.array([4.0 + gap + 5.0, 24.0 + 0.2 * spacing[1], 24.0 - 0.1 * spacing[2]])
@@ -596,7 +595,8 @@ def test_silicone_across_a_short_gap_wider_than_the_widest_pillar_is_no_post():
     """`_gap_radius` across a 1.2 mm gap under a 10 mm ball (no other post in the scan): a 3 mm post reads a
     radius within 0.3 mm of its 1.5; a 6.4 mm column of silicone there (the base's or the inclusion's, as a
     misplaced base surface takes in) is no post where the widest pillar is 4.5 mm, and is one where 8 mm."""
-    from lesscli.mri.pillar import _column, _gap_radius
+    from lesscli.mri.column import _column
+    from lesscli.mri.section import _gap_radius
 
     spacing, gap, axis = np.array([1.1, 0.8, 0.8]), 1.2, np.array([1.0, 0.0, 0.0])
     for radius, widest, expect in [(1.5, 4.5, 1.5), (3.2, 4.5, None), (3.2, 8.0, 3.2)]:
@@ -622,7 +622,7 @@ def test_the_base_surface_is_fitted_through_a_thin_base_and_what_lies_beyond_it(
     misplaces a crossing half-way to it) with a spread under 0.08 mm."""
     from scipy.special import ndtr
 
-    from lesscli.mri.pillar import _profile_crossing
+    from lesscli.mri.trace import _profile_crossing
 
     step, blur, surface, thickness = 1.1, 0.6, 10.0 + phase * 1.1, 3.0
     t = np.arange(5.0, 17.0, step)
@@ -645,7 +645,7 @@ def test_ring_level_leaves_out_the_skin_a_ring_passes_through(silicone_share):
     (silicone, level 1; a post 5 mm from the skin puts up to about a fifth of its ring there) reads the
     hydrogel's level within four standard errors of a median (0.05), where a plain median moves up by a
     third of the noise at a quarter's share; a ring all at one partial-volume level reads that level."""
-    from lesscli.mri.pillar import _ring_level
+    from lesscli.mri.column import _ring_level
 
     rng = np.random.default_rng(5)
     n = 600
@@ -691,7 +691,7 @@ def test_a_posts_significance_reads_the_slab_scatter_of_all_the_scans_traces():
     was left out): with the scatter of all the traces' slabs the post is found in at least 85 % of the draws,
     at least 0.2 more often than on its own slabs, and a 3-slab trace of noise passes in at most 1.5 %
     (no more often than on its own slabs); the pooled scatter is the noise's within 15 %."""
-    from lesscli.mri.pillar import Trace, _pooled_scatter
+    from lesscli.mri.trace import Trace, _pooled_scatter
 
     def trace(areas):
         n = len(areas)
