@@ -317,6 +317,39 @@ def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray, shap
     return out
 
 
+def _bodies(sil: np.ndarray, ins: np.ndarray, deep: np.ndarray, radius_mm: float,
+            spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The inclusions' bodies in the silicone ``sil`` of the insert ``ins`` (both padded crops), from its
+    voxels ``deep`` inside the insert: what an opening by a ball of ``radius_mm`` keeps in the filling, and
+    the round pieces of one by a smaller ball off the axis of every body found so.
+
+    Returns:
+        (bodies, the pieces the smaller ball kept that read elongated (:func:`_round`), the insert axis).
+    """
+    core = _without_pinholes(sil & deep, spacing)
+    opened = _opened(core, radius_mm, spacing)
+    elongated = np.zeros(core.shape, dtype=bool)
+    pieces = _round(_opened(core, SMALL_BALL * radius_mm, spacing), opened, radius_mm, spacing, elongated)
+    bodies = _in_filling(opened, sil, ins, spacing)
+    axis = insert_axis(ins, spacing)
+    if pieces.any():                                        # rare: labelling every scan's bodies costs
+        bodies |= _off_axis(_in_filling(pieces, sil, ins, spacing), bodies, axis, spacing)
+    return bodies, elongated, axis
+
+
+def _left_out(pillar: np.ndarray, bodies: np.ndarray, base, blur_mm: float,
+              spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """What an inclusion's ball fit leaves out: the voxels within ``blur_mm`` of a post (outside the bodies)
+    or on the filling's side of the base's surface (:class:`lesscli.mri.pillar.BaseSurface`, None without a
+    post); and the voxels past that surface, in the base (None without one)."""
+    blurred = _rim(pillar, blur_mm, spacing) & ~bodies
+    if base is None:
+        return blurred, None
+    past = base.past_mm(spacing, pillar.shape)
+    beyond = past > 0
+    return blurred | ((past > -blur_mm) & ~beyond), beyond
+
+
 def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_max_diameter_mm: float,
                    skin_max_thickness_mm: float, fraction: np.ndarray | None = None,
                    inclusion_shape: str = "auto",
@@ -355,17 +388,10 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     voxel_mm = float(spacing.max())
     shell_mm = SHELL_VOXELS * voxel_mm
     depth = ndimage.distance_transform_edt(ins, sampling=spacing)
-    core = _without_pinholes(sil & (depth > shell_mm), spacing)
     fine_mm = float(np.prod(spacing)) ** (1.0 / 3.0)        # mean voxel size (anisotropic grids)
     radius_mm = 0.5 * max(pillar_max_diameter_mm, skin_max_thickness_mm) + BALL_MARGIN_VOXELS * fine_mm
-    opened = _opened(core, radius_mm, spacing)
-    elongated = np.zeros(core.shape, dtype=bool)
-    pieces = _round(_opened(core, SMALL_BALL * radius_mm, spacing), opened, radius_mm, spacing, elongated)
+    bodies, elongated, axis = _bodies(sil, ins, depth > shell_mm, radius_mm, spacing)
     frac = np.pad(fraction[box], 1) if fraction is not None else sil.astype(np.float32)
-    bodies = _in_filling(opened, sil, ins, spacing)
-    axis = insert_axis(ins, spacing)
-    if pieces.any():                                        # rare: labelling every scan's bodies costs
-        bodies |= _off_axis(_in_filling(pieces, sil, ins, spacing), bodies, axis, spacing)
     offset = np.array([b.start for b in box]) - 1              # padded crop -> input voxel index
     inc_ids, n_inclusions = ndimage.label(bodies)
     warnings = [] if n_inclusions else ["no inclusion found"]
@@ -374,12 +400,8 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     pillar, missing, base, posts, run_on = find_pillars(frac, ins, inc_ids, n_inclusions, spacing,
                                                         axis, pillar_max_diameter_mm, deep,
                                                         pillar_diameter_mm, smoothing)
-    blurred = _rim(pillar, BLUR_VOXELS * voxel_mm, spacing) & ~bodies
-    beyond = None
-    if base is not None:
-        past = base.past_mm(spacing, ins.shape)
-        beyond = past > 0
-        blurred |= (past > -BLUR_VOXELS * voxel_mm) & ~beyond
+    blurred, beyond = _left_out(pillar, bodies, base, BLUR_VOXELS * voxel_mm, spacing)
+    if beyond is not None:
         lost = [c for c in lost if not beyond[tuple(np.round(c).astype(int))]]     # the base's, not the filling's
     for centre in lost:
         warnings.append(f"silicone in the filling near voxel {np.round(centre + offset).astype(int).tolist()} "
