@@ -166,7 +166,8 @@ def _unexplained(elongated: np.ndarray, bodies: np.ndarray, axis: np.ndarray, sp
     """Of the elongated components :func:`_round` left out that lie in the filling (:func:`_in_filling`),
     the centre indices of those off the axis of every body kept (laterally beyond its equal-volume radius
     from its centre): no piece of a body's post, no skin's corner, so perhaps a small inclusion the noise
-    left too ragged to read as round (:func:`split_silicone` leaves out those past the base's surface)."""
+    left too ragged to read as round (:func:`split_silicone` leaves out those past the base's surface, and those
+    within the thickest skin of the insert's outer surface: a base without posts has no surface found)."""
     held = _centres_radii(bodies, spacing)[1]
     return [c / spacing for c, _r in _centres_radii(elongated, spacing)[1]
             if all(_lateral(c - centre, axis) >= r for centre, r in held)]
@@ -401,9 +402,11 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
                                                         axis, pillar_max_diameter_mm, deep,
                                                         pillar_diameter_mm, smoothing)
     blurred, beyond = _left_out(pillar, bodies, base, BLUR_VOXELS * voxel_mm, spacing)
-    if beyond is not None:
-        lost = [c for c in lost if not beyond[tuple(np.round(c).astype(int))]]     # the base's, not the filling's
     for centre in lost:
+        at = tuple(np.round(centre).astype(int))
+        if depth[at] <= skin_max_thickness_mm + voxel_mm or (beyond is not None and beyond[at]):
+            continue        # within a skin's thickness of the outer surface (and the voxel that places it), or
+                            # past the base's surface: the skin's or the base's silicone, not the filling's
         warnings.append(f"silicone in the filling near voxel {np.round(centre + offset).astype(int).tolist()} "
                         "holds a small inclusion's volume but is not round: not labelled an inclusion")
     inclusion, shapes = _local_surface(bodies & ~run_on, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm,
