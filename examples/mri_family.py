@@ -41,6 +41,9 @@ sphere that much wider and narrower about its centre, against the truth as drawn
 volumes that alone takes below the pillar target: how close to its knife edge the target puts each
 volume.
 
+``--rows a.jsonl,b.jsonl`` segments nothing either: it prints the band table and footer of rows written
+before with ``--out``, the files joined (the README's table over the 700, from the runs of its halves).
+
     python examples/mri_family.py --seeds 1000-1059 --out results/mri_family.jsonl
     python examples/mri_family.py --seeds 1000-1059 --partial-volume box
     python examples/mri_family.py --seeds 5081,3017 --partial-volume box --box-points 24
@@ -49,6 +52,7 @@ volume.
     python examples/mri_family.py --seeds 0-99 --partial-volume box --near-skin
     python examples/mri_family.py --seeds 1000-1099 --partial-volume box --tilted
     python examples/mri_family.py --seeds 1000-1059 --known-diameter
+    python examples/mri_family.py --rows box-a.jsonl,box-b.jsonl
 """
 
 from __future__ import annotations
@@ -312,7 +316,13 @@ def main() -> None:
     parser.add_argument("--margins", default=None,
                         help="perturbations of the truth, mm (e.g. 0.025,0.05,0.1): segment nothing, count the "
                              "volumes each takes below the pillar target")
+    parser.add_argument("--rows", default=None,
+                        help="rows written before with --out, comma-separated files joined: print their band table "
+                             "and footer, segment nothing")
     args = parser.parse_args()
+    if args.rows:
+        print(table(_read_rows(args.rows.split(","))))
+        return
     mri_family.BOX_POINTS = args.box_points
     rows = []
     if args.margins:
@@ -330,6 +340,22 @@ def main() -> None:
               file=sys.stderr, flush=True)
     _write(rows, args.out)
     print(table(rows))
+
+
+def _read_rows(paths: list[str]) -> list[dict]:
+    """The case and inclusion rows of ``paths`` (``--out`` files) joined; exits with one line naming a file that
+    cannot be read or holds no case row."""
+    rows = []
+    for path in paths:
+        try:
+            with open(path) as fh:
+                got = [json.loads(line) for line in fh if line.strip()]
+        except (OSError, ValueError) as exc:
+            sys.exit(f"mri_family.py: {path}: cannot read its rows ({exc})")
+        if not any(isinstance(r, dict) and r.get("row") == "case" for r in got):
+            sys.exit(f"mri_family.py: {path}: no case row (write it with --out, not --margins)")
+        rows += got
+    return rows
 
 
 def _write(rows: list[dict], path: str | None) -> None:

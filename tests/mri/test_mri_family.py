@@ -1008,6 +1008,13 @@ def test_family_script_rows_and_footer(tmp_path):
     assert all(0.0 <= r["dice_pillar_decided"] <= 1.0 for r in rows if r["row"] == "inclusion")
     assert 0.0 <= case["dice_insert_decided"] <= 1.0
     assert "Volumes meeting all three targets:" in proc.stdout and "of 1" in proc.stdout
+    again = subprocess.run([sys.executable, str(script), "--rows", str(tmp_path / "rows.jsonl")], capture_output=True,
+                           text=True, check=True)
+    assert again.stdout == proc.stdout          # --rows: the table of rows written before, nothing segmented
+    missing = subprocess.run([sys.executable, str(script), "--rows", f"{tmp_path / 'rows.jsonl'},{tmp_path / 'no'}"],
+                             check=False, capture_output=True, text=True)
+    assert missing.returncode == 1 and missing.stdout == ""
+    assert missing.stderr.count("\n") == 1 and str(tmp_path / "no") in missing.stderr
 
 
 def test_family_script_lone_short(tmp_path):
