@@ -35,6 +35,7 @@ from scipy import ndimage
 from lesscli.errors import DataError
 from lesscli.io.labels import INCLUSION, INSERT, LabelVolume
 from lesscli.metrics.masks import centroid_mm, confusion, f1_from, size_mm
+from lesscli.robust import robust_sigma
 from lesscli.sim.kinematics import pad_to_world
 
 MODEL = "forcemap"      # config["model"] of its checkpoints and meta["model"] of its predictions
@@ -44,7 +45,6 @@ GRID_MM = 0.5           # force-map cell size
 COVER_FRAC = 0.1        # covered: weight sum >= this fraction of one lone sample's peak weight
 CONTACT_FRAC = 0.75     # contact area: smoothed stiffness >= this fraction of the covered median
 SPREAD_FLOOR = 0.01     # robust spread never below this fraction of the median stiffness (flat maps)
-MAD_TO_SD = 1.4826      # median absolute deviation -> standard deviation of a normal
 EDGE_VOXELS = 0.5       # logistic scale of the sphere surface, in-plane voxels
 SIGMAS_MM = (1.5, 2.0, 3.0, 4.0)                      # smoothing widths tried by calibration
 THRESHOLDS = (1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.0)  # thresholds tried, robust spreads
@@ -173,7 +173,7 @@ def stiffness_map(touches: Touches, sigma_mm: float) -> StiffnessMap | None:
     v = v / taxel_gains(v / np.where(trend > 0, trend, np.inf), touches.taxel, inside & (trend > 0))
     residual = np.where(contact, _smooth(cells, v - _quadratic_fit(basis, v, inside), shape, sig)[0], 0.0)
     r = residual[contact]
-    spread = max(MAD_TO_SD * float(np.median(np.abs(r - np.median(r)))), SPREAD_FLOOR * level)
+    spread = max(robust_sigma(r), SPREAD_FLOOR * level)
     return StiffnessMap(lo, residual, contact, spread)
 
 

@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lesscli.mri.column import MAD_TO_SIGMA, _Column, _from_line, _own, _run_on
+from lesscli.mri.column import _Column, _from_line, _own, _run_on
+from lesscli.robust import robust_sigma
 
 RIM_VOXELS = 1.0                # an inclusion's image surface moves at most this far from the opening, in (largest) voxels
 LEVEL_VOXELS = (2.0, 4.0)       # the filling's level is measured this far outside an inclusion, in voxels
@@ -96,7 +97,7 @@ def fitted_ball(own_full: np.ndarray, fraction: np.ndarray, allowed: np.ndarray,
         centre, radius, sigma, contrast = origin + params[:3], params[3], params[4], params[5]
         level = filling + contrast * float(ball_profile(np.array([radius]), radius, sigma)[0])
         model = filling + contrast * ball_profile(np.linalg.norm(points - params[:3], axis=1), radius, sigma)
-        noise = MAD_TO_SIGMA * float(np.median(np.abs(frac[ring] - filling)))
+        noise = robust_sigma(frac[ring], filling)
         misfit = float(np.sqrt(np.mean((frac[near] - model) ** 2))) / max(noise, 1e-9)
     return Ball(centre, float(radius), float(sigma), float(contrast), filling, level, box,
                 (outside <= reach_mm) & allowed[box], spacing, misfit)

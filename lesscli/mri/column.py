@@ -8,14 +8,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from lesscli.robust import robust_sigma
+
 HALF = 0.5                      # ring level / insert coverage at the base surface
-
-MAD_TO_SIGMA = 1.4826
-
 OUTLIER_SIGMAS = 3.0            # a ring's voxels further than this from its median are other structures
-
 RING_LEVEL_ROUNDS = 5           # ... median and spread taken again over the rest, at most this often
-
 SCALE_EPS = 1e-3
 
 
@@ -110,7 +107,7 @@ def _ring_level(values: np.ndarray) -> float:
     kept = values
     for _ in range(RING_LEVEL_ROUNDS):
         level = float(np.median(kept))
-        spread = MAD_TO_SIGMA * float(np.median(np.abs(kept - level)))
+        spread = robust_sigma(kept, level)
         if spread <= 0:
             break
         near = np.abs(values - level) <= OUTLIER_SIGMAS * spread

@@ -12,11 +12,8 @@ from lesscli.mri.column import SCALE_EPS, _blur_mm, _clear_of_ball, _Column, _fr
 from lesscli.mri.trace import Trace
 
 MAX_TILT = math.tan(math.radians(30.0))
-
 BLUR_RANGE = (0.5, 2.0)         # a post's fitted blur, in units of the inclusion's it starts from
-
 SMOOTHING_TRUNCATE = 4.0        # the denoising's Gaussian, in its sigmas, as the F tests' correction reads it
-
 OWN_LINE_P = 0.01               # a post leaves its inclusion's axis where its own line fits better at this level
 
 

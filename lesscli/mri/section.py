@@ -15,11 +15,8 @@ from lesscli.mri.cylinder import disc_profile
 from lesscli.mri.trace import MIN_RADIUS_MM, Trace, _pooled_scatter
 
 SHORT_GAP_SLABS = 2.5           # a closer base leaves too few slabs to measure a cross-section
-
 GAP_AXIS_MM = 0.75              # the voxels this close to the line decide whether a short gap holds a post
-
 MIN_OWN_SLABS = 4               # fewer slabs take the cross-section pooled over the scan's pillars
-
 CLEAR_POST_RADIUS_MM = 0.7      # a significant post this wide (1.4 mm) outweighs a brief side of its inclusion
 
 

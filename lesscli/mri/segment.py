@@ -27,8 +27,8 @@ import numpy as np
 
 from lesscli.errors import DataError
 from lesscli.io.labels import BACKGROUND, INCLUSION, INSERT, PILLAR
-from lesscli.mri.column import MAD_TO_SIGMA
 from lesscli.mri.pillar import BaseSurface, Post
+from lesscli.robust import robust_sigma
 
 NORM_PERCENTILE = 99.5
 MIN_SHAPE = 8                   # voxels per axis
@@ -246,7 +246,7 @@ def _surface(corrected: np.ndarray, insert: np.ndarray, levels: tuple[float, flo
 
 def _check_contrast(corrected: np.ndarray, insert: np.ndarray, where: str) -> None:
     inside, outside = _sample(corrected[insert]), _sample(corrected[~insert])
-    spread = max(MAD_TO_SIGMA * float(np.median(np.abs(outside - np.median(outside)))), SPREAD_EPS)
+    spread = max(robust_sigma(outside), SPREAD_EPS)
     contrast = (float(np.median(inside)) - float(np.median(outside))) / spread
     if contrast < MIN_CONTRAST:
         raise DataError(f"{where}: no insert found (object/background contrast {contrast:.1f} is below "

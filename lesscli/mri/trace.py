@@ -12,7 +12,6 @@ import numpy as np
 
 from lesscli.mri.column import (
     HALF,
-    MAD_TO_SIGMA,
     SCALE_EPS,
     _ball_axis,
     _clear_of_ball,
@@ -23,27 +22,18 @@ from lesscli.mri.column import (
     _ring_level,
     _slab,
 )
+from lesscli.robust import MAD_TO_SIGMA
 
 MIN_RADIUS_MM = 0.5             # thinner posts are not told apart from noise
-
 NOISE_Z = 3.0                   # median cross-section over its standard error
-
 MEDIAN_SE = 1.2533              # standard error of a median / (sigma / sqrt(n)) for normal scatter
-
 BASE_PLATEAU_SLABS = 3          # from this many slabs in the base, its level is their mean past the first
-
 PROFILE_GEL_SLABS = 4           # the base surface's profile fit reads this many hydrogel slabs before it
-
 PROFILE_AIR_SLABS = 2           # ... and this many slabs past the insert beyond the base
-
 PROFILE_BLUR_SLABS = (0.2, 2.0)  # ... with its blur within this range, in slabs
-
 PROFILE_MOVE_SLABS = 0.5        # ... moving the half-way crossing by less than this (at it: the crossing kept)
-
 PROFILE_SPARE_SLABS = 2         # ... from this many slabs more than it has unknowns
-
 CLEAR_RING_MM = 4.0             # the annulus clear of a ball where the base's profile is read under a short post
-
 TESTED_SLABS = 3                # from this many slabs, a trace's cross-section is tested against their scatter
 
 

@@ -13,6 +13,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from lesscli.robust import robust_sigma
+
 PROFILE_STEP_PX = 0.25      # sampling step along each profile
 EDGE_MARGIN = 0.15          # fraction of the edge left out at each end (corners blur both edges)
 MAX_HALF_WIDTH_PX = 3.0     # profiles reach this far each side of the edge (capped by a fraction of a cell)
@@ -67,7 +69,7 @@ def _fit_line(pts: np.ndarray) -> np.ndarray | None:
         normal = vt[1]
         line = np.array([normal[0], normal[1], -normal @ centre])
         resid = pts @ line[:2] + line[2]
-        mad = np.median(np.abs(resid[keep] - np.median(resid[keep]))) * 1.4826
+        mad = robust_sigma(resid[keep])
         keep = np.abs(resid) <= OUTLIER_SIGMAS * max(mad, 1e-9)
     return line
 
