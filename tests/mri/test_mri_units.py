@@ -76,6 +76,28 @@ def test_bias_correction_recovers_smooth_field():
     assert ratio.std() / ratio.mean() < 0.1 * raw.std() / raw.mean()   # field removed up to a global factor
 
 
+@pytest.mark.parametrize("case", ["blob", "touching two faces", "everything", "nothing", "speckle"])
+def test_the_fits_erosion_over_the_objects_box_is_the_whole_arrays(case):
+    """`bias._eroded` takes the distance transform over the object's bounding box and a voxel around it: the
+    same voxels as over the whole array, where the object lies inside, touches the array's faces (which are
+    not outside), fills it, is empty, or is scattered."""
+    from scipy import ndimage
+
+    from lesscli.mri.bias import _eroded
+
+    rng = np.random.default_rng(7)
+    spacing = np.array([1.3, 0.7, 0.9])
+    z, y, x = np.meshgrid(*(np.arange(n) for n in (20, 30, 26)), indexing="ij")
+    mask = {"blob": ((z - 9) * 1.3) ** 2 + ((y - 14) * 0.7) ** 2 + ((x - 12) * 0.9) ** 2 < 36.0,
+            "touching two faces": (z < 12) & (y > 8),
+            "everything": np.ones(z.shape, dtype=bool),
+            "nothing": np.zeros(z.shape, dtype=bool),
+            "speckle": rng.random(z.shape) < 0.6}[case]
+    for depth_mm in (0.5, 1.0, 2.6):
+        expected = ndimage.distance_transform_edt(mask, sampling=spacing) > depth_mm
+        np.testing.assert_array_equal(_eroded(mask, spacing, depth_mm), expected)
+
+
 @pytest.mark.parametrize("skin_brighter", [False, True])
 def test_bias_refit_away_from_the_tissue_boundaries_removes_what_the_noise_lets_them_bend(skin_brighter):
     """A box of filling inside a 2.5 mm skin and a base, with a ball, blurred, under a field the cubic
