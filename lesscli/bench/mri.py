@@ -76,7 +76,7 @@ def run_mri(n: int, insert_name: str, contrast: str, seed: int) -> list[dict]:
     process, and synthesis (untimed against).
 
     Each of the two compared is timed on its second call: the first pays the modules each imports on first
-    use (a third of a second, as long as the pipeline itself at 96^3), which is reported in its own row, as
+    use (a tenth of a second, a fifth of the pipeline itself at 96^3), which is reported in its own row, as
     every `less mri-label` run pays it once. Call :func:`one_core` first (before numpy starts its thread
     pools) for a one-core number.
     """

@@ -139,7 +139,7 @@ def own_or_centred(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line: np.n
     a random subsample had tilted it, and the line through the ball's centre along it, by up to 0.09 mm
     at the posts' middles), 65 of the 68 are held and 3 take straight lines.
     """
-    from scipy.stats import f as f_dist
+    from scipy.special import fdtri  # the F distribution's quantile (scipy.stats' f.isf, without its import)
 
     own = fit_blurred_cylinder(uv, t, excess, line, radius, sigma, core_mm)
     if centred is None or len(excess) <= 6:
@@ -152,7 +152,7 @@ def own_or_centred(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line: np.n
     for k in (1, 2):
         dof = len(excess) - 2 - 2 * k
         f = (rss[chosen] - rss[k]) / (2 * (k - chosen)) / max(rss[k] / dof, np.finfo(float).tiny)
-        level = f_dist.isf(OWN_LINE_P, 2 * (k - chosen), dof)
+        level = float(fdtri(2 * (k - chosen), dof, 1.0 - OWN_LINE_P))
         if f > level and index is not None and smoothing is not None and np.any(np.asarray(smoothing) > 0):
             f /= correlation_inflation(uv, t, fits[k], 2 * chosen, 2 * k, index, smoothing)   # only lowers f
         if f > level:
