@@ -48,11 +48,15 @@ def crop_box(mask: np.ndarray, pad: int) -> tuple[slice, ...]:
     return tuple(slice(int(a), int(b)) for a, b in zip(lo, hi))
 
 
-def open_ball(mask: np.ndarray, radius_mm: float, spacing: np.ndarray) -> np.ndarray:
-    """Morphological opening of ``mask`` by a ball of ``radius_mm`` (voxel-centre distances)."""
+def open_ball(mask: np.ndarray, radius_mm: float, spacing: np.ndarray,
+              depth_mm: np.ndarray | None = None) -> np.ndarray:
+    """Morphological opening of ``mask`` by a ball of ``radius_mm`` (voxel-centre distances); ``depth_mm``:
+    ``mask``'s distance transform where already taken (one serves the openings by every radius)."""
     from scipy import ndimage
 
-    eroded = ndimage.distance_transform_edt(mask, sampling=spacing) > radius_mm
+    if depth_mm is None:
+        depth_mm = ndimage.distance_transform_edt(mask, sampling=spacing)
+    eroded = depth_mm > radius_mm
     if not eroded.any():
         return eroded
     return ndimage.distance_transform_edt(~eroded, sampling=spacing) <= radius_mm
@@ -121,11 +125,12 @@ def insert_axis(insert: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     return _principal(insert, spacing)[1][:, 2]
 
 
-def _opened(core: np.ndarray, radius_mm: float, spacing: np.ndarray) -> np.ndarray:
-    """The components of ``core`` opened by a ball of ``radius_mm`` holding at least half that ball."""
+def _opened(core: np.ndarray, radius_mm: float, spacing: np.ndarray, depth_mm: np.ndarray | None = None) -> np.ndarray:
+    """The components of ``core`` opened by a ball of ``radius_mm`` holding at least half that ball
+    (``depth_mm``: :func:`open_ball`'s)."""
     from skimage.measure import label
 
-    comps = label(open_ball(core, radius_mm, spacing), connectivity=1)
+    comps = label(open_ball(core, radius_mm, spacing, depth_mm), connectivity=1)
     sizes = np.bincount(comps.ravel())
     keep = np.flatnonzero(sizes >= 0.5 * _ball_voxels(radius_mm, spacing))
     return np.isin(comps, keep[keep > 0])
@@ -327,10 +332,13 @@ def _bodies(sil: np.ndarray, ins: np.ndarray, deep: np.ndarray, radius_mm: float
     Returns:
         (bodies, the pieces the smaller ball kept that read elongated (:func:`_round`), the insert axis).
     """
+    from scipy import ndimage
+
     core = _without_pinholes(sil & deep, spacing)
-    opened = _opened(core, radius_mm, spacing)
+    depth = ndimage.distance_transform_edt(core, sampling=spacing)      # one transform for both openings
+    opened = _opened(core, radius_mm, spacing, depth)
     elongated = np.zeros(core.shape, dtype=bool)
-    pieces = _round(_opened(core, SMALL_BALL * radius_mm, spacing), opened, radius_mm, spacing, elongated)
+    pieces = _round(_opened(core, SMALL_BALL * radius_mm, spacing, depth), opened, radius_mm, spacing, elongated)
     bodies = _in_filling(opened, sil, ins, spacing)
     axis = insert_axis(ins, spacing)
     if pieces.any():                                        # rare: labelling every scan's bodies costs
