@@ -41,11 +41,13 @@ BLUR_VOXELS = 1.0               # ... the fit leaves out the voxels this close t
 
 
 def crop_box(mask: np.ndarray, pad: int) -> tuple[slice, ...]:
-    """The bounding box of ``mask`` widened by ``pad`` voxels (clipped to the array)."""
-    idx = np.argwhere(mask)
-    lo = np.maximum(idx.min(axis=0) - pad, 0)
-    hi = np.minimum(idx.max(axis=0) + pad + 1, mask.shape)
-    return tuple(slice(int(a), int(b)) for a, b in zip(lo, hi))
+    """The bounding box of ``mask`` (not empty) widened by ``pad`` voxels (clipped to the array), read from its
+    projections on the axes (listing its voxels' indices took a hundred times as long on a scan)."""
+    box = []
+    for ax, n in enumerate(mask.shape):
+        seen = np.flatnonzero(mask.any(axis=tuple(a for a in range(mask.ndim) if a != ax)))
+        box.append(slice(max(int(seen[0]) - pad, 0), min(int(seen[-1]) + pad + 1, n)))
+    return tuple(box)
 
 
 def open_ball(mask: np.ndarray, radius_mm: float, spacing: np.ndarray,

@@ -850,3 +850,17 @@ def test_the_insert_axis_counts_every_voxel_of_a_fine_scan(tilt_deg):
     axis = insert_axis(insert, spacing)
     expected = np.array([math.cos(t), 0.0, math.sin(t)])
     assert math.degrees(math.acos(min(1.0, abs(float(axis @ expected))))) < 0.01
+
+
+@pytest.mark.parametrize("voxels, pad, expected", [
+    ([(3, 4, 5)], 0, ((3, 4), (4, 5), (5, 6))),                         # one voxel
+    ([(3, 4, 5), (6, 1, 7)], 1, ((2, 8), (0, 6), (4, 9))),             # two, widened by one voxel
+    ([(0, 0, 0), (9, 11, 12)], 2, ((0, 10), (0, 12), (0, 13))),        # corners: clipped to the array
+])
+def test_crop_box_is_the_masks_bounding_box_widened_and_clipped(voxels, pad, expected):
+    from lesscli.mri.morphology import crop_box
+
+    mask = np.zeros((10, 12, 13), dtype=bool)
+    for v in voxels:
+        mask[v] = True
+    assert [(b.start, b.stop) for b in crop_box(mask, pad)] == [tuple(e) for e in expected]
