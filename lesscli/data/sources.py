@@ -148,7 +148,7 @@ def open_source(path: str) -> FolderSource | ZipSource:
 def load_array(source: FolderSource | ZipSource, rel: str, what: str) -> np.ndarray | dict:
     """A ``.npy`` array or the arrays of a ``.npz`` (by ``rel``'s extension) from ``source``, without
     pickle; DataError naming the file."""
-    from lesscli.io.scans import check_magic, unreadable
+    from lesscli.io.npfiles import check_magic, unreadable
 
     where = source.where(rel)
     try:

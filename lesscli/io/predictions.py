@@ -34,7 +34,7 @@ from lesscli.errors import DataError
 from lesscli.io import checks
 from lesscli.io.atomic import atomic_path
 from lesscli.io.labels import INCLUSION, N_CLASSES, PILLAR, LabelVolume, check_codes
-from lesscli.io.scans import read_npz
+from lesscli.io.npfiles import read_npz
 
 SCHEMA, VERSION = "less.pred", 1
 EPS_LOG = 1e-12  # floor inside log(p) for the entropy of float16-rounded probabilities

@@ -35,8 +35,6 @@ import os
 import shlex
 import sys
 import time
-import zipfile
-import zlib
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -44,8 +42,9 @@ import numpy as np
 from lesscli import __version__
 from lesscli.errors import DataError
 from lesscli.io import checks
-from lesscli.io.atomic import atomic_path, open_input_bytes
+from lesscli.io.atomic import atomic_path
 from lesscli.io.labels import LabelVolume, check_codes
+from lesscli.io.npfiles import read_npz
 
 SCHEMA, VERSION = "less.scans", 1
 TRAJ_ATTRS = {"target_force_n": np.float32, "yaw_rad": np.float32, "dx_mm": np.float32,
@@ -291,79 +290,6 @@ def validate(arrays: dict, name: str) -> ScanSet:
 
 # ---------------------------------------------------------------------------------------------- read / write
 
-NPZ_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")  # a zip archive (with members / empty)
-NPY_MAGIC = b"\x93NUMPY"
-
-
-def _sniff(src, name: str, what: str, npz: bool = True) -> None:
-    """Refuse what is not a .npz archive (``npz``) or a .npy array at all, saying what the file is
-    instead of numpy's advice to unpickle it."""
-    if isinstance(src, str):
-        if os.path.isdir(src):
-            raise DataError(f"{name}: is a folder, not a {what}")
-        with open(src, "rb") as fh:
-            head = fh.read(8)
-    else:
-        head = src.getvalue()[:8]
-    check_magic(head, name, what, npz)
-
-
-def check_magic(head: bytes, name: str, what: str, npz: bool = True) -> None:
-    """DataError unless ``head`` (a file's first bytes) opens a .npz archive (``npz``) or a .npy array."""
-    if head.startswith(NPZ_MAGIC if npz else (NPY_MAGIC,)):
-        return
-    if not head:
-        raise DataError(f"{name}: not a {what}: the file is empty")
-    if head.startswith(NPY_MAGIC):
-        raise DataError(f"{name}: not a {what}: it is a single .npy array, expected a .npz archive")
-    if head.startswith(NPZ_MAGIC):
-        raise DataError(f"{name}: not a {what}: it is a .npz archive, expected a single .npy array")
-    raise DataError(f"{name}: not a {what}: not a {'.npz archive' if npz else '.npy array'} "
-                    f"(starts with {head[:4]!r})")
-
-
-def unreadable(name: str, what: str, exc: Exception) -> DataError:
-    """The error for a .npy/.npz that numpy cannot read: pickled objects refused, else truncated or corrupt."""
-    if isinstance(exc, ValueError) and ("allow_pickle" in str(exc) or "Object arrays" in str(exc)):
-        return DataError(f"{name}: holds a pickled Python object; a {what} must be a plain array "
-                         "(refusing to unpickle)")
-    return DataError(f"{name}: not a readable {what} (truncated or corrupt: {exc})")
-
-
-def read_npy(path: str, what: str) -> np.ndarray:
-    """One ``.npy`` array without pickle; a missing, foreign, truncated or pickled file raises DataError."""
-    if not os.path.exists(path):
-        raise DataError(f"{path}: no such file")
-    _sniff(path, path, what, npz=False)
-    try:
-        return np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
-        raise unreadable(path, what, exc) from None
-
-
-def read_npz(path: str, what: str = WHAT) -> dict[str, np.ndarray]:
-    """All arrays of a ``.npz`` without pickle; corrupt, truncated or pickled files raise DataError."""
-    name = "<stdin>" if path == "-" else path
-    src = open_input_bytes(path)
-    _sniff(src, name, what)
-    try:
-        with np.load(src, allow_pickle=False) as npz:
-            arrays = {}
-            for key in npz.files:
-                try:
-                    arrays[key] = npz[key]
-                except ValueError as exc:
-                    if "allow_pickle" in str(exc) or "Object arrays" in str(exc):
-                        raise DataError(f"{name}: key '{key}' holds a pickled Python object; a {what} "
-                                        "must hold plain arrays (refusing to unpickle)") from None
-                    raise
-    except DataError:
-        raise
-    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, KeyError) as exc:
-        raise DataError(f"{name}: not a readable .npz {what} (truncated or corrupt: {exc})") from None
-    return arrays
-
-
 def load_scans(path: str) -> ScanSet:
     """Read and validate a scan set: a ``.npz`` file, ``-`` (stdin), or a directory of ``.npz`` shards."""
     if path != "-" and os.path.isdir(path):
@@ -371,7 +297,7 @@ def load_scans(path: str) -> ScanSet:
         if not shards:
             raise DataError(f"{path}: directory holds no .npz shards")
         return concat([load_scans(os.path.join(path, f)) for f in shards], names=shards)
-    return validate(read_npz(path), "<stdin>" if path == "-" else path)
+    return validate(read_npz(path, WHAT), "<stdin>" if path == "-" else path)
 
 
 def to_arrays(scans: ScanSet) -> dict[str, np.ndarray]:

@@ -9,11 +9,8 @@
   keeps apart from those, only round bodies holding the first ball's volume are inclusions.
 - Pillars: traced from each inclusion towards the base along the insert axis
   (:mod:`lesscli.mri.pillar`); an inclusion without one gets a warning.
-- Each inclusion's surface is re-thresholded with its local contrast, at the level where a blurred
-  ball's surface lies (below half-way on a curved surface: the blur spreads a small body's silicone
-  outwards), with the blur and radius fitted to the body's own profile, away from the pillars and
-  from the base's silicone (past :class:`lesscli.mri.pillar.BaseSurface`); where the pillar
-  meets the inclusion, the inclusion takes back the pillar's voxels inside its sphere.
+- Each inclusion's surface is drawn again from its local contrast or as its fitted ball, and takes back
+  the pillar's voxels inside its sphere (:mod:`lesscli.mri.surface`).
 - Everything else (the skin, partial-volume speckle) stays insert.
 
 Openings and dilations use Euclidean distance transforms with the voxel spacing, so balls are round
@@ -26,17 +23,16 @@ import math
 
 import numpy as np
 
-from lesscli.mri.ball import RIM_VOXELS, fitted_ball
+from lesscli.mri.ball import RIM_VOXELS
 from lesscli.mri.pillar import find_pillars
+from lesscli.mri.surface import junctions, local_surface
 
 SHELL_VOXELS = 1.5              # shell thickness along the insert surface, in (largest) voxels
-JUNCTION_STEPS = 4
 SMALL_BALL = 0.8                # a second, smaller ball for small inclusions (of the main ball's radius)
 MAX_ELONGATION = 1.5            # ... kept where round: largest over smallest principal spread
 BALL_MARGIN_VOXELS = 0.25       # the opening ball's radius exceeds the thickest pillar's by this
 BOUNDARY_VOXELS = (1.0, 2.5)    # the layer around a body in which its surroundings are measured
 MAX_BOUNDARY_SILICONE = 0.3     # an inclusion lies in the filling; more silicone around: a pillar's foot, a corner
-BALL_MISFIT = 1.25              # an inclusion whose blurred ball fits its voxels this close to the noise is that ball
 BLUR_VOXELS = 1.0               # ... the fit leaves out the voxels this close to a post or the base, in voxels
 
 
@@ -238,93 +234,6 @@ def _in_filling(bodies: np.ndarray, silicone: np.ndarray, insert: np.ndarray, sp
     return keep
 
 
-def _local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray, spacing: np.ndarray,
-                   reach_mm: float, shape: str = "auto", unfitted: np.ndarray | None = None,
-                   blurred: np.ndarray | None = None) -> np.ndarray:
-    """Each body's surface between its own interior level and the filling's level around it.
-
-    The opening leaves a body's surface where the global threshold put it, up to the roughness that
-    noise gives; here each inclusion is re-thresholded with its local contrast, within ``reach_mm`` of it,
-    at the surface level of a blurred ball fitted to it (:func:`fitted_ball`). ``shape``: "image" keeps
-    that surface; "ball" takes the fitted ball's voxels in ``allowed`` instead, all of them (the opening
-    can leave a small inclusion's body a voxel or more inside its ball all round, and a ball drawn only
-    within ``reach_mm`` of the body lost that rim: seed 1068 of the family, a 7.6 mm inclusion at 1.2 mm
-    voxels, Dice 0.87 instead of 0.99); "auto" takes the ball where it fits the
-    voxels near the body as well as the scan's noise allows (:attr:`Ball.misfit` at most
-    ``BALL_MISFIT``: the noise, not the shape, is then what separates them) and the image's surface
-    elsewhere (a body that is not a ball fits worse). ``unfitted``: voxels no ball is fitted to (the base's
-    silicone), None: none; neither a body's nor its image's surface takes them (a body can run on through a
-    short post into the base). ``blurred``: voxels no ball is fitted to either, but which either surface
-    may take (the blur of a post beside its inclusion, and of the base's surface on the filling's side).
-
-    Returns:
-        (inclusion mask, one dict per body: ``shape`` "ball" or "image", ``centre_index`` (the fitted
-        ball's centre, else the body's centroid, in voxel indices), ``ball_diameter_mm`` and
-        ``ball_misfit`` (None where no ball was fitted)).
-    """
-    from scipy import ndimage
-
-    comps, _n = ndimage.label(bodies)
-    out = np.zeros(bodies.shape, dtype=bool)
-    base = np.zeros(bodies.shape, dtype=bool) if unfitted is None else unfitted
-    shapes = []
-    for i, sl in enumerate(ndimage.find_objects(comps), start=1):
-        own = (comps == i) & ~base
-        fit = fitted_ball(own, fraction, allowed, spacing, sl, reach_mm, base if blurred is None else base | blurred)
-        if fit is None:
-            out |= own
-            shapes.append({"shape": "image", "centre_index": list(ndimage.center_of_mass(own)),
-                           "ball_diameter_mm": None, "ball_misfit": None})
-            continue
-        ball = fit.radius_mm > 0 and (shape == "ball" or (shape == "auto" and fit.misfit <= BALL_MISFIT))
-        out[fit.box] |= (fit.inside() & allowed[fit.box]) if ball else \
-            fit.near & (fraction[fit.box] > fit.level) & ~base[fit.box]
-        shapes.append({"shape": "ball" if ball else "image", "centre_index": list(fit.centre_mm / spacing),
-                       "ball_diameter_mm": 2 * fit.radius_mm if fit.radius_mm > 0 else None,
-                       "ball_misfit": fit.misfit if math.isfinite(fit.misfit) else None})
-    return out, shapes
-
-
-def _junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray, shapes: list[dict]) -> np.ndarray:
-    """The ``pillar`` voxels inside each body's sphere: its fitted ball where it was drawn as one, else the
-    sphere of its centroid and volume.
-
-    Where a pillar meets an inclusion the image shows one silicone body, and the pillar is drawn up to the
-    inclusion's centre; the inclusion takes back the voxels inside it. A body drawn as its fitted ball
-    (``shapes``, :func:`_local_surface`) is that ball, cap included, as the phantom's sphere stands on its
-    post; another body's surface is continued across the pillar as the sphere of the same volume and
-    centre (the body plus the pillar voxels inside that sphere, found by a few fixed-point steps).
-    """
-    from scipy import ndimage
-
-    comps, _n = ndimage.label(bodies)
-    out = np.zeros(bodies.shape, dtype=bool)
-    cand = np.argwhere(pillar)
-    if not len(cand):
-        return out
-    cand_mm, voxel_mm3 = cand * spacing, float(np.prod(spacing))
-    balls = {}              # component -> (centre, radius) of the ball it was drawn as
-    body = np.argwhere(comps)
-    for row in shapes:
-        if row["shape"] == "ball" and len(body):    # the component nearest its centre (the pillar runs through it)
-            centre = np.asarray(row["centre_index"]) * spacing
-            nearest = body[np.argmin(np.sum((body * spacing - centre) ** 2, axis=1))]
-            balls[int(comps[tuple(nearest)])] = (centre, 0.5 * row["ball_diameter_mm"])
-    for i, sl in enumerate(ndimage.find_objects(comps), start=1):
-        if i in balls:
-            centre, radius = balls[i]
-            inside = np.sum((cand_mm - centre) ** 2, axis=1) <= radius ** 2
-        else:
-            own_mm = (np.argwhere(comps[sl] == i) + [s.start for s in sl]) * spacing
-            inside = np.zeros(len(cand), dtype=bool)
-            for _ in range(JUNCTION_STEPS):
-                centre = (own_mm.sum(axis=0) + cand_mm[inside].sum(axis=0)) / (len(own_mm) + inside.sum())
-                radius = (3.0 * (len(own_mm) + inside.sum()) * voxel_mm3 / (4 * math.pi)) ** (1 / 3)
-                inside = np.sum((cand_mm - centre) ** 2, axis=1) <= radius ** 2
-        out[tuple(cand[inside].T)] = True
-    return out
-
-
 def _bodies(sil: np.ndarray, ins: np.ndarray, deep: np.ndarray, radius_mm: float,
             spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The inclusions' bodies in the silicone ``sil`` of the insert ``ins`` (both padded crops), from its
@@ -376,15 +285,16 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
         skin_max_thickness_mm: thickest skin.
         fraction: float image of the silicone fraction (0 hydrogel, 1 silicone) for tracing pillars;
             None uses the silicone mask itself.
-        inclusion_shape: "auto", "image" or "ball" (:func:`_local_surface`).
+        inclusion_shape: "auto", "image" or "ball" (:func:`lesscli.mri.surface.local_surface`).
         pillar_diameter_mm: the posts' diameter as cast, where known (:func:`find_pillars`); None: as measured.
         smoothing: (3,) sigma per axis, in voxels, of the denoising ``fraction`` had (:func:`find_pillars`).
 
     Returns:
         (pillar mask, inclusion mask, warnings, one dict per inclusion on how its surface was drawn
-        (:func:`_local_surface`; centres in the input's voxel indices), the base's surface found under the
-        pillars on the input's grid (:class:`lesscli.mri.pillar.BaseSurface`, None without a pillar), the
-        posts drawn on the input's grid (:class:`lesscli.mri.pillar.Post`)), masks of the input's shape.
+        (:func:`lesscli.mri.surface.local_surface`; centres in the input's voxel indices), the base's surface
+        found under the pillars on the input's grid (:class:`lesscli.mri.pillar.BaseSurface`, None without a
+        pillar), the posts drawn on the input's grid (:class:`lesscli.mri.pillar.Post`)), masks of the
+        input's shape.
     """
     from scipy import ndimage
 
@@ -419,9 +329,9 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
                             # past the base's surface: the skin's or the base's silicone, not the filling's
         warnings.append(f"silicone in the filling near voxel {np.round(centre + offset).astype(int).tolist()} "
                         "holds a small inclusion's volume but is not round: not labelled an inclusion")
-    inclusion, shapes = _local_surface(bodies & ~run_on, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm,
+    inclusion, shapes = local_surface(bodies & ~run_on, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm,
                                        inclusion_shape, beyond, blurred)
-    inclusion |= _junctions(inclusion, pillar, spacing, shapes)
+    inclusion |= junctions(inclusion, pillar, spacing, shapes)
     pillar &= ~inclusion
     for i in missing:
         centre = (np.round(ndimage.center_of_mass(inc_ids == i)).astype(int) + offset).tolist()

@@ -71,7 +71,7 @@ def _load_nifti(path: str) -> MRIScan:
 def _load_numpy(path: str, spacing_mm) -> MRIScan:
     if spacing_mm is None:
         raise DataError(f"{path}: a .npy/.npz scan needs --spacing-mm dz,dy,dx")
-    from lesscli.io.scans import read_npy, read_npz
+    from lesscli.io.npfiles import read_npy, read_npz
 
     if path.endswith(".npz"):
         arrays = read_npz(path, what="numpy scan (.npz)")

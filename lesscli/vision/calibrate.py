@@ -18,7 +18,8 @@ import numpy as np
 from lesscli.errors import DataError
 from lesscli.geometry import rotations
 from lesscli.io.atomic import atomic_path
-from lesscli.io.scans import append_history, read_npz
+from lesscli.io.npfiles import read_npz
+from lesscli.io.scans import append_history
 from lesscli.vision.streams import PoseStream, sync
 
 SCHEMA = "less.posecal/1"

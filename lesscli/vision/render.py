@@ -204,7 +204,7 @@ def make_trajectory(rng: np.random.Generator, n_frames: int = 30, fps: float = 3
 def load_trajectory(path: str) -> dict[str, np.ndarray]:
     """Read a trajectory ``.npz``: ``time_s`` (n,), ``T_cam_global`` (4, 4) or (n, 4, 4), ``T_cam_sensor_tag`` (n, 4, 4)."""
     from lesscli.errors import DataError
-    from lesscli.io.scans import read_npz
+    from lesscli.io.npfiles import read_npz
 
     arrays = read_npz(path, what="trajectory")
     missing = [k for k in ("time_s", "T_cam_global", "T_cam_sensor_tag") if k not in arrays]

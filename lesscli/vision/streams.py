@@ -18,8 +18,8 @@ import numpy as np
 
 from lesscli.errors import DataError
 from lesscli.geometry import rotations
+from lesscli.io.npfiles import read_npz
 from lesscli.io.records import read_jsonl
-from lesscli.io.scans import read_npz
 from lesscli.vision import se3
 
 ROTATION_TOL = 1e-3     # |R^T R - I| beyond this is not a rotation

@@ -195,7 +195,7 @@ def test_an_inclusion_drawn_as_its_ball_takes_its_cap_back_from_the_pillar():
     """The pillar is drawn up to its inclusion's centre and the inclusion takes back the voxels inside it: all
     of its fitted ball where it was drawn as that ball (the post ends at the sphere's surface, cap and all);
     a body drawn from the image is continued as the sphere of its own volume."""
-    from lesscli.mri.morphology import _junctions
+    from lesscli.mri.surface import junctions as _junctions
 
     shape = (44, 40, 40)
     z, y, x = _grid(shape)
@@ -216,7 +216,7 @@ def test_an_inclusion_taken_as_its_ball_is_drawn_whole_however_small_its_opened_
     within the rim of the body (``reach_mm``); voxels not allowed (the pillar's) stay out."""
     from scipy import ndimage
 
-    from lesscli.mri.morphology import _local_surface
+    from lesscli.mri.surface import local_surface as _local_surface
 
     spacing = np.array([1.1, 1.0, 1.0])
     shape = (30, 32, 32)
@@ -805,7 +805,9 @@ def test_a_balls_fit_leaves_out_the_blur_of_its_post():
     surface drawn); left out (``blurred``, a voxel around the post), the ball fits to the noise and is drawn."""
     from scipy import ndimage
 
-    from lesscli.mri.morphology import BALL_MISFIT, _local_surface, _rim
+    from lesscli.mri.morphology import _rim
+    from lesscli.mri.surface import BALL_MISFIT
+    from lesscli.mri.surface import local_surface as _local_surface
 
     spacing = np.array([1.1, 1.1, 1.1])
     shape = (30, 30, 30)
