@@ -29,7 +29,7 @@ bench: $(STAMP)
 	PATH="$(CURDIR)/$(BIN):$$PATH" bash examples/bench.sh
 
 lint: $(STAMP)
-	$(BIN)/ruff check lesscli tests
+	$(BIN)/ruff check lesscli tests examples
 
 clean:
 	rm -rf $(VENV) demo-out .pytest_cache

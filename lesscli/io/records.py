@@ -34,6 +34,42 @@ def dumps(record: Mapping) -> str:
     return json.dumps(to_jsonable(record), allow_nan=False, separators=(", ", ": "))
 
 
+CELL_ITEMS_WIDTH = 60    # a table's list or mapping cell is cut to its first items within this many characters
+
+
+def _rounded(value: Any) -> Any:
+    """``value`` (plain JSON) with its floats to the 4 significant digits a table's number cells show."""
+    if isinstance(value, float):
+        return float(f"{value:.4g}")
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_rounded(v) for v in value]
+    return value
+
+
+def _items(value: list | dict) -> str:
+    """A list or mapping as JSON (floats rounded as in number cells), cut after the items that fit in
+    ``CELL_ITEMS_WIDTH``, saying how many there are in all. A table is read by people, and a split's hundred
+    insert names would make every row a screen wide; JSON lines and JSON keep every item."""
+    value = _rounded(value)
+    whole = json.dumps(value)
+    if len(whole) <= CELL_ITEMS_WIDTH:
+        return whole
+    pairs = isinstance(value, dict)
+    parts = [f"{json.dumps(k)}: {json.dumps(v)}" for k, v in value.items()] if pairs else \
+        [json.dumps(v) for v in value]
+    tail = f", ... ({len(parts)} in all)" + ("}" if pairs else "]")
+    shown = []
+    for part in parts:
+        if len(", ".join([*shown, part])) + len(tail) + 1 > CELL_ITEMS_WIDTH and shown:
+            break
+        shown.append(part)
+    if len(shown) == len(parts):        # one item wider than the cell: nothing would be left out
+        return whole
+    return ("{" if pairs else "[") + ", ".join(shown) + tail
+
+
 def _cell(value: Any) -> str:
     value = to_jsonable(value)
     if value is None:
@@ -41,7 +77,7 @@ def _cell(value: Any) -> str:
     if isinstance(value, float):
         return f"{value:.4g}"
     if isinstance(value, (list, dict)):
-        return json.dumps(value)
+        return _items(value)
     return str(value)
 
 
@@ -55,7 +91,7 @@ def _columns(rows: list[Mapping], columns: list[str] | None) -> list[str]:
 
 
 def format_table(rows: list[Mapping], columns: list[str] | None = None, markdown: bool = False) -> str:
-    """Aligned text table (or GitHub markdown table) of ``rows``."""
+    """Aligned text table (or GitHub markdown table) of ``rows``; long lists and mappings are cut (:func:`_items`)."""
     cols = _columns(rows, columns)
     cells = [[_cell(row.get(c)) for c in cols] for row in rows]
     widths = [max([len(c)] + [len(r[i]) for r in cells]) for i, c in enumerate(cols)]
