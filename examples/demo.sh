@@ -58,6 +58,8 @@ step "8/9 metrics on the held-out set (inclusion class; 'average' = predict the 
 PREDS=("$OUT/pred_less.npz" "$OUT/pred_forcemap.npz")
 less metrics "${PREDS[@]}" --baseline-from "$OUT/split/train.npz" --group-by model --summary-only --format table \
   > "$OUT/metrics.txt"
+less metrics "${PREDS[@]}" --baseline-from "$OUT/split/train.npz" --group-by model --summary-only \
+  --show f1_micro_3d,f1_3d,com_error_mm_3d,diameter_error_mm_3d,f1_micro_2d > "$OUT/headline.txt"
 less metrics "${PREDS[@]}" --baseline-from "$OUT/split/train.npz" --group-by model --format jsonl \
   > "$OUT/metrics.jsonl"
 step "9/9 render truth | LESS | classical, LESS uncertainty and the image over time, for 8 held-out scans"
@@ -66,11 +68,11 @@ less render "${PREDS[@]}" -o "$OUT/figures/compare" "${FIGURE_SCANS[@]}" --forma
 less render "$OUT/pred_steps.npz" -o "$OUT/figures/less" "${FIGURE_SCANS[@]}" --format jsonl > "$OUT/figures.jsonl"
 
 printf '\ndemo done in %ds. Held-out catalogue inserts, never seen in training:\n\n' "$((SECONDS - t0))"
-cat "$OUT/metrics.txt"
-echo "(a model that predicts no inclusion scores F1 = 0)"
+cat "$OUT/headline.txt"
+echo "(a model that predicts no inclusion scores F1 = 0; every metric, 2D and 3D: $OUT/metrics.txt)"
 printf '\nImager: %s/imager.pt (any scan simulated with quick.toml'"'"'s settings: less image predict %s/imager.pt SCANS.npz -o pred.npz)\n' \
   "$OUT" "$OUT"
 printf 'Figures: %s/figures/compare/ (truth | LESS | classical), %s/figures/less/ (%d PNG files), e.g.\n' "$OUT" "$OUT" \
   "$(find "$OUT/figures" -name '*.png' | wc -l)"
 ls "$OUT"/figures/compare/*.png | head -n 2
-echo "Metrics: $OUT/metrics.txt (table), $OUT/metrics.jsonl (per scan and per model)."
+echo "Metrics: $OUT/headline.txt (the table above), $OUT/metrics.txt (every metric), $OUT/metrics.jsonl (per scan and per model)."

@@ -48,18 +48,29 @@ def _groups_repeat_files(report) -> bool:
     return set(report.group_by) <= set(FILE_TABLE_KEYS) and all(g["n"] == 1 for g in report.groups)
 
 
-def _emit_tables(report, fmt: str, summary_only: bool) -> None:
+def _shown(show: tuple[str, ...] | None) -> tuple[str, ...]:
+    """The metrics the human tables show, in order: ``show`` (checked), else every one."""
+    for name in show or ():
+        if name not in SUMMARY_METRICS:
+            hint = closest(name, SUMMARY_METRICS)
+            raise click.BadParameter(f"unknown metric '{name}'" + (f"; did you mean '{hint}'?" if hint else ""),
+                                     param_hint="--show")
+    return show or SUMMARY_METRICS
+
+
+def _emit_tables(report, fmt: str, summary_only: bool, show: tuple[str, ...]) -> None:
     from lesscli.io.records import emit_records
     from lesscli.metrics.summary import pm_cells
 
     blocks = []
     if not summary_only and report.scans:
-        cols = [c for c in SCAN_COLUMNS if any(c in r for r in report.scans)]
+        names = [c for c in SCAN_COLUMNS if c not in SUMMARY_METRICS] + [m for m in show if m in SCAN_COLUMNS]
+        cols = [c for c in names if any(c in r for r in report.scans)]
         blocks.append((report.scans, cols))
     groups = [] if _groups_repeat_files(report) else report.groups
     for rows, keys in ((report.files, FILE_TABLE_KEYS), (groups, report.group_by)):
         if rows:
-            metrics = [m for m in SUMMARY_METRICS if any(r.get(m) is not None or r.get(f"{m}_n") for r in rows)]
+            metrics = [m for m in show if any(r.get(m) is not None or r.get(f"{m}_n") for r in rows)]
             shown = [{**{k: r.get(k) for k in (*keys, "n")}, **pm_cells(r, metrics)} for r in rows]
             blocks.append((shown, [*keys, "n", *metrics]))
     for i, (rows, cols) in enumerate(blocks):
@@ -85,9 +96,12 @@ def _emit_tables(report, fmt: str, summary_only: bool) -> None:
 @click.option("--group-by", "group_by", multiple=True, metavar="KEY[,KEY]",
               help="Group summaries by these keys (set, seed, model, dim, insert, any meta key).")
 @click.option("--summary-only", is_flag=True, help="Only the per-file and group summaries.")
+@click.option("--show", multiple=True, metavar="METRIC[,METRIC]",
+              help="The metrics a table shows, in this order (default: every one; implies --format table "
+                   "unless markdown is asked for; JSON formats keep every metric).")
 @format_option
 def cli(preds, truth_path, pred_nifti, cls, threshold, baseline_from, diameter_points, group_by, summary_only,
-        fmt) -> None:
+        show, fmt) -> None:
     """Score predictions against their truth: F1/precision/recall, centroid error (mm), ARSE,
     diameter error (mm), area/volume error (mm^2/mm^3), in 3D and on the largest true slice (2D).
 
@@ -105,6 +119,8 @@ def cli(preds, truth_path, pred_nifti, cls, threshold, baseline_from, diameter_p
       less metrics pred_less.npz pred_forcemap.npz --baseline-from train.npz --group-by model --summary-only
 
       less metrics --truth ref.nii.gz --pred seg.nii.gz
+
+      less metrics pred.npz --summary-only --show f1_micro_3d,com_error_mm_3d,diameter_error_mm_3d
     """
     from lesscli.io.records import emit_records, resolve_format
     from lesscli.metrics.report import (
@@ -118,6 +134,9 @@ def cli(preds, truth_path, pred_nifti, cls, threshold, baseline_from, diameter_p
     )
 
     _check_usage(preds, truth_path, pred_nifti, baseline_from, threshold)
+    shown = _shown(_split_keys(show))
+    if show and fmt in ("json", "jsonl"):
+        raise click.UsageError(f"--show picks a table's columns; --format {fmt} keeps every metric")
     keys = _split_keys(group_by)
     extra = tuple(k for k in keys or () if k not in FILE_KEYS and k not in SCAN_KEYS)
     report = Report()
@@ -130,8 +149,8 @@ def cli(preds, truth_path, pred_nifti, cls, threshold, baseline_from, diameter_p
     for message in report.warnings:
         LOG.warning(message)
     add_summaries(report, keys)
-    fmt = resolve_format(fmt)
+    fmt = resolve_format(fmt or ("table" if show else None))
     if fmt in ("table", "markdown"):
-        _emit_tables(report, fmt, summary_only)
+        _emit_tables(report, fmt, summary_only, shown)
     else:
         emit_records([*([] if summary_only else report.scans), *report.files, *report.groups], fmt)

@@ -200,3 +200,18 @@ def test_bench_metrics_quick(run_less):
     assert [r["case"].split(":")[0] for r in rows][1] == "baseline"
     assert rows[0]["ratio_vs_f1_only"] > 0 and rows[3]["diameters_agree"] is True
     assert rows[0]["diameter_true_mm_3d"] == pytest.approx(rows[2]["diameter_mm"])
+
+
+def test_show_picks_the_tables_metrics_in_order(run_less, tmp_path):
+    paths = [write_preds(tmp_path / f"s{i}.npz", [i, 1], seed=i) for i in range(2)]
+    show = ("--show", "diameter_error_mm_3d,f1_micro_3d", "--show", "com_error_mm_3d")
+    lines = run_less("metrics", *paths, "--summary-only", *show, check=True).stdout.decode().splitlines()
+    assert lines[0].split() == ["file", "model", "n", "diameter_error_mm_3d", "f1_micro_3d", "com_error_mm_3d"]
+    scans = run_less("metrics", paths[0], "--show", "f1_micro_3d,f1_2d", check=True).stdout.decode()
+    assert scans.splitlines()[0].split()[-1] == "f1_2d" and "com_error_mm_3d" not in scans  # scan rows: no micro F1
+    md = run_less("metrics", paths[0], "--summary-only", "--show", "f1_3d", "--format", "markdown", check=True)
+    assert md.stdout.decode().splitlines()[0].split("|")[-2].strip() == "f1_3d"
+    typo = run_less("metrics", paths[0], "--show", "com_error_3d")
+    assert typo.returncode == 2 and b"did you mean 'com_error_mm_3d'" in typo.stderr and not typo.stdout
+    as_json = run_less("metrics", paths[0], "--show", "f1_3d", "--format", "jsonl")
+    assert as_json.returncode == 2 and b"keeps every metric" in as_json.stderr
