@@ -35,6 +35,7 @@ def dumps(record: Mapping) -> str:
 
 
 CELL_ITEMS_WIDTH = 60    # a table's list or mapping cell is cut to its first items within this many characters
+TABLE_WIDTH = 120        # a one-record table wider than this is written as one "key  value" line per column
 
 
 def _rounded(value: Any) -> Any:
@@ -48,36 +49,40 @@ def _rounded(value: Any) -> Any:
     return value
 
 
-def _items(value: list | dict) -> str:
-    """A list or mapping as JSON (floats rounded as in number cells), cut after the items that fit in
-    ``CELL_ITEMS_WIDTH``, saying how many there are in all. A table is read by people, and a split's hundred
-    insert names would make every row a screen wide; JSON lines and JSON keep every item."""
-    value = _rounded(value)
+def _short(value: Any, width: int) -> str:
+    """``value`` (plain JSON) as JSON in about ``width`` characters: a list or mapping cut after the items that
+    fit, saying how many there are in all, each item itself cut to half the width; a string in one cut with
+    "...". A table is read by people, and a split's hundred insert names would make every row a screen
+    wide; JSON lines and JSON keep every item."""
     whole = json.dumps(value)
-    if len(whole) <= CELL_ITEMS_WIDTH:
+    if len(whole) <= width:
+        return whole
+    if isinstance(value, str):
+        return json.dumps(value[:max(width - 5, 8)] + "...")
+    if not isinstance(value, (list, dict)):
         return whole
     pairs = isinstance(value, dict)
-    parts = [f"{json.dumps(k)}: {json.dumps(v)}" for k, v in value.items()] if pairs else \
-        [json.dumps(v) for v in value]
-    tail = f", ... ({len(parts)} in all)" + ("}" if pairs else "]")
+    parts = [f"{json.dumps(k)}: {_short(v, width // 2)}" for k, v in value.items()] if pairs else \
+        [_short(v, width // 2) for v in value]
+    tail = f", ... ({len(parts)} in all)" if len(parts) > 1 else ""
     shown = []
     for part in parts:
-        if len(", ".join([*shown, part])) + len(tail) + 1 > CELL_ITEMS_WIDTH and shown:
+        if len(", ".join([*shown, part])) + len(tail) + 2 > width and shown:
             break
         shown.append(part)
-    if len(shown) == len(parts):        # one item wider than the cell: nothing would be left out
-        return whole
-    return ("{" if pairs else "[") + ", ".join(shown) + tail
+    if len(shown) == len(parts):
+        tail = ""
+    return ("{" if pairs else "[") + ", ".join(shown) + tail + ("}" if pairs else "]")
 
 
-def _cell(value: Any) -> str:
+def _cell(value: Any, width: int = CELL_ITEMS_WIDTH) -> str:
     value = to_jsonable(value)
     if value is None:
         return "-"
     if isinstance(value, float):
         return f"{value:.4g}"
     if isinstance(value, (list, dict)):
-        return _items(value)
+        return _short(_rounded(value), width)
     return str(value)
 
 
@@ -91,10 +96,17 @@ def _columns(rows: list[Mapping], columns: list[str] | None) -> list[str]:
 
 
 def format_table(rows: list[Mapping], columns: list[str] | None = None, markdown: bool = False) -> str:
-    """Aligned text table (or GitHub markdown table) of ``rows``; long lists and mappings are cut (:func:`_items`)."""
+    """Aligned text table (or GitHub markdown table) of ``rows``, long lists and mappings cut (:func:`_short`).
+    One record wider than ``TABLE_WIDTH`` is written down the page instead, left-aligned: a column "key" of
+    its keys and one "value" of their cells, as wide as the keys leave (``less info`` of a scan set)."""
     cols = _columns(rows, columns)
     cells = [[_cell(row.get(c)) for c in cols] for row in rows]
     widths = [max([len(c)] + [len(r[i]) for r in cells]) for i, c in enumerate(cols)]
+    down = len(rows) == 1 and sum(widths) + 2 * len(widths) > TABLE_WIDTH
+    if down:                                    # the value column takes the width the keys leave
+        width = max(CELL_ITEMS_WIDTH, TABLE_WIDTH - 2 - max(map(len, cols)))
+        cols, cells = ["key", "value"], [[c, _cell(rows[0].get(c), width)] for c in cols]
+        widths = [max([len(c)] + [len(r[i]) for r in cells]) for i, c in enumerate(cols)]
     if markdown:
         def line(vals: list[str]) -> str:
             return "| " + " | ".join(v.ljust(w) for v, w in zip(vals, widths)) + " |"
@@ -103,7 +115,7 @@ def format_table(rows: list[Mapping], columns: list[str] | None = None, markdown
         return "\n".join([line(cols), sep, *(line(r) for r in cells)])
 
     def row(vals: list[str]) -> str:
-        return "  ".join(v.rjust(w) for v, w in zip(vals, widths)).rstrip()
+        return "  ".join(v.ljust(w) if down else v.rjust(w) for v, w in zip(vals, widths)).rstrip()
 
     return "\n".join([row(cols), row(["-" * w for w in widths]), *(row(r) for r in cells)])
 

@@ -1,11 +1,12 @@
-"""Tables are for people: long list and mapping cells are cut with how many items there are; JSON keeps all."""
+"""Tables are for people: long list and mapping cells are cut, saying how many items there are, and one wide
+record is written down the page; the JSON formats keep everything."""
 
 import json
 
 import pytest
 from factories import random_scanset
 
-from lesscli.io.records import CELL_ITEMS_WIDTH, format_table
+from lesscli.io.records import CELL_ITEMS_WIDTH, TABLE_WIDTH, format_table
 from lesscli.io.scans import save_scans
 
 
@@ -13,15 +14,31 @@ from lesscli.io.scans import save_scans
     (["x", "y"], '["x", "y"]'),                                                   # short: whole
     ([f"R{i}s0" for i in range(102)], '["R0s0", "R1s0", "R2s0", "R3s0", "R4s0", ... (102 in all)]'),
     ({f"k{i}": i for i in range(40)}, '{"k0": 0, "k1": 1, "k2": 2, "k3": 3, ... (40 in all)}'),
-    (["a" * 80], '["' + "a" * 80 + '"]'),                                          # one wide item: nothing to cut
-    (["a" * 80, "b"], '["' + "a" * 80 + '", ... (2 in all)]'),
+    (["a" * 80], '["' + "a" * 25 + '..."]'),                                     # an item cut to half the width
+    (["a" * 80, "b"], '["' + "a" * 25 + '...", "b"]'),
+    ([{"name": "St8C5", "shape": [13, 64, 64], "origin_mm": [-11.0, -30.2, -30.2]}] * 3,
+     '[{"name": "St8C5", ... (3 in all)}, ... (3 in all)]'),                      # items of items cut too
     ([0.123456789, 2.0, float("nan")], "[0.1235, 2.0, null]"),                    # rounded as number cells are
     ([], "[]"),
 ])
 def test_a_list_cell_is_cut_to_its_first_items(value, cell):
-    row = format_table([{"v": value}]).splitlines()[2]
-    assert row.strip() == cell
-    assert len(cell) <= CELL_ITEMS_WIDTH or "a" * 80 in cell      # within the width but for one wide item
+    assert format_table([{"v": value}, {"v": 0}]).splitlines()[2].strip() == cell
+    assert len(cell) <= CELL_ITEMS_WIDTH
+
+
+def test_one_wide_record_is_written_down_the_page():
+    record = {"file": "/data/" + "x" * 60 + ".npz", **{f"count_{i}": i for i in range(12)},
+              "names": [f"Insert{i:03d}" for i in range(30)]}
+    lines = format_table([record]).splitlines()
+    assert lines[0].split() == ["key", "value"] and len(lines) == 2 + len(record)
+    assert lines[2].split() == ["file", record["file"]] and lines[5].split() == ["count_2", "2"]
+    assert max(map(len, lines)) <= TABLE_WIDTH and "(30 in all)" in lines[-1]
+    assert lines[-1].count("Insert") > CELL_ITEMS_WIDTH // 11           # the value column is wider than a cell
+    assert [c.strip() for c in format_table([record], markdown=True).splitlines()[0].split("|")] == ["", "key",
+                                                                                                   "value", ""]
+    narrow = format_table([{"scans": 32, "steps": 5315}]).splitlines()
+    assert narrow[0].split() == ["scans", "steps"]                       # a narrow record stays a row
+    assert len(format_table([record, record]).splitlines()) == 4         # several records stay rows
 
 
 def test_split_table_cuts_the_insert_names_and_json_keeps_them(run_less, tmp_path):
@@ -33,3 +50,6 @@ def test_split_table_cuts_the_insert_names_and_json_keeps_them(run_less, tmp_pat
     assert "(30 in all)" in table[2] and "(10 in all)" in table[3]
     rows = [json.loads(line) for line in run_less(*args, "--format", "jsonl", check=True).stdout.decode().splitlines()]
     assert sorted(rows[0]["inserts"] + rows[1]["inserts"]) == names
+    info = run_less("info", "s.npz", "--format", "table", check=True).stdout.decode().splitlines()
+    assert info[0].split() == ["key", "value"] and max(map(len, info)) <= TABLE_WIDTH
+    assert json.loads(run_less("info", "s.npz", "--format", "jsonl", check=True).stdout)["inserts"] == names
