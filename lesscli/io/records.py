@@ -7,6 +7,7 @@ import math
 import os
 import sys
 from collections.abc import Iterable, Mapping
+from itertools import groupby
 from typing import IO, Any
 
 import numpy as np
@@ -134,7 +135,9 @@ def emit_records(
     """Write records to ``stream`` (stdout) as JSON lines, a JSON array, a table or markdown.
 
     JSON lines are streamed one by one (a long sweep shows progress through a pipe); tables are
-    collected first to align columns.
+    collected first to align columns. Records of several kinds (their ``row`` key: a report's contrast,
+    classes and inclusions) make one table per run of a kind, each with its own columns, unless
+    ``columns`` are given.
     """
     stream = stream or sys.stdout
     fmt = resolve_format(fmt, stream)
@@ -147,7 +150,10 @@ def emit_records(
     if fmt == "json":
         stream.write(json.dumps(to_jsonable(rows), allow_nan=False, indent=1) + "\n")
     elif rows:
-        stream.write(format_table(rows, columns, markdown=fmt == "markdown") + "\n")
+        kinds = [list(run) for _kind, run in groupby(rows, key=lambda r: r.get("row"))]
+        if columns is not None or len(kinds) == 1:
+            kinds = [rows]
+        stream.write("\n\n".join(format_table(run, columns, markdown=fmt == "markdown") for run in kinds) + "\n")
     stream.flush()
 
 

@@ -53,3 +53,25 @@ def test_split_table_cuts_the_insert_names_and_json_keeps_them(run_less, tmp_pat
     info = run_less("info", "s.npz", "--format", "table", check=True).stdout.decode().splitlines()
     assert info[0].split() == ["key", "value"] and max(map(len, info)) <= TABLE_WIDTH
     assert json.loads(run_less("info", "s.npz", "--format", "jsonl", check=True).stdout)["inserts"] == names
+
+
+def test_records_of_several_kinds_make_a_table_each():
+    import io
+
+    from lesscli.io.records import emit_records
+
+    rows = [{"row": "contrast", "air": 0.04, "silicone": 0.41},
+            {"row": "class", "class": "insert", "voxels": 7}, {"row": "class", "class": "pillar", "voxels": 3},
+            {"row": "pillar", "diameter_mm": 4.01}]
+    out = io.StringIO()
+    emit_records(rows, "table", out)
+    tables = [t.splitlines() for t in out.getvalue().strip().split("\n\n")]
+    assert [t[0].split() for t in tables] == [["row", "air", "silicone"], ["row", "class", "voxels"],
+                                              ["row", "diameter_mm"]]
+    assert [len(t) for t in tables] == [3, 4, 3]
+    out = io.StringIO()
+    emit_records(rows, "table", out, columns=["row", "voxels"])        # columns given: one table
+    assert "\n\n" not in out.getvalue() and len(out.getvalue().splitlines()) == 6
+    out = io.StringIO()
+    emit_records(rows, "jsonl", out)
+    assert [json.loads(line) for line in out.getvalue().splitlines()] == rows
