@@ -189,7 +189,8 @@ def run_live(imager, ckpt: dict, lines, emitter: Emitter, on_error: str, defer: 
     and samples whose time goes backwards are reported with their number."""
     from lesscli.cli.common import LOG
     from lesscli.errors import DataError
-    from lesscli.infer.stream import StreamingImager, parse_live_line
+    from lesscli.infer.live import parse_live_line
+    from lesscli.infer.stream import StreamingImager
 
     stream = StreamingImager(imager, ckpt["norm_stats"], defer_decode=defer)
     emitter.start(0, "live")

@@ -23,7 +23,7 @@ from imaging_factory import learnable_scanset, make_representation
 
 from lesscli.cli.main import main
 from lesscli.errors import DataError
-from lesscli.infer.stream import parse_live_line
+from lesscli.infer.live import parse_live_line
 from lesscli.io.checkpoint import FORMAT
 from lesscli.io.predictions import PredictionSet, ScanPrediction, save_predictions
 from lesscli.io.scans import save_scans, to_arrays
