@@ -1,4 +1,4 @@
-"""``less info FILE``: what a scan set holds."""
+"""``less info FILE``: what a scan set, prediction file, checkpoint or label volume holds."""
 
 from __future__ import annotations
 
@@ -13,17 +13,23 @@ from lesscli.cli.common import format_option
               help="Show history entries as stored (time, output file) instead of the summary.")
 @format_option
 def cli(path: str, full_history: bool, fmt: str | None) -> None:
-    """Describe a scan set: counts, shapes, units, sensor, label geometry, history.
+    """Describe a file: a scan set (counts, shapes, units, sensor, label geometry, history), a
+    prediction file (scans, grids, model, labelled voxels, entropy), a checkpoint (model, parameters,
+    epochs, best loss, image grid) or a label volume (grid, voxels and mm^3 per class).
 
-    FILE is a .npz scan set, a directory of shards, or '-' for stdin.
+    FILE is a .npz scan set or prediction file, a directory of shards, '-' for a scan set on stdin,
+    a .pt checkpoint, or a .nii/.nii.gz label volume.
 
     The history summary leaves out output paths and times, so the same data read from a file or
     from a pipe gives the same record.
 
-    Example: less info scans.npz --format table
-    """
-    from lesscli.data.describe import describe
-    from lesscli.io.records import emit_records
-    from lesscli.io.scans import load_scans
+    Examples:
 
-    emit_records(describe(load_scans(path), path, full_history=full_history), fmt)
+      less info scans.npz --format table
+
+      less info imager.pt
+    """
+    from lesscli.data.describe import describe_file
+    from lesscli.io.records import emit_records
+
+    emit_records(describe_file(path, full_history=full_history), fmt)

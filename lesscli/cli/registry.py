@@ -6,7 +6,7 @@ a click command or group.
 """
 
 COMMANDS: dict[str, tuple[str, str]] = {
-    "info": ("info", "Describe a scan set: counts, shapes, units, sensor, labels, history."),
+    "info": ("info", "Describe a scan set, prediction file, checkpoint or label volume."),
     "subsample": ("subsample", "Keep every N-th step, K trajectories per scan, or a maximum length."),
     "concat": ("concat", "Concatenate scan sets that share sensor and units."),
     "split": ("split", "Split a scan set into train/val/test by insert or by scan."),

@@ -1,11 +1,14 @@
-"""Summary records of a scan set (``less info``)."""
+"""Summary records of the toolkit's files (``less info``): scan sets, prediction files, checkpoints and
+label volumes, each told apart by its name and its own schema."""
 
 from __future__ import annotations
 
+import os
 import shlex
 
 import numpy as np
 
+from lesscli.io.labels import CLASS_NAMES, LabelVolume
 from lesscli.io.scans import ScanSet
 
 
@@ -66,7 +69,7 @@ def describe(scans: ScanSet, path: str, full_history: bool = False) -> list[dict
     per_scan = np.bincount(scans.traj_scan, minlength=scans.n_scans) if scans.n_traj else np.zeros(scans.n_scans)
     normal = scans.force[..., 2] if scans.n_steps else np.zeros(0)
     return [{
-        "schema": f"{scans.meta.get('schema')}/{scans.meta.get('version')}",
+        "kind": "scan set", "schema": f"{scans.meta.get('schema')}/{scans.meta.get('version')}",
         "scans": scans.n_scans, "trajectories": scans.n_traj, "steps": scans.n_steps,
         "inserts": sorted(set(scans.scan_insert.tolist())),
         "trajectories_per_scan": _stats(per_scan.astype(float)),
@@ -80,3 +83,94 @@ def describe(scans: ScanSet, path: str, full_history: bool = False) -> list[dict
         "label_volumes": labels,
         "history": scans.meta.get("history", []) if full_history else history_summary(scans.meta.get("history", [])),
     }]
+
+
+def _class_voxels(volumes: list[np.ndarray]) -> dict:
+    """Voxels of each class by name, over ``volumes`` of label codes (checked by their readers)."""
+    counts = sum((np.bincount(v.ravel(), minlength=len(CLASS_NAMES)) for v in volumes),
+                 np.zeros(len(CLASS_NAMES), np.int64))
+    return {name: int(n) for name, n in zip(CLASS_NAMES, counts)}
+
+
+def describe_labels(volume: LabelVolume) -> list[dict]:
+    """One record of a label volume: its grid, and each class's voxels and volume."""
+    voxel_mm3 = float(np.prod(volume.spacing_mm))
+    voxels = _class_voxels([volume.data])
+    return [{"kind": "label volume", "shape": list(volume.shape), "spacing_mm": volume.spacing_mm.tolist(),
+             "origin_mm": volume.origin_mm.tolist(), "class_voxels": voxels,
+             "class_volume_mm3": {k: n * voxel_mm3 for k, n in voxels.items()}}]
+
+
+def describe_predictions(preds, full_history: bool = False) -> list[dict]:
+    """One record of a prediction file (:class:`lesscli.io.predictions.PredictionSet`): what was imaged,
+    on which grids, by which model, and what it labelled."""
+    scans, meta = preds.scans, dict(preds.meta)
+    history = meta.pop("history", [])
+    return [{
+        "kind": "prediction set", "schema": f"{meta.pop('schema', None)}/{meta.pop('version', None)}",
+        "scans": len(scans), "with_truth": sum(p.truth is not None for p in scans),
+        "inserts": sorted({p.insert for p in scans}), "orientations": sorted({p.orientation for p in scans}),
+        "classes": sorted({int(p.probs.shape[0]) for p in scans}),
+        "grid_shapes": sorted({tuple(int(n) for n in p.probs.shape[1:]) for p in scans}),
+        "spacing_mm": sorted({tuple(float(v) for v in p.spacing_mm) for p in scans}),
+        "steps": _stats(np.array([p.steps for p in scans], float)),
+        "class_voxels": _class_voxels([p.label for p in scans]),
+        "entropy_mean_nats": float(np.mean([p.entropy.astype(np.float64).mean() for p in scans])) if scans else None,
+        "meta": meta, "history": history if full_history else history_summary(history),
+    }]
+
+
+def describe_checkpoint(ckpt: dict, full_history: bool = False) -> list[dict]:
+    """One record of a checkpoint (:mod:`lesscli.io.checkpoint`): which model, how large, how it was
+    trained, and on what grid it images."""
+    config, extra = ckpt.get("config", {}), ckpt.get("extra", {})
+    history = ckpt.get("history", [])
+    epochs = [h for h in history if "epoch" in h]
+    commands = [h for h in history if "command" in h]
+    settings = None
+    if config.get("model") == "forcemap":          # its fitted settings, without the per-depth prior tables
+        kind, model = "classical imager", "forcemap"
+        settings = {k: v for k, v in config.get("forcemap", {}).items() if not k.startswith("prior")}
+    else:
+        kind = "imager" if "image" in config else "representation"
+        model = config.get("encoder", {}).get("name")
+    norm = ckpt.get("norm_stats") or {}
+    return [{
+        "kind": kind, "format": f"{ckpt.get('format')}/{ckpt.get('version')}", "model": model,
+        "decoder": config.get("decoder", {}).get("name"),
+        "parameters": int(sum(int(v.numel()) for v in ckpt.get("model_state", {}).values())),
+        "epochs": len(epochs), "best_epoch": extra.get("best_epoch"), "best_loss": extra.get("best_loss"),
+        "last_epoch": {k: v for k, v in epochs[-1].items() if k not in ("best", "step")} if epochs else None,
+        "settings": settings, "image": config.get("image"), "grid": config.get("grid"),
+        "force_units": norm.get("force_units"), "training_steps": norm.get("n_steps"),
+        "history": commands if full_history else history_summary(commands),
+    }]
+
+
+def describe_file(path: str, full_history: bool = False) -> list[dict]:
+    """The record of whatever toolkit file ``path`` is: a checkpoint (``.pt``), a label volume (``.nii``,
+    ``.nii.gz``), a folder of scan-set shards, else a ``.npz`` (``-``: stdin) read once and described as
+    the prediction file or scan set its schema names."""
+    import json
+
+    from lesscli.io import predictions, scans
+    from lesscli.io.checkpoint import load_checkpoint
+    from lesscli.io.labels import load_nifti_labels
+    from lesscli.io.npfiles import read_npz
+
+    low = path.lower()
+    if low.endswith((".pt", ".pth")):
+        return describe_checkpoint(load_checkpoint(path), full_history)
+    if low.endswith((".nii", ".nii.gz")):
+        return describe_labels(load_nifti_labels(path))
+    if path != "-" and os.path.isdir(path):
+        return describe(scans.load_scans(path), path, full_history)
+    name = "<stdin>" if path == "-" else path
+    arrays = read_npz(path, f"{scans.WHAT} or {predictions.WHAT}")
+    try:
+        schema = json.loads(str(arrays["meta"])).get("schema") if "meta" in arrays else None
+    except (ValueError, AttributeError):
+        schema = None                                # the scan set's own check names what is wrong
+    if schema == predictions.SCHEMA:
+        return describe_predictions(predictions.from_arrays(arrays, name), full_history)
+    return describe(scans.validate(arrays, name), path, full_history)

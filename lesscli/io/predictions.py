@@ -232,8 +232,11 @@ def _checked_arrays(arrays: dict, name: str) -> dict:
 
 def load_predictions(path: str) -> PredictionSet:
     """Read and check a prediction file; problems raise DataError naming the file and key."""
-    name = "<stdin>" if path == "-" else path
-    arrays = read_npz(path, what=WHAT)
+    return from_arrays(read_npz(path, what=WHAT), "<stdin>" if path == "-" else path)
+
+
+def from_arrays(arrays: dict, name: str) -> PredictionSet:
+    """The prediction set of a file's ``arrays`` (checked; DataError names ``name`` and the key)."""
     meta = checks.schema_meta(arrays, name, SCHEMA, VERSION, "prediction file")
     a = _checked_arrays(arrays, name)
     shapes = a["probs_shape"]

@@ -52,9 +52,9 @@ def _rounded(value: Any) -> Any:
 
 def _short(value: Any, width: int) -> str:
     """``value`` (plain JSON) as JSON in about ``width`` characters: a list or mapping cut after the items that
-    fit, saying how many there are in all, each item itself cut to half the width; a string in one cut with
-    "...". A table is read by people, and a split's hundred insert names would make every row a screen
-    wide; JSON lines and JSON keep every item."""
+    fit, saying how many there are in all, each item itself cut to the room left (the first to nearly all
+    of it); a string cut with "...". A table is read by people, and a split's hundred insert names would
+    make every row a screen wide; JSON lines and JSON keep every item."""
     whole = json.dumps(value)
     if len(whole) <= width:
         return whole
@@ -63,15 +63,17 @@ def _short(value: Any, width: int) -> str:
     if not isinstance(value, (list, dict)):
         return whole
     pairs = isinstance(value, dict)
-    parts = [f"{json.dumps(k)}: {_short(v, width // 2)}" for k, v in value.items()] if pairs else \
-        [_short(v, width // 2) for v in value]
-    tail = f", ... ({len(parts)} in all)" if len(parts) > 1 else ""
-    shown = []
-    for part in parts:
-        if len(", ".join([*shown, part])) + len(tail) + 2 > width and shown:
+    items = value.items() if pairs else ((None, v) for v in value)
+    tail = f", ... ({len(value)} in all)" if len(value) > 1 else ""
+    shown: list[str] = []
+    for key, item in items:
+        room = width - 2 - len(tail) - len(", ".join(shown)) - (2 if shown else 0)
+        prefix = f"{json.dumps(key)}: " if pairs else ""
+        part = prefix + _short(item, max(room - len(prefix), 8))
+        if shown and len(part) > room:
             break
         shown.append(part)
-    if len(shown) == len(parts):
+    if len(shown) == len(value):
         tail = ""
     return ("{" if pairs else "[") + ", ".join(shown) + tail + ("}" if pairs else "]")
 

@@ -252,7 +252,7 @@ def test_bad_scan_file(capsys, in_tmp, case):
 def test_garbage_says_what_the_file_is_not(capsys, in_tmp):
     (in_tmp / "x.npz").write_bytes(b"hello world, not an archive")
     line = fails_clearly(capsys, in_tmp, ["info", "x.npz"], "x.npz")
-    assert "not a less.scans/1 scan set: not a .npz archive" in line
+    assert "not a less.scans/1 scan set or less.pred/1 prediction file: not a .npz archive" in line
 
 
 # ---------------------------------------------------------------------------------------------- predictions

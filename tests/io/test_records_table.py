@@ -14,8 +14,8 @@ from lesscli.io.scans import save_scans
     (["x", "y"], '["x", "y"]'),                                                   # short: whole
     ([f"R{i}s0" for i in range(102)], '["R0s0", "R1s0", "R2s0", "R3s0", "R4s0", ... (102 in all)]'),
     ({f"k{i}": i for i in range(40)}, '{"k0": 0, "k1": 1, "k2": 2, "k3": 3, ... (40 in all)}'),
-    (["a" * 80], '["' + "a" * 25 + '..."]'),                                     # an item cut to half the width
-    (["a" * 80, "b"], '["' + "a" * 25 + '...", "b"]'),
+    (["a" * 80], '["' + "a" * 53 + '..."]'),                                     # an item cut to the room left
+    (["a" * 80, "b"], '["' + "a" * 37 + '...", ... (2 in all)]'),
     ([{"name": "St8C5", "shape": [13, 64, 64], "origin_mm": [-11.0, -30.2, -30.2]}] * 3,
      '[{"name": "St8C5", ... (3 in all)}, ... (3 in all)]'),                      # items of items cut too
     ([0.123456789, 2.0, float("nan")], "[0.1235, 2.0, null]"),                    # rounded as number cells are
