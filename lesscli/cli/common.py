@@ -55,6 +55,13 @@ def format_option(func):
     )(func)
 
 
+def series_option(func):
+    """``--series NUMBER|UID``: the series of a DICOM folder holding several (``mri-label``, ``info``)."""
+    return click.option("--series", default=None, metavar="NUMBER|UID",
+                        help="The series to read from a DICOM folder holding several (its SeriesNumber or "
+                             "SeriesInstanceUID).")(func)
+
+
 def deprecated(old: str, new: str) -> None:
     """The one stderr line for a spelling that still works in this release and goes in the next."""
     LOG.warning("%s is deprecated and goes in the next release; use %s", old, new)

@@ -4,21 +4,23 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option
+from lesscli.cli.common import format_option, series_option
 
 
 @click.command("info")
 @click.argument("path", type=click.Path(), metavar="FILE")
 @click.option("--full-history", is_flag=True,
               help="Show history entries as stored (time, output file) instead of the summary.")
+@series_option
 @format_option
-def cli(path: str, full_history: bool, fmt: str | None) -> None:
+def cli(path: str, full_history: bool, series: str | None, fmt: str | None) -> None:
     """Describe a file: a scan set (counts, shapes, units, sensor, label geometry, history), a
     prediction file (scans, grids, model, labelled voxels, entropy), a checkpoint (model, parameters,
-    epochs, best loss, image grid) or a label volume (grid, voxels and mm^3 per class).
+    epochs, best loss, image grid), a label volume (grid, voxels and mm^3 per class) or an MRI scan
+    (grid and intensities).
 
-    FILE is a .npz scan set or prediction file, a directory of shards, '-' for a scan set on stdin,
-    a .pt checkpoint, or a .nii/.nii.gz label volume.
+    FILE is a .npz scan set or prediction file, a folder of scan-set shards, '-' for either on stdin,
+    a .pt checkpoint, a .nii/.nii.gz label volume or MRI scan, or a DICOM folder.
 
     The history summary leaves out output paths and times, so the same data read from a file or
     from a pipe gives the same record.
@@ -32,4 +34,4 @@ def cli(path: str, full_history: bool, fmt: str | None) -> None:
     from lesscli.data.describe import describe_file
     from lesscli.io.records import emit_records
 
-    emit_records(describe_file(path, full_history=full_history), fmt)
+    emit_records(describe_file(path, full_history=full_history, series=series), fmt)

@@ -13,6 +13,7 @@ from lesscli.cli.common import (
     output_option,
     renamed_option,
     seed_option,
+    series_option,
 )
 
 CONTRASTS = {"silicone-darker": False, "silicone-brighter": True}
@@ -108,8 +109,7 @@ def _label(scan_path: str, output: str, spacing: str | None, series: str | None,
 @click.argument("scan", type=click.Path(), required=False)
 @output_option(help="Output labels (.nii.gz/.nii; .npy for a numpy scan). With --synth: the synthetic scan.")
 @click.option("--spacing-mm", "spacing", default=None, help="dz,dy,dx voxel size for .npy/.npz scans (and --synth).")
-@click.option("--series", default=None, metavar="NUMBER|UID",
-              help="The series to read from a DICOM folder holding several (its SeriesNumber or SeriesInstanceUID).")
+@series_option
 @click.option("--pillar-max-diameter-mm", type=click.FloatRange(min=0.1), default=4.5, show_default=True,
               help="Thickest pillar; thicker silicone bodies are inclusions.")
 @click.option("--pillar-diameter-mm", type=click.FloatRange(min=0.0, min_open=True), default=None,

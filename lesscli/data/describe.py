@@ -101,6 +101,25 @@ def describe_labels(volume: LabelVolume) -> list[dict]:
              "class_volume_mm3": {k: n * voxel_mm3 for k, n in voxels.items()}}]
 
 
+def describe_image(scan) -> list[dict]:
+    """One record of an MRI scan (:class:`lesscli.mri.scan.MRIScan`, a NIfTI file or a DICOM folder that is
+    not a label volume): its grid and its intensities."""
+    data = np.asarray(scan.data)
+    finite = data[np.isfinite(data)] if data.dtype.kind == "f" else data.ravel()
+    levels = np.percentile(finite, [0, 1, 50, 99, 100]).tolist() if finite.size else [None] * 5
+    return [{"kind": "image volume", "format": scan.kind, "shape": list(data.shape), "dtype": str(data.dtype),
+             "spacing_mm": np.asarray(scan.spacing_mm, float).tolist(),
+             "intensity": dict(zip(("min", "p1", "median", "p99", "max"), levels)),
+             "non_finite_voxels": int(data.size - finite.size)}]
+
+
+def _is_label_volume(data: np.ndarray) -> bool:
+    """Whole numbers 0..3 only: the label codes (an MRI scan has more levels, or fractions)."""
+    if data.size == 0 or (data.dtype.kind == "f" and not np.isfinite(data).all()):
+        return False
+    return bool(data.min() >= 0 and data.max() < len(CLASS_NAMES) and np.array_equal(data, np.round(data)))
+
+
 def describe_predictions(preds, full_history: bool = False) -> list[dict]:
     """One record of a prediction file (:class:`lesscli.io.predictions.PredictionSet`): what was imaged,
     on which grids, by which model, and what it labelled."""
@@ -147,22 +166,30 @@ def describe_checkpoint(ckpt: dict, full_history: bool = False) -> list[dict]:
     }]
 
 
-def describe_file(path: str, full_history: bool = False) -> list[dict]:
-    """The record of whatever toolkit file ``path`` is: a checkpoint (``.pt``), a label volume (``.nii``,
-    ``.nii.gz``), a folder of scan-set shards, else a ``.npz`` (``-``: stdin) read once and described as
-    the prediction file or scan set its schema names."""
+def describe_file(path: str, full_history: bool = False, series: str | None = None) -> list[dict]:
+    """The record of whatever toolkit file ``path`` is: a checkpoint (``.pt``); a NIfTI file (``.nii``,
+    ``.nii.gz``), a label volume where it holds label codes only, else an MRI scan, as a DICOM folder is;
+    a folder of scan-set shards; else a ``.npz`` (``-``: stdin) read once and described as the prediction
+    file or scan set its schema names. ``series``: the series of a DICOM folder holding several."""
     import json
 
     from lesscli.io import predictions, scans
     from lesscli.io.checkpoint import load_checkpoint
     from lesscli.io.labels import load_nifti_labels
     from lesscli.io.npfiles import read_npz
+    from lesscli.mri.scan import load_scan
 
+    if series is not None and not os.path.isdir(path):
+        load_scan(path, series=series)          # a file holds one scan: DataError naming the file
     low = path.lower()
     if low.endswith((".pt", ".pth")):
         return describe_checkpoint(load_checkpoint(path), full_history)
-    if low.endswith((".nii", ".nii.gz")):
-        return describe_labels(load_nifti_labels(path))
+    if low.endswith((".nii", ".nii.gz")) or (os.path.isdir(path) and not any(
+            f.endswith(".npz") for f in os.listdir(path))):      # a NIfTI file, or a DICOM folder
+        image = load_scan(path, series=series)
+        if image.kind == "nifti" and _is_label_volume(np.asarray(image.data)):
+            return describe_labels(load_nifti_labels(path))
+        return describe_image(image)
     if path != "-" and os.path.isdir(path):
         return describe(scans.load_scans(path), path, full_history)
     name = "<stdin>" if path == "-" else path

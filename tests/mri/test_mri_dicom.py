@@ -265,3 +265,34 @@ def test_undecodable_pixel_data_is_one_line_naming_the_file(run_less, tmp_path):
     assert proc.returncode == 1 and len(err.splitlines()) == 1, err
     assert "IM1: pixel data not decodable" in err
     assert not (tmp_path / "labels.nii.gz").exists()
+
+
+def test_info_describes_a_dicom_series_and_a_nifti_scan(run_less, tmp_path, scan_volume):
+    """``less info`` on an MRI scan: the grid and intensities of a DICOM folder (one series chosen where it
+    holds several) and of the same scan as NIfTI; label codes alone make a label volume instead."""
+    import json
+
+    image, spacing = scan_volume
+    stored, recovered = quantised(image)
+    write_series(tmp_path / "export" / "SE1", stored, spacing, -25.0, order=range(stored.shape[2]))
+    write_series(tmp_path / "export" / "SE2", stored[:, :, :3], (1.0, 1.0, 5.0), 0.0, order=range(3), number=2)
+    nib.save(nib.Nifti1Image(recovered.astype(np.float32), expected_affine(spacing, -25.0)), tmp_path / "scan.nii.gz")
+    records = {}
+    for source, options in (("export", ("--series", "1")), ("scan.nii.gz", ())):
+        proc = run_less("info", source, *options, "--format", "jsonl", check=True)
+        records[source] = json.loads(proc.stdout)
+    for record in records.values():
+        assert record["kind"] == "image volume" and record["shape"] == list(stored.shape)
+        np.testing.assert_allclose(record["spacing_mm"], spacing, atol=1e-5)
+        assert record["intensity"]["min"] == pytest.approx(recovered.min(), abs=1e-3)
+        assert record["intensity"]["max"] == pytest.approx(recovered.max(), abs=1e-3)
+        assert record["intensity"]["median"] == pytest.approx(np.median(recovered), abs=1e-3)
+    assert (records["export"]["format"], records["scan.nii.gz"]["format"]) == ("dicom", "nifti")
+    several = run_less("info", "export")
+    assert several.returncode == 1 and b"2 series in this folder" in several.stderr and not several.stdout
+    on_a_file = run_less("info", "scan.nii.gz", "--series", "1")
+    assert on_a_file.returncode == 1 and b"--series is for a DICOM folder" in on_a_file.stderr
+    codes = nib.Nifti1Image((recovered > np.median(recovered)).astype(np.uint8), np.diag([*spacing, 1.0]))
+    nib.save(codes, tmp_path / "codes.nii.gz")
+    labels = json.loads(run_less("info", "codes.nii.gz", "--format", "jsonl", check=True).stdout)
+    assert labels["kind"] == "label volume" and sum(labels["class_voxels"].values()) == stored.size
