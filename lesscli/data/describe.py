@@ -171,10 +171,9 @@ def describe_file(path: str, full_history: bool = False, series: str | None = No
     ``.nii.gz``), a label volume where it holds label codes only, else an MRI scan, as a DICOM folder is;
     a folder of scan-set shards; else a ``.npz`` (``-``: stdin) read once and described as the prediction
     file or scan set its schema names. ``series``: the series of a DICOM folder holding several."""
-    import json
-
     from lesscli.io import predictions, scans
     from lesscli.io.checkpoint import load_checkpoint
+    from lesscli.io.checks import declared_schema
     from lesscli.io.labels import load_nifti_labels
     from lesscli.io.npfiles import read_npz
     from lesscli.mri.scan import load_scan
@@ -194,10 +193,6 @@ def describe_file(path: str, full_history: bool = False, series: str | None = No
         return describe(scans.load_scans(path), path, full_history)
     name = "<stdin>" if path == "-" else path
     arrays = read_npz(path, f"{scans.WHAT} or {predictions.WHAT}")
-    try:
-        schema = json.loads(str(arrays["meta"])).get("schema") if "meta" in arrays else None
-    except (ValueError, AttributeError):
-        schema = None                                # the scan set's own check names what is wrong
-    if schema == predictions.SCHEMA:
+    if declared_schema(arrays) == predictions.SCHEMA:
         return describe_predictions(predictions.from_arrays(arrays, name), full_history)
     return describe(scans.validate(arrays, name), path, full_history)

@@ -102,6 +102,18 @@ def json_object(arrays: dict, key: str, name: str, what: str) -> dict:
     return value
 
 
+def declared_schema(arrays: dict) -> str | None:
+    """The schema a file's ``meta`` names (``less.scans``, ``less.pred``), read leniently to tell a file's
+    kind: None where there is no ``meta``, or it is not a JSON object (the file's own reader says why)."""
+    if "meta" not in arrays:
+        return None
+    try:
+        schema = json.loads(str(arrays["meta"])).get("schema")
+    except (ValueError, AttributeError):
+        return None
+    return schema if isinstance(schema, str) else None
+
+
 def schema_meta(arrays: dict, name: str, schema: str, version: int, what: str) -> dict:
     """The ``meta`` object of a ``schema/version`` file, with its schema, version and history checked."""
     meta = json_object(arrays, "meta", name, f"{schema}/{version} {what}")

@@ -69,12 +69,16 @@ def _load_nifti(path: str) -> MRIScan:
 
 
 def _load_numpy(path: str, spacing_mm) -> MRIScan:
-    if spacing_mm is None:
-        raise DataError(f"{path}: a .npy/.npz scan needs --spacing-mm dz,dy,dx")
+    from lesscli.io.checks import declared_schema
     from lesscli.io.npfiles import read_npy, read_npz
 
-    if path.endswith(".npz"):
-        arrays = read_npz(path, what="numpy scan (.npz)")
+    arrays = read_npz(path, what="numpy scan (.npz)") if path.endswith(".npz") else None
+    schema = declared_schema(arrays) if arrays is not None else None
+    if schema:                                          # one of the toolkit's own files, not an image
+        raise DataError(f"{path}: a {schema} file, not an MRI scan (less info tells what it holds)")
+    if spacing_mm is None:
+        raise DataError(f"{path}: a .npy/.npz scan needs --spacing-mm dz,dy,dx")
+    if arrays is not None:
         if len(arrays) != 1 and "image" not in arrays:
             raise DataError(f"{path}: expected one array (or one named 'image'), found {list(arrays)}")
         obj = arrays["image" if "image" in arrays else next(iter(arrays))]

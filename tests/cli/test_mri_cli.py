@@ -179,6 +179,18 @@ def test_dicom_folder_without_images_is_a_clear_error(run_less, tmp_path):
     assert "no DICOM images" in line
 
 
+def test_a_toolkit_file_is_told_not_an_mri_scan(run_less, tmp_path):
+    from factories import random_scanset
+
+    from lesscli.io.scans import save_scans
+
+    save_scans(str(tmp_path / "scans.npz"), random_scanset())
+    for spacing in ((), ("--spacing-mm", "1,1,1")):
+        line = _one_line_error(run_less("mri-label", "scans.npz", *spacing, "-o", "out.nii.gz"))
+        assert "scans.npz: a less.scans file, not an MRI scan" in line
+    assert not (tmp_path / "out.nii.gz").exists()
+
+
 def test_usage_errors(run_less, synth_files, tmp_path):
     proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", "x.nii.gz", "--spacing-mm", "1,0,1")
     assert proc.returncode == 2 and "three positive numbers" in proc.stderr.decode()
