@@ -153,14 +153,16 @@ def describe_checkpoint(ckpt: dict, full_history: bool = False) -> list[dict]:
     else:
         kind = "imager" if "image" in config else "representation"
         model = config.get("encoder", {}).get("name")
-    norm = ckpt.get("norm_stats") or {}
+    norm, image = ckpt.get("norm_stats") or {}, config.get("image") or {}
     return [{
         "kind": kind, "format": f"{ckpt.get('format')}/{ckpt.get('version')}", "model": model,
         "decoder": config.get("decoder", {}).get("name"),
         "parameters": int(sum(int(v.numel()) for v in ckpt.get("model_state", {}).values())),
         "epochs": len(epochs), "best_epoch": extra.get("best_epoch"), "best_loss": extra.get("best_loss"),
         "last_epoch": {k: v for k, v in epochs[-1].items() if k not in ("best", "step")} if epochs else None,
-        "settings": settings, "image": config.get("image"), "grid": config.get("grid"),
+        "settings": settings, "grid": config.get("grid"),
+        "labelling": {k: image[k] for k in ("threshold", "min_volume_mm3", "smooth_mm") if k in image} or None,
+        "image": config.get("image"),
         "force_units": norm.get("force_units"), "training_steps": norm.get("n_steps"),
         "history": commands if full_history else history_summary(commands),
     }]

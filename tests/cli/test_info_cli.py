@@ -66,6 +66,7 @@ def test_checkpoints_of_each_kind(run_less, tmp_path):
     assert imager["kind"] == "imager" and imager["decoder"] == "patch" and imager["model"] == "less"
     assert imager["parameters"] == sum(v.numel() for v in state.values()) > 0
     assert imager["grid"]["shape"] == [3, 48, 48] and imager["epochs"] == 0 and imager["force_units"] == "N"
+    assert imager["labelling"] is None and imager["image"] == {"dim": 3, "slice": -1}     # argmax: none chosen
     assert rep["kind"] == "representation" and rep["model"] == "less" and rep["grid"] is None
     assert classical["kind"] == "classical imager" and classical["parameters"] == 0
     assert "threshold" in classical["settings"] and "prior" not in classical["settings"]
