@@ -1,4 +1,4 @@
-"""``less info FILE``: what a scan set, prediction file, checkpoint or label volume holds."""
+"""``less info FILE``: what a scan set, prediction file, checkpoint, label volume or MRI scan holds."""
 
 from __future__ import annotations
 

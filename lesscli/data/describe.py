@@ -1,5 +1,5 @@
-"""Summary records of the toolkit's files (``less info``): scan sets, prediction files, checkpoints and
-label volumes, each told apart by its name and its own schema."""
+"""Summary records of the toolkit's files (``less info``): scan sets, prediction files, checkpoints, label
+volumes and MRI scans, each told apart by its name, its content and its own schema."""
 
 from __future__ import annotations
 
