@@ -76,3 +76,4 @@ printf 'Figures: %s/figures/compare/ (truth | LESS | classical), %s/figures/less
   "$(find "$OUT/figures" -name '*.png' | wc -l)"
 ls "$OUT"/figures/compare/*.png | head -n 2
 echo "Metrics: $OUT/headline.txt (the table above), $OUT/metrics.txt (every metric), $OUT/metrics.jsonl (per scan and per model)."
+echo "What any of these files holds: less info $OUT/imager.pt (or heldout.npz, pred_less.npz, ...)."
