@@ -88,3 +88,16 @@ def test_a_prediction_file_on_stdin_is_told_by_its_schema(run_less, tmp_path):
     piped = run_less("info", "-", "--format", "jsonl", input=(tmp_path / "p.npz").read_bytes(), check=True)
     assert json.loads(piped.stdout) == info(run_less, "p.npz")
     assert json.loads(piped.stdout)["kind"] == "prediction set"
+
+
+def test_several_files_name_themselves_and_all_are_read_first(run_less, tmp_path):
+    save_nifti(str(tmp_path / "truth.nii.gz"), sphere_labels(shape=(6, 12, 12)))
+    save_scans(str(tmp_path / "s.npz"), random_scanset())
+    proc = run_less("info", "truth.nii.gz", "s.npz", "--format", "jsonl", check=True)
+    rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
+    assert [(r["file"], r["kind"]) for r in rows] == [("truth.nii.gz", "label volume"), ("s.npz", "scan set")]
+    assert {k: v for k, v in rows[1].items() if k != "file"} == info(run_less, "s.npz")     # one file: no name
+    tables = run_less("info", "truth.nii.gz", "s.npz", "--format", "table", check=True).stdout.decode()
+    assert [t.splitlines()[2].split() for t in tables.split("\n\n")] == [["file", "truth.nii.gz"], ["file", "s.npz"]]
+    missing = run_less("info", "s.npz", "gone.npz")
+    assert missing.returncode == 1 and not missing.stdout and b"gone.npz: no such file" in missing.stderr
