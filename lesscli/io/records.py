@@ -101,11 +101,12 @@ def _columns(rows: list[Mapping], columns: list[str] | None) -> list[str]:
 def format_table(rows: list[Mapping], columns: list[str] | None = None, markdown: bool = False) -> str:
     """Aligned text table (or GitHub markdown table) of ``rows``, long lists and mappings cut (:func:`_short`).
     One record wider than ``TABLE_WIDTH`` is written down the page instead, left-aligned: a column "key" of
-    its keys and one "value" of their cells, as wide as the keys leave (``less info`` of a scan set)."""
+    its keys and one "value" of their cells, as wide as the keys leave (``less info`` of a scan set). A
+    markdown table keeps its columns: a document's tables are read across, and its viewer scrolls."""
     cols = _columns(rows, columns)
     cells = [[_cell(row.get(c)) for c in cols] for row in rows]
     widths = [max([len(c)] + [len(r[i]) for r in cells]) for i, c in enumerate(cols)]
-    down = len(rows) == 1 and sum(widths) + 2 * len(widths) > TABLE_WIDTH
+    down = not markdown and len(rows) == 1 and sum(widths) + 2 * len(widths) > TABLE_WIDTH
     if down:                                    # the value column takes the width the keys leave
         width = max(CELL_ITEMS_WIDTH, TABLE_WIDTH - 2 - max(map(len, cols)))
         cols, cells = ["key", "value"], [[c, _cell(rows[0].get(c), width)] for c in cols]

@@ -34,8 +34,8 @@ def test_one_wide_record_is_written_down_the_page():
     assert lines[2].split() == ["file", record["file"]] and lines[5].split() == ["count_2", "2"]
     assert max(map(len, lines)) <= TABLE_WIDTH and "(30 in all)" in lines[-1]
     assert lines[-1].count("Insert") > CELL_ITEMS_WIDTH // 11           # the value column is wider than a cell
-    assert [c.strip() for c in format_table([record], markdown=True).splitlines()[0].split("|")] == ["", "key",
-                                                                                                   "value", ""]
+    markdown = format_table([record], markdown=True).splitlines()                 # a document's table: columns
+    assert len(markdown) == 3 and markdown[0].split("|")[1].strip() == "file" and "(30 in all)" in markdown[2]
     narrow = format_table([{"scans": 32, "steps": 5315}]).splitlines()
     assert narrow[0].split() == ["scans", "steps"]                       # a narrow record stays a row
     assert len(format_table([record, record]).splitlines()) == 4         # several records stay rows
