@@ -64,16 +64,11 @@ def cli(quick, knobs, inserts, n_traj, epochs, image_epochs, values, work_dir, p
     import tempfile
 
     from lesscli.bench.tradeoff import FULL, KNOBS, QUICK, TradeoffRun, make_plan, run_tradeoff
-    from lesscli.cli.common import progress
-    from lesscli.errors import closest
+    from lesscli.cli.common import check_known, progress
     from lesscli.io.records import emit_records
     from lesscli.threads import apply_threads
 
-    for knob in knobs:
-        if knob not in KNOBS:
-            hint = closest(knob, KNOBS)
-            raise click.BadParameter(f"unknown knob '{knob}'" + (f"; did you mean '{hint}'?" if hint else ""),
-                                     param_hint="--knob")
+    check_known(knobs, KNOBS, "knob", "--knob")
     if knob_plot and len(set(knobs)) != 1:
         raise click.UsageError("--knob-plot needs exactly one --knob")
     apply_threads("throughput", override=threads)

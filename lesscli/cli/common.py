@@ -55,6 +55,18 @@ def format_option(func):
     )(func)
 
 
+def check_known(names: Iterable[str], known, what: str, option: str) -> None:
+    """A usage error (exit 2) for the first of ``names`` not in ``known``, with the nearest known name as a
+    hint: "unknown metric 'com_error_3d'; did you mean 'com_error_mm_3d'?"."""
+    from lesscli.errors import closest
+
+    for name in names:
+        if name not in known:
+            hint = closest(name, known)
+            raise click.BadParameter(f"unknown {what} '{name}'" + (f"; did you mean '{hint}'?" if hint else ""),
+                                     param_hint=option)
+
+
 def series_option(func):
     """``--series NUMBER|UID``: the series of a DICOM folder holding several (``mri-label``, ``info``)."""
     return click.option("--series", default=None, metavar="NUMBER|UID",

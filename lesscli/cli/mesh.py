@@ -4,21 +4,15 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option, output_option
+from lesscli.cli.common import check_known, format_option, output_option
 
 CLASS_CODES = {"insert": 1, "pillar": 2, "inclusion": 3}
 
 
 def _parse_classes(text: str) -> tuple[int, ...]:
-    from lesscli.errors import closest
-
-    codes = []
-    for name in (t.strip() for t in text.split(",") if t.strip()):
-        if name not in CLASS_CODES:
-            hint = closest(name, CLASS_CODES)
-            raise click.BadParameter(f"unknown class '{name}'" + (f"; did you mean '{hint}'?" if hint else ""),
-                                     param_hint="--classes")
-        codes.append(CLASS_CODES[name])
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    check_known(names, CLASS_CODES, "class", "--classes")
+    codes = [CLASS_CODES[name] for name in names]
     if not codes:
         raise click.BadParameter("no class given", param_hint="--classes")
     return tuple(codes)

@@ -6,8 +6,7 @@ import sys
 
 import click
 
-from lesscli.cli.common import LOG, format_option
-from lesscli.errors import closest
+from lesscli.cli.common import LOG, check_known, format_option
 
 # Columns shown in tables (JSON formats keep every key).
 SCAN_COLUMNS = ("file", "model", "scan", "insert", "orientation", "f1_3d", "com_error_mm_3d", "arse_3d",
@@ -34,14 +33,6 @@ def _check_usage(preds, truth_path, pred_nifti, baseline_from, threshold) -> Non
         raise click.UsageError("--threshold needs prediction files with probabilities")
 
 
-def _check_group_keys(keys: tuple[str, ...], known: set[str]) -> None:
-    for key in keys:
-        if key not in known:
-            hint = closest(key, known)
-            raise click.BadParameter(f"unknown key '{key}'" + (f"; did you mean '{hint}'?" if hint else ""),
-                                     param_hint="--group-by")
-
-
 def _groups_repeat_files(report) -> bool:
     """True when each group summary is one file's summary under keys the per-file table shows already
     (e.g. ``--group-by model`` with one file per model): the table then shows the per-file rows only."""
@@ -50,11 +41,7 @@ def _groups_repeat_files(report) -> bool:
 
 def _shown(show: tuple[str, ...] | None) -> tuple[str, ...]:
     """The metrics the human tables show, in order: ``show`` (checked), else every one."""
-    for name in show or ():
-        if name not in SUMMARY_METRICS:
-            hint = closest(name, SUMMARY_METRICS)
-            raise click.BadParameter(f"unknown metric '{name}'" + (f"; did you mean '{hint}'?" if hint else ""),
-                                     param_hint="--show")
+    check_known(show or (), SUMMARY_METRICS, "metric", "--show")
     return show or SUMMARY_METRICS
 
 
@@ -145,7 +132,7 @@ def cli(preds, truth_path, pred_nifti, cls, threshold, baseline_from, diameter_p
         score_files(preds, cls, threshold, diameter_points, baseline, baseline_from or "", extra, report)
     if truth_path:
         score_nifti_pairs(truth_path, pred_nifti, cls, diameter_points, report)
-    _check_group_keys(keys or (), report.group_keys())
+    check_known(keys or (), report.group_keys(), "key", "--group-by")
     for message in report.warnings:
         LOG.warning(message)
     add_summaries(report, keys)

@@ -8,7 +8,8 @@ import shlex
 
 import numpy as np
 
-from lesscli.io.labels import CLASS_NAMES, LabelVolume
+from lesscli.errors import DataError
+from lesscli.io.labels import CLASS_NAMES, LabelVolume, check_codes
 from lesscli.io.scans import ScanSet
 
 
@@ -113,11 +114,13 @@ def describe_image(scan) -> list[dict]:
              "non_finite_voxels": int(data.size - finite.size)}]
 
 
-def _is_label_volume(data: np.ndarray) -> bool:
-    """Whole numbers 0..3 only: the label codes (an MRI scan has more levels, or fractions)."""
-    if data.size == 0 or (data.dtype.kind == "f" and not np.isfinite(data).all()):
+def _holds_codes(data: np.ndarray) -> bool:
+    """Label codes 0..3 only (:func:`lesscli.io.labels.check_codes`); an MRI scan has more levels, or fractions."""
+    try:
+        check_codes(data, "")
+    except DataError:
         return False
-    return bool(data.min() >= 0 and data.max() < len(CLASS_NAMES) and np.array_equal(data, np.round(data)))
+    return data.size > 0
 
 
 def describe_predictions(preds, full_history: bool = False) -> list[dict]:
@@ -176,7 +179,7 @@ def describe_file(path: str, full_history: bool = False, series: str | None = No
     from lesscli.io import predictions, scans
     from lesscli.io.checkpoint import load_checkpoint
     from lesscli.io.checks import declared_schema
-    from lesscli.io.labels import load_nifti_labels
+    from lesscli.io.labels import labels_from_nifti
     from lesscli.io.npfiles import read_npz
     from lesscli.mri.scan import load_scan
 
@@ -187,9 +190,9 @@ def describe_file(path: str, full_history: bool = False, series: str | None = No
         return describe_checkpoint(load_checkpoint(path), full_history)
     if low.endswith((".nii", ".nii.gz")) or (os.path.isdir(path) and not any(
             f.endswith(".npz") for f in os.listdir(path))):      # a NIfTI file, or a DICOM folder
-        image = load_scan(path, series=series)
-        if image.kind == "nifti" and _is_label_volume(np.asarray(image.data)):
-            return describe_labels(load_nifti_labels(path))
+        image = load_scan(path, series=series)          # read once: a label volume, or an MRI scan
+        if image.kind == "nifti" and _holds_codes(np.asarray(image.data)):
+            return describe_labels(labels_from_nifti(np.asarray(image.data), image.affine, path))
         return describe_image(image)
     if path != "-" and os.path.isdir(path):
         return describe(scans.load_scans(path), path, full_history)

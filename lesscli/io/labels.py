@@ -113,9 +113,15 @@ def load_nifti_labels(path: str) -> LabelVolume:
         data = np.asarray(img.dataobj)
     except (OSError, ValueError, EOFError, zlib.error, nib.filebasedimages.ImageFileError) as exc:
         raise DataError(f"{path}: not a readable NIfTI file ({exc})") from None
+    return labels_from_nifti(data, img.affine, path)
+
+
+def labels_from_nifti(data: np.ndarray, affine: np.ndarray, path: str) -> LabelVolume:
+    """The label volume of a NIfTI's array (file axis order) and affine, read from ``path`` (named in errors):
+    an axis-aligned affine (any positive voxel size) and codes 0..3, else DataError."""
     if data.ndim != 3:
         raise DataError(f"{path}: expected a 3D label volume, got shape {data.shape}")
-    aff = np.asarray(img.affine, dtype=np.float64)
+    aff = np.asarray(affine, dtype=np.float64)
     lin = aff[:3, :3]
     if not np.isfinite(aff).all():
         raise DataError(f"{path}: the affine holds NaN or inf; the file's geometry is broken")
