@@ -163,8 +163,9 @@ def labelling_options(func):
                         help="Drop inclusion regions smaller than this volume (mm^3; 0: keep all). Default: the "
                              "model's, chosen on --val by image fit; else 0.")(func)
     return click.option("--threshold", type=click.FloatRange(0, 1), default=None,
-                        help="Pillar/inclusion only above this probability (hand-held setting: 0.8). Default: the "
-                             "model's, chosen on --val by image fit; else argmax.")(func)
+                        help="Pillar/inclusion exactly where its probability exceeds this (hand-held setting: 0.8; "
+                             "below 0.5 also where it is not the likeliest class). Default: the model's, chosen "
+                             "on --val by image fit; else argmax.")(func)
 
 
 def device_option(help: str = "auto (CUDA when available, else CPU), cpu, cuda or cuda:N."):

@@ -11,7 +11,8 @@ from lesscli.cli.common import format_option, output_option, training_options
 @click.argument("data", type=click.Path())
 @output_option(help="Best checkpoint (.pt); beside it <stem>.last.pt (for --resume) and <stem>.log.jsonl.")
 @click.option("--val", "val_path", type=click.Path(), default=None, help="Validation scan set: selects the best epoch.")
-@click.option("--model", "model_name", default=None, help="Encoder: less (particles) or global.  [default: less]")
+@click.option("--model", "model_name", default=None, help="Encoder: less or global (the paper's pair), less-taxel or "
+              "global-taxel (with the taxel stiffness map).  [default: less]")
 @click.option("--receptive-field-mm", type=float, default=None, help="Receptive-field radius.  [default: 10]")
 @click.option("--spacing-mm", type=float, default=None, help="Particle spacing.  [default: 6]")
 @click.option("--grid-extent-mm", type=float, default=None, help="Side of the particle grid.  [default: 60]")

@@ -58,32 +58,44 @@ def labels_from_probs(probs: np.ndarray, threshold: float | None = None, min_vol
                       spacing_mm=(1.0, 1.0, 1.0), smooth_mm: float = 0.0) -> np.ndarray:
     """Class codes from probabilities (C, ...) -> (...) uint8.
 
-    Without a threshold this is the argmax. With one, a voxel is pillar or inclusion only when that
-    class's probability exceeds ``threshold``; otherwise it takes the more likely of background and
-    insert (the hand-held rule of the paper). With ``min_volume_mm3`` > 0, inclusion regions (face-
-    connected) smaller than that volume (voxels of ``spacing_mm``) take the more likely of background
-    and insert too: an inclusion is a solid body, not a speck. With ``smooth_mm`` > 0 both rules read
-    the probabilities :func:`smoothed` across each slice first, so that a boundary follows the
-    neighbourhood rather than single pixels.
+    Without a threshold this is the argmax. With one, a voxel is pillar or inclusion exactly when that
+    class's probability exceeds ``threshold`` (the larger of the two where both do); otherwise it takes the
+    more likely of background and insert. At 0.5 and above this only demotes unsure voxels (the paper's
+    hand-held rule, 0.8); below 0.5 it also labels voxels where the class is likely but not the most
+    likely, the rule for a model that is right about where and unsure about how much. With
+    ``min_volume_mm3`` > 0, inclusion regions (face-connected) smaller than that volume (voxels of
+    ``spacing_mm``) take the more likely of background and insert too: an inclusion is a solid body, not
+    a speck. With ``smooth_mm`` > 0 both rules read the probabilities :func:`smoothed` across each slice
+    first, so that a boundary follows the neighbourhood rather than single pixels.
     """
     probs = smoothed(probs, smooth_mm, spacing_mm)
-    labels = probs.argmax(axis=0).astype(np.uint8)
-    if threshold is not None:
-        thin = np.isin(labels, (PILLAR, INCLUSION))
-        weak = thin & (np.take_along_axis(probs, labels[None].astype(np.int64), 0)[0] <= threshold)
-        labels[weak] = probs[:2].argmax(axis=0)[weak]
-    if min_volume_mm3 > 0:
-        from scipy import ndimage
+    tissue = probs[:2].argmax(axis=0).astype(np.uint8)
+    return drop_specks(thresholded(probs, threshold, tissue), tissue, min_volume_mm3, spacing_mm)
 
-        regions, n = ndimage.label(labels == INCLUSION)
-        if n:
-            voxels = np.bincount(regions.ravel(), minlength=n + 1)
-            voxels[0] = 0
-            small = voxels * float(np.prod(spacing_mm)) < min_volume_mm3
-            small[0] = False
-            speck = small[regions]
-            labels[speck] = probs[:2].argmax(axis=0)[speck]
-    return labels
+
+def thresholded(probs: np.ndarray, threshold: float | None, tissue: np.ndarray) -> np.ndarray:
+    """The threshold step of :func:`labels_from_probs`; ``tissue`` is the likelier of background and insert."""
+    if threshold is None:
+        return probs.argmax(axis=0).astype(np.uint8)
+    thin = np.where(probs[INCLUSION] >= probs[PILLAR], INCLUSION, PILLAR).astype(np.uint8)
+    return np.where(np.maximum(probs[PILLAR], probs[INCLUSION]) > threshold, thin, tissue).astype(np.uint8)
+
+
+def drop_specks(labels: np.ndarray, tissue: np.ndarray, min_volume_mm3: float, spacing_mm) -> np.ndarray:
+    """The region step of :func:`labels_from_probs`: inclusion regions under ``min_volume_mm3`` become
+    ``tissue`` (a new array; ``labels`` is left as it is)."""
+    if not min_volume_mm3 > 0:
+        return labels
+    from scipy import ndimage
+
+    regions, n = ndimage.label(labels == INCLUSION)
+    if not n:
+        return labels
+    voxels = np.bincount(regions.ravel(), minlength=n + 1)
+    small = voxels * float(np.prod(spacing_mm)) < min_volume_mm3
+    small[0] = False
+    speck = small[regions]
+    return np.where(speck, tissue, labels).astype(np.uint8)
 
 
 @dataclass(frozen=True)

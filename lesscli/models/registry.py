@@ -8,10 +8,13 @@ from lesscli.errors import DataError, LessError, did_you_mean
 from lesscli.io.checkpoint import encoder_state, load_checkpoint
 from lesscli.models.encoders import GlobalEncoder, ParticleEncoder
 from lesscli.models.force_decoder import ForceDecoder
+from lesscli.models.global_taxel import GlobalTaxelEncoder
 from lesscli.models.taxel import TaxelParticleEncoder
 
-# "less" is the paper's encoder; "less-taxel" adds a per-particle taxel stiffness map (models/taxel.py)
-ENCODERS: dict[str, type] = {"less": ParticleEncoder, "less-taxel": TaxelParticleEncoder, "global": GlobalEncoder}
+# "less" and "global" are the paper's pair; "less-taxel" adds a per-particle taxel stiffness map
+# (models/taxel.py) and "global-taxel" is its global partner, one state and one map per scan
+ENCODERS: dict[str, type] = {"less": ParticleEncoder, "less-taxel": TaxelParticleEncoder, "global": GlobalEncoder,
+                             "global-taxel": GlobalTaxelEncoder}
 FORCE_DECODERS: dict[str, type] = {"mlp": ForceDecoder}
 
 

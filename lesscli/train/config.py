@@ -20,7 +20,7 @@ from lesscli.io.toml_files import read_toml
 class ModelConfig:
     """Encoder and decoder sizes (lengths in mm)."""
 
-    name: str = "less"                  # "less" (paper), "less-taxel" (taxel-aware) or "global"
+    name: str = "less"                  # "less", "global" (the paper's pair), "less-taxel", "global-taxel"
     dim: int = 128                      # d_z (paper: 1024)
     spacing_mm: float = 6.0
     grid_extent_mm: float = 60.0        # side of the square covered by particles

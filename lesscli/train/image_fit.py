@@ -149,10 +149,11 @@ def inclusion_f1(model: torch.nn.Module, dataset, batch_size: int, device: torch
 # LABEL_F1_TOLERANCE of it (below the F1's scatter between validation draws) are told apart by their
 # sizing: the smallest mean diameter error (ties: the least smoothing, the lowest threshold, then the
 # largest minimum volume, since regions the validation scans cannot tell apart are specks, not
-# inclusions). None: argmax; 0 mm^3: no region rule; 0 mm: no smoothing. The smoothing widths (one to
+# inclusions). None: argmax; thresholds below 0.5 label a class that is likely but not the likeliest, so an
+# unsure model is not forced to predict nothing; 0 mm^3: no region rule; 0 mm: no smoothing. The smoothing widths (one to
 # five pixels of the label grids, 0.48-0.95 mm) even out patch seams and single-pixel spurs; much wider
 # ones would round off the smallest inclusions (examples/README.md, "Sizing: the labelling rule").
-THRESHOLD_CHOICES = (None, 0.5, 0.6, 0.7, 0.8, 0.9)
+THRESHOLD_CHOICES = (None, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 MIN_VOLUME_CHOICES_MM3 = (0.0, 50.0, 100.0, 150.0)
 SMOOTH_CHOICES_MM = (0.0, 1.0, 1.5, 2.0, 2.5)
 LABEL_F1_TOLERANCE = 0.01
@@ -165,6 +166,24 @@ def _diameter_or_zero(mask: np.ndarray, spacing_mm) -> float:
 
     d = diameter_mm(mask.reshape((-1, *mask.shape[-2:])), np.asarray(spacing_mm, float))
     return 0.0 if d is None else d
+
+
+def _menu_masks(probs: np.ndarray, choices: list, spacing_mm):
+    """The inclusion mask of every (smoothing, threshold, minimum volume) rule in ``choices``, in order
+    (smoothing-major), each step computed once per smoothing and threshold: the masks of
+    :func:`~lesscli.io.predictions.labels_from_probs`, rule by rule."""
+    from lesscli.io.predictions import drop_specks, smoothed, thresholded
+
+    cache: dict = {}
+    for sm, th, mv in choices:
+        if sm not in cache:
+            smooth = smoothed(probs, sm, spacing_mm)
+            cache.clear()
+            cache[sm] = (smooth, smooth[:2].argmax(axis=0).astype(np.uint8), {})
+        smooth, tissue, by_threshold = cache[sm]
+        if th not in by_threshold:
+            by_threshold[th] = thresholded(smooth, th, tissue)
+        yield drop_specks(by_threshold[th], tissue, mv, spacing_mm) == INCLUSION
 
 
 def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: torch.device, spacing_mm,
@@ -184,8 +203,6 @@ def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: t
         (the rule, {str(smooth_mm): {str(threshold): {str(min_volume_mm3): F1}}}, the same table of
         the mean diameter error in mm).
     """
-    from lesscli.io.predictions import labels_from_probs, smoothed
-
     choices = [(sm, th, float(mv)) for sm in smooths for th in thresholds for mv in volumes]
     counts = np.zeros((len(choices), 3), dtype=np.int64)                       # tp, fp, fn
     diameter_errors: list[list[float]] = [[] for _ in choices]
@@ -198,11 +215,13 @@ def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: t
             for p, target in zip(probs, batch.target.cpu().numpy()):
                 true = target == INCLUSION
                 true_diameter = _diameter_or_zero(true, spacing_mm)
-                smooth = {sm: smoothed(p, sm, spacing_mm) for sm in smooths}     # once per width
-                for i, (sm, th, mv) in enumerate(choices):
-                    pred = labels_from_probs(smooth[sm], th, mv, spacing_mm) == INCLUSION
+                diameters: dict[bytes, float] = {}             # rules often give the same mask: measure it once
+                for i, pred in enumerate(_menu_masks(p, choices, spacing_mm)):
                     counts[i] += ((pred & true).sum(), (pred & ~true).sum(), (~pred & true).sum())
-                    diameter_errors[i].append(abs(_diameter_or_zero(pred, spacing_mm) - true_diameter))
+                    key = np.packbits(pred).tobytes()
+                    if key not in diameters:
+                        diameters[key] = _diameter_or_zero(pred, spacing_mm)
+                    diameter_errors[i].append(abs(diameters[key] - true_diameter))
     scores = [_f1(*map(int, c)) for c in counts]
     sizing = [float(np.mean(e)) if e else float("nan") for e in diameter_errors]
     ranked = [-1.0 if np.isnan(f) else f for f in scores]
