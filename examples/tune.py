@@ -44,7 +44,7 @@ def less(cmd: list[str], args: argparse.Namespace) -> dict:
     """Run one `less` command; its last JSON record."""
     full = [*shlex.split(args.less), *cmd, "--device", args.device, "--threads", str(args.threads),
             "--format", "jsonl"]
-    proc = subprocess.run(full, capture_output=True, text=True)
+    proc = subprocess.run(full, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         raise SystemExit(f"tune: {' '.join(full)} failed:\n{proc.stderr.strip().splitlines()[-1:]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])

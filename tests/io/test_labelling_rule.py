@@ -43,8 +43,12 @@ def test_thresholds_at_or_above_one_half_only_demote_the_argmax():
 def test_the_menu_masks_are_the_rule_applied_rule_by_rule():
     """``choose_labelling`` reuses each smoothing and threshold across rules: the same masks as one
     ``labels_from_probs`` call per rule."""
-    from lesscli.train.image_fit import (MIN_VOLUME_CHOICES_MM3, SMOOTH_CHOICES_MM, THRESHOLD_CHOICES,
-                                         _menu_masks)
+    from lesscli.train.image_fit import (
+        MIN_VOLUME_CHOICES_MM3,
+        SMOOTH_CHOICES_MM,
+        THRESHOLD_CHOICES,
+        _menu_masks,
+    )
 
     rng = np.random.default_rng(3)
     logits = rng.normal(0, 1.5, (4, 5, 24, 24))

@@ -36,7 +36,7 @@ def test_map_peaks_where_the_stiff_spot_was_felt_anywhere_on_the_insert(spot):
     pose[:, :2] += torch.tensor(spot, dtype=pose.dtype)      # the same touches moved over the spot
     with torch.no_grad():
         z = enc(_batch(pose, force)).z[0, 0]
-    g, m, side = enc.gru_dim, enc.cells, int(math.isqrt(enc.cells))
+    g, m, side = enc.gru_dim, enc.cells, math.isqrt(enc.cells)
     evidence = z[g + 2 * m:]
     covered = evidence > evidence.max() * 0.2
     axis = (np.arange(side) - (side - 1) / 2) * 2.5

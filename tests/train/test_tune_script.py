@@ -69,7 +69,7 @@ def test_a_tiny_search_writes_its_log_and_the_chosen_config(tmp_path):
                      'turns = [1, 2]\n[[trial]]\npretrain = ["--dim", "8"]\n[[trial]]\npretrain = ["--dim", "4"]\n')
     cmd = [sys.executable, str(SCRIPT), "run", "--model", "less-taxel", "--space", str(space), "--train", "tr.npz",
            "--val", "va.npz", "--work", "work", "--log", "log.jsonl", "-o", "best.toml", "--less", str(BIN / "less")]
-    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, env={"OMP_NUM_THREADS": "1",
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, check=False, env={"OMP_NUM_THREADS": "1",
                                                                                   "PATH": str(BIN)})
     assert proc.returncode == 0, proc.stderr
     log = [json.loads(line) for line in (tmp_path / "log.jsonl").read_text().splitlines()]
@@ -81,6 +81,6 @@ def test_a_tiny_search_writes_its_log_and_the_chosen_config(tmp_path):
     printed = subprocess.run([sys.executable, str(SCRIPT), "args", str(tmp_path / "best.toml"), "pretrain"],
                              capture_output=True, text=True, check=True).stdout.split()
     assert printed == config["pretrain"]
-    again = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, env={"OMP_NUM_THREADS": "1",
+    again = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, check=False, env={"OMP_NUM_THREADS": "1",
                                                                                    "PATH": str(BIN)})
     assert again.returncode == 0 and again.stderr == ""            # a rerun reads the log, trains nothing
