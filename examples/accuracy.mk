@@ -92,7 +92,8 @@ $(P)/forcemap.pt: $(P)/train.npz
 
 # ---------------------------------------------------------------- predictions: <regime dir>/pred_<imager>_on_<set>.npz
 # each learned imager with its own config's turns; local ones grow their particle grid over the large inserts
-model_of = $(word 2,$(subst _, ,$(1)))
+# the model behind an imager stem: img_<model>[-<variant>]_s<seed> (variants: -full, -init, -maponly, -n<N>-d<D>)
+model_of = $(firstword $(subst -n, ,$(patsubst %-init,%,$(patsubst %-maponly,%,$(patsubst %-full,%,$(word 2,$(subst _, ,$(1))))))))
 define ACC_PREDICT
 $(1)/pred_%_on_$(2).npz: $(1)/%.pt $(1)/$(2).npz
 	$(LESS) image predict $$< $(1)/$(2).npz -o $$@ --device $(DEVICE) \
@@ -123,3 +124,80 @@ $(AR)/accuracy.md: $(OURS_PREDS)
 	$(call ACC_TABLE,$(AR),$^,$(A)/split/train.npz)
 $(PR)/accuracy.md: $(PAPER_PREDS)
 	$(call ACC_TABLE,$(PR),$^,$(P)/train.npz)
+
+# ---------------------------------------------------------------- the parts of less-taxel (our regime, 3 seeds)
+#   make -C examples ablation -j2 [ACC_TIER=winkler]      -> results/ablation-<tier>/ablation.md
+# full: the headline's models; init: the GRU at initialisation (one SSL step of lr 1e-12, so no
+# self-supervision); maponly: a GRU of one untrained unit, so the decoder reads the stiffness map alone.
+ABL := $(A)/ablation
+ABR := results/ablation-$(ACC_TIER)
+ABL_init    := --epochs 1 --lr 1e-12
+ABL_maponly := --dim 1 --epochs 1 --lr 1e-12
+ABL_SETS    := val single multiple
+define ABL_TRAIN
+$(ABL)/rep_less-taxel-$(1)_s$(2).pt: $(A)/split/train.npz $(A)/split/val.npz $(CFG)/less-taxel.toml
+	@mkdir -p $$(@D)
+	$(LESS) pretrain $(A)/split/train.npz --val $(A)/split/val.npz -o $$@ --model less-taxel --seed $(2) \
+	  --device $(DEVICE) $$$$($(PYTHON) tune.py args $(CFG)/less-taxel.toml pretrain) $(ABL_$(1)) --format jsonl > $$@.json
+$(ABL)/img_less-taxel-$(1)_s$(2).pt: $(ABL)/rep_less-taxel-$(1)_s$(2).pt
+	$(LESS) image fit $(A)/split/train.npz --val $(A)/split/val.npz --rep $$< -o $$@ --dim 3 --seed $(2) \
+	  --device $(DEVICE) $$$$($(PYTHON) tune.py args $(CFG)/less-taxel.toml fit) --format jsonl > $$@.json
+endef
+$(foreach s,$(SEEDS),$(foreach v,init maponly,$(eval $(call ABL_TRAIN,$(v),$(s)))))
+$(ABL)/img_less-taxel-full_s%.pt: $(A)/img_less-taxel_s%.pt
+	@mkdir -p $(@D)
+	ln -sf ../$(<F) $@
+$(ABL)/val.npz $(ABL)/single.npz $(ABL)/multiple.npz: $(ABL)/%.npz: | $(A)/split/val.npz $(A)/single.npz $(A)/multiple.npz
+	@mkdir -p $(@D)
+	ln -sf $(if $(filter val,$*),../split/val.npz,../$*.npz) $@
+$(foreach t,$(ABL_SETS),$(eval $(call ACC_PREDICT,$(ABL),$(t))))
+ABL_PREDS := $(foreach t,$(ABL_SETS),$(foreach v,full init maponly,$(foreach s,$(SEEDS),$(ABL)/pred_img_less-taxel-$(v)_s$(s)_on_$(t).npz)))
+.PHONY: ablation
+ablation: $(ABR)/ablation.md
+$(ABR)/ablation.md: $(ABL_PREDS)
+	@mkdir -p $(@D)
+	$(LESS) metrics $^ --summary-only --format jsonl > $(ABR)/ablation.jsonl
+	$(PYTHON) headline.py $(ABR)/ablation.jsonl --no-paper > $@.part && mv $@.part $@
+
+# ---------------------------------------------------------------- scaling: the paper's pair against data and width
+#   make -C examples scaling -j2 [ACC_TIER=winkler] [DEVICE=cuda SCALE_DIMS="16 64 256 1024"]
+# `less` and `global` (each with its config's other settings, seed 0) trained on 51 / 102 / 204 inserts of
+# the family (204: the training split and the reserve) at d_z SCALE_DIMS, scored on the validation split;
+# results/scaling-<tier>/scaling.md with each training's seconds (results/scaling-<tier>/times.jsonl).
+SC  := $(A)/scaling
+SCR := results/scaling-$(ACC_TIER)
+SCALE_MODELS ?= less global
+SCALE_DIMS   ?= 16 64 256
+SCALE_SCANS  := 51 102 204
+$(SC)/train51.npz: $(A)/search/train.npz
+	@mkdir -p $(@D)
+	ln -sf ../search/train.npz $@
+$(SC)/train102.npz: $(A)/split/train.npz
+	@mkdir -p $(@D)
+	ln -sf ../split/train.npz $@
+$(SC)/train204.npz: $(A)/split/train.npz $(A)/split/reserve.npz
+	@mkdir -p $(@D)
+	$(LESS) concat $^ -o $@
+$(SC)/val.npz: | $(A)/split/val.npz
+	@mkdir -p $(@D)
+	ln -sf ../split/val.npz $@
+define SCALE_TRAIN
+$(SC)/rep_$(1)-n$(2)-d$(3)_s0.pt: $(SC)/train$(2).npz $(SC)/val.npz $(CFG)/$(1).toml
+	$(LESS) pretrain $$< --val $(SC)/val.npz -o $$@ --model $(1) --seed 0 --device $(DEVICE) \
+	  $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml pretrain) --dim $(3) --format jsonl > $$@.json
+$(SC)/img_$(1)-n$(2)-d$(3)_s0.pt: $(SC)/rep_$(1)-n$(2)-d$(3)_s0.pt
+	$(LESS) image fit $(SC)/train$(2).npz --val $(SC)/val.npz --rep $$< -o $$@ --dim 3 --seed 0 --device $(DEVICE) \
+	  $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) --format jsonl > $$@.json
+endef
+$(foreach m,$(SCALE_MODELS),$(foreach n,$(SCALE_SCANS),$(foreach d,$(SCALE_DIMS),$(eval $(call SCALE_TRAIN,$(m),$(n),$(d))))))
+$(eval $(call ACC_PREDICT,$(SC),val))
+SCALE_PREDS := $(foreach m,$(SCALE_MODELS),$(foreach n,$(SCALE_SCANS),$(foreach d,$(SCALE_DIMS),$(SC)/pred_img_$(m)-n$(n)-d$(d)_s0_on_val.npz)))
+.PHONY: scaling
+scaling: $(SCR)/scaling.md
+$(SCR)/scaling.md: $(SCALE_PREDS)
+	@mkdir -p $(@D)
+	$(LESS) metrics $^ --summary-only --format jsonl > $(SCR)/scaling.jsonl
+	for f in $(SCALE_PREDS:_on_val.npz=.pt); do \
+	  $(PYTHON) -c 'import json,sys; a,b=(json.loads(open(p).read().splitlines()[-1]) for p in sys.argv[2:]); print(json.dumps({"imager": sys.argv[1], "seconds": a["seconds"] + b["seconds"]}))' \
+	    $$(basename $$f .pt) $$(echo $$f | sed 's|/img_|/rep_|').json $$f.json; done > $(SCR)/times.jsonl
+	$(PYTHON) headline.py $(SCR)/scaling.jsonl --no-paper --times $(SCR)/times.jsonl > $@.part && mv $@.part $@

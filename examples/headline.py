@@ -9,6 +9,7 @@ imager; and the paper's own numbers (real data, REFERENCE.md) for orientation.
 
 from __future__ import annotations
 
+import argparse
 import json
 import re
 import statistics
@@ -56,7 +57,7 @@ def read_groups(path: str) -> dict:
     groups = {}
     for key, files in runs.items():
         group = {"n": len(files)}
-        for column, _, _ in COLUMNS:
+        for column, _, _ in COLUMNS[:6]:
             values = [f[column] for f in files if f.get(column) is not None]
             if values:
                 group[column] = statistics.fmean(values)
@@ -110,13 +111,32 @@ def paper_table() -> list[str]:
     return out
 
 
+def add_times(groups: dict, path: str) -> None:
+    """Mean training seconds per imager (records ``{"imager": "img_<name>_s<seed>", "seconds": s}``)."""
+    seconds: dict = {}
+    for line in Path(path).read_text().splitlines():
+        r = json.loads(line)
+        seconds.setdefault(re.sub(r"^img_|_s\d+$", "", r["imager"]), []).append(r["seconds"])
+    for (_, name), group in groups.items():
+        if name in seconds:
+            group["train_seconds"] = statistics.fmean(seconds[name])
+
+
 def main(argv: list[str]) -> None:
-    if len(argv) != 1:
-        raise SystemExit("usage: headline.py ACCURACY.jsonl")
-    groups = read_groups(argv[0])
-    lines = [f"Inclusion class; micro F1 over each set's scans, mean ± std over seeds (from {argv[0]}).", "",
-             *main_table(groups), "", "Generalisation: each imager's micro F1 on a set over its F1 on single.",
-             "", *ratio_table(groups), "", "The paper's numbers (real data; 2D):", "", *paper_table()]
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("records", help="less metrics --summary-only --format jsonl output")
+    parser.add_argument("--no-paper", action="store_true", help="leave out the paper's numbers")
+    parser.add_argument("--times", help="JSON lines of training seconds per imager: a column of them")
+    args = parser.parse_args(argv)
+    groups = read_groups(args.records)
+    if args.times:
+        add_times(groups, args.times)
+        COLUMNS.append(("train_seconds", "training s", 0))
+    lines = [f"Inclusion class; micro F1 over each set's scans, mean ± std over seeds (from {args.records}).",
+             "", *main_table(groups), "", "Generalisation: each imager's micro F1 on a set over its F1 on single.",
+             "", *ratio_table(groups)]
+    if not args.no_paper:
+        lines += ["", "The paper's numbers (real data; 2D):", "", *paper_table()]
     print("\n".join(lines))
 
 
