@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from lesscli.data.compat import check_match, model_signature
 from lesscli.data.image_labels import AUTO_SLICE, ImageDataset, collate_images, training_targets
 from lesscli.io.checkpoint import load_checkpoint, save_checkpoint
 from lesscli.io.labels import INCLUSION, N_CLASSES
@@ -255,6 +256,7 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
     t0 = time.perf_counter()
     encoder, rep = load_representation(rep_path, map_location="cpu")
     stats = rep["norm_stats"]
+    check_match(model_signature(rep), train, rep_path, names[0])
     targets, grid = training_targets(train, cfg.image.dim, cfg.image.slice, names[0])
     train_set = ImageDataset(train, stats, targets, names[0])
     val_set, by_f1 = None, False
