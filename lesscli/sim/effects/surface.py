@@ -33,7 +33,7 @@ def validate(params: dict, where: str) -> None:
 def scan_time_s(time_s: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """(N,) seconds since the scan's first step, from per-trajectory times and the trajectory offsets."""
     lengths = np.diff(offsets)
-    ends = np.array([time_s[b - 1] for a, b in zip(offsets[:-1], offsets[1:]) if b > a], np.float64)
+    ends = np.asarray(time_s, np.float64)[offsets[1:][lengths > 0] - 1]
     dt = float(np.median(np.diff(time_s))) if len(time_s) > 1 else 0.01
     starts = np.concatenate([[0.0], np.cumsum(ends + dt)[:-1]])
     return time_s + np.repeat(starts, lengths[lengths > 0])
