@@ -71,8 +71,9 @@ def check_match(expected: dict, scans, model_name: str, scans_name: str) -> None
     """DataError in one line naming both files unless ``scans`` matches the signature ``expected``."""
     diff = differences(expected, signature(scans))
     if diff:
+        hint = "convert the forces (less import --counts-per-newton) or use" if "force" in diff[0] else "use"
         raise DataError(f"{scans_name} does not match {model_name}: {'; '.join(diff)} (scans vs model); "
-                        "convert the scans (less import --counts-per-newton) or use a model trained on such scans")
+                        f"{hint} a model trained on such scans")
 
 
 def check_plausible(scans, name: str) -> None:
