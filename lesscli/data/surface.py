@@ -209,9 +209,11 @@ def surface_frame(scans):
 
 
 class OnlineSurface:
-    """The same rule for a live stream: each trajectory's onset is found once its force has risen
-    (a trajectory ends when a sample's time restarts below the previous one), and the surface is refitted
-    over every onset seen so far; poses are put on the current surface as they arrive.
+    """The same rule for a live stream: each trajectory's onset is found once the trajectory has ended
+    (a sample's time restarts below the previous one), and the surface is refitted over every onset seen
+    so far; poses are put on the current surface as they arrive. Until the first touch has ended, the
+    surface is flat at the lowest pad point of the first sample whose force passed the noise part of the
+    onset level (before that, the frame's zero: nothing has been touched yet).
 
     Args:
         sensor: the checkpoint's sensor layout (``pad_size_mm`` / ``taxel_xy_mm``, ``noise_n``).
@@ -227,6 +229,7 @@ class OnlineSurface:
         self._low: list[np.ndarray] = []
         self._normal: list[float] = []
         self._last_t: float | None = None
+        self._provisional = False
 
     def _close(self) -> None:
         if len(self._low) >= 2:
@@ -244,4 +247,7 @@ class OnlineSurface:
         self._last_t = t
         self._low.append(lowest_point(pose, self.half)[0])
         self._normal.append(float(np.asarray(force, np.float64).reshape(self.taxels, 3)[:, 2].sum()))
+        if not self.onsets and not self._provisional and len(self._normal) > 1 \
+                and self._normal[-1] - self._normal[0] > ONSET_SIGMAS * self.noise_n * np.sqrt(self.taxels):
+            self.surface, self._provisional = Surface(float(self._low[-1][2]), 0.0, 0.0, 0), True
         return to_surface(pose, self.surface)[0]

@@ -104,6 +104,9 @@ def test_the_online_surface_reaches_the_batch_surface_once_every_touch_has_ended
     assert first[2] == pytest.approx(scans.pose[0, 2])                  # nothing seen yet: the frame's zero
     for i in range(1, scans.n_steps):
         online.push(scans.pose[i], scans.force[i], float(scans.time_s[i]))
+        if i == 39:                                                     # the first touch, before it ends
+            top = 0.6 + 0.02 * scans.pose[0, 1]
+            assert online.surface.onsets == 0 and -0.5 < online.surface.a_mm - top < 0.0
     online.push(scans.pose[0], scans.force[0], 0.0)                     # a new touch closes the last one
     batch = sf.surfaces(scans)[0]
     assert (online.surface.a_mm, online.surface.b, online.surface.c) == pytest.approx(
