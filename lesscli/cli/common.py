@@ -286,6 +286,10 @@ def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, outp
     n_threads = apply_threads("throughput", override=threads, jobs=int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
     train = training_scans(data)
     val = training_scans(val_path) if val_path else None
+    if val is not None:
+        from lesscli.data.compat import check_match, signature
+
+        check_match(signature(train), val, data, val_path)
     env = distributed.setup(cfg.train.device)
     board = TensorBoardScalars(tensorboard) if tensorboard and env.is_main else None
     watch = Watch(progress, progress if STATE.verbose else None, [board] if board else []) if env.is_main else Watch()
@@ -306,8 +310,9 @@ def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, outp
 
 
 def training_scans(path: str):
-    """Load a scan set to learn from: untouched scans (no steps) teach nothing and are left out with a
-    warning; a set with no touches at all is a DataError."""
+    """Load a scan set to learn from, in its surface frame (lesscli.data.surface): untouched scans (no steps)
+    teach nothing and are left out with a warning; a set with no touches at all is a DataError."""
+    from lesscli.data.compat import prepare
     from lesscli.errors import DataError
     from lesscli.io.scans import load_scans
 
@@ -319,7 +324,7 @@ def training_scans(path: str):
         LOG.warning("%s: %d of %d scans have no steps (untouched); training leaves them out",
                     path, scans.n_scans - len(touched), scans.n_scans)
         scans = scans.select_scans(touched)
-    return scans
+    return prepare(scans, path)
 
 
 def comma_list(text: str, cast: type, what: str) -> tuple:

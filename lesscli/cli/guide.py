@@ -52,7 +52,7 @@ def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margi
 
     lookup(UNCERTAINTY, score, "guide score")
     imager, ckpt = load_imager(model, resolve_device(device))
-    scans = scans_for_model(partial, ckpt)
+    scans = scans_for_model(partial, ckpt, model)
     if scan_index is not None and scan_index >= scans.n_scans:
         raise DataError(f"{partial}: has {scans.n_scans} scans, no scan {scan_index}")
     chosen = [scan_index] if scan_index is not None else list(range(scans.n_scans))

@@ -50,6 +50,7 @@ def cli(model, data, pos_mm, ang_rad, repeats, seed, plot_path, metric, threshol
     Example: less noise-sweep imager.pt split/test.npz --pos-mm 0,1,2 --ang-rad 0,0.1 --repeats 3 --plot noise.png
     """
     from lesscli.cli.common import progress
+    from lesscli.data.compat import for_model
     from lesscli.errors import DataError
     from lesscli.infer.noise import grid_levels, sweep
     from lesscli.infer.predict import PredictOptions, load_imager, predict
@@ -60,7 +61,7 @@ def cli(model, data, pos_mm, ang_rad, repeats, seed, plot_path, metric, threshol
     levels = grid_levels(_levels(pos_mm, "--pos-mm"), _levels(ang_rad, "--ang-rad"))
     dev = resolve_device(device)
     imager, ckpt = load_imager(model, dev)
-    scans = load_scans(data)
+    scans = for_model(load_scans(data), ckpt, model, data)
     if not any(scans.label_of(s) is not None for s in range(scans.n_scans)):
         raise DataError(f"{data}: no scan has a label volume, so nothing can be scored")
     opts = PredictOptions(threshold=threshold, grow=grow, batch_size=batch_size)

@@ -73,7 +73,7 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, min_v
         if source == "-":
             run_live(imager, ckpt, sys.stdin.buffer, emitter, on_error, defer)
         else:
-            replay_scans(imager, ckpt, source, emitter, rate, defer)
+            replay_scans(imager, ckpt, source, emitter, rate, defer, model)
     finally:
         emitter.report_latency()
 
@@ -160,13 +160,15 @@ def _push(stream, emitter: Emitter, pose, force, t) -> None:
     emitter.sample(stream, pose, t, time.perf_counter() - t0, int(advanced.numel()))
 
 
-def replay_scans(imager, ckpt: dict, path: str, emitter: Emitter, rate: float | None, defer: bool) -> None:
-    """Replay every scan of a scan set from a fresh state, paced at ``rate`` samples/s when given."""
+def replay_scans(imager, ckpt: dict, path: str, emitter: Emitter, rate: float | None, defer: bool,
+                 model_name: str = "the model") -> None:
+    """Replay every scan of a scan set from a fresh state, paced at ``rate`` samples/s when given (poses in
+    the surface fitted over the whole scan, as batch prediction reads them)."""
     from lesscli.data.image_labels import AUTO_SLICE
     from lesscli.infer.predict import scan_grid, scans_for_model
     from lesscli.infer.stream import StreamingImager
 
-    scans = scans_for_model(path, ckpt)
+    scans = scans_for_model(path, ckpt, model_name)
     image_cfg = ckpt["config"]["image"]
     dim, slice_index = int(image_cfg["dim"]), int(image_cfg.get("slice", AUTO_SLICE))
     offsets = scans.scan_step_offsets()
@@ -186,13 +188,16 @@ def replay_scans(imager, ckpt: dict, path: str, emitter: Emitter, rate: float | 
 
 def run_live(imager, ckpt: dict, lines, emitter: Emitter, on_error: str, defer: bool) -> None:
     """Image live JSON lines from ``lines`` (bytes or text); malformed lines, lines that are not UTF-8
-    and samples whose time goes backwards are reported with their number."""
+    and samples whose time goes backwards are reported with their number. A model that reads the surface
+    frame gets each pose on the surface fitted over the onsets of the touches so far
+    (:class:`lesscli.data.surface.OnlineSurface`; a trajectory ends where its time restarts)."""
     from lesscli.cli.common import LOG
     from lesscli.errors import DataError
     from lesscli.infer.live import parse_live_line
     from lesscli.infer.stream import StreamingImager
 
     stream = StreamingImager(imager, ckpt["norm_stats"], defer_decode=defer)
+    surface = live_surface(ckpt, stream.force_dim // 3)
     emitter.start(0, "live")
     last_t = None
     for number, text in enumerate(lines, 1):
@@ -206,5 +211,17 @@ def run_live(imager, ckpt: dict, lines, emitter: Emitter, on_error: str, defer: 
             LOG.warning("-: line %d: %s; skipped", number, exc)
             continue
         last_t = last_t if sample.t is None else sample.t
-        _push(stream, emitter, sample.pose, sample.force, sample.t)
+        pose = sample.pose if surface is None else surface.push(sample.pose, sample.force, sample.t)
+        _push(stream, emitter, pose, sample.force, sample.t)
     emitter.finish(stream)
+
+
+def live_surface(ckpt: dict, taxels: int):
+    """The online surface of a model that reads the surface frame (None for one in the phantom frame)."""
+    from lesscli.data.compat import model_signature
+    from lesscli.data.surface import FRAME, OnlineSurface
+
+    sig = model_signature(ckpt)
+    if sig.get("pose_frame") != FRAME:
+        return None
+    return OnlineSurface({"taxel_xy_mm": sig.get("taxel_xy_mm"), **(sig.get("sensor") or {})}, taxels)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from lesscli.data.compat import signature
 from lesscli.errors import DataError
 from lesscli.io.scans import ScanSet
 from lesscli.types import Batch
@@ -35,7 +36,7 @@ def compute_norm_stats(scans: ScanSet, mode: str = "global") -> dict:
 
     Returns:
         ``{"force_mean": [F floats], "force_std": [F floats], "mode": str, "n_steps": int,
-        "force_units": str}`` with F = taxels x 3; a standard deviation below ``STD_FLOOR`` is
+        "force_units": str, "data": dict}`` with F = taxels x 3; a standard deviation below ``STD_FLOOR`` is
         stored as 1.
     """
     if mode not in NORM_MODES:
@@ -52,7 +53,7 @@ def compute_norm_stats(scans: ScanSet, mode: str = "global") -> dict:
     std = np.where(std > STD_FLOOR, std, 1.0)
     units = scans.meta.get("units", {}).get("force", "") if isinstance(scans.meta, dict) else ""
     return {"force_mean": mean.tolist(), "force_std": std.tolist(), "mode": mode,
-            "n_steps": int(scans.n_steps), "force_units": str(units)}
+            "n_steps": int(scans.n_steps), "force_units": str(units), "data": signature(scans)}
 
 
 def normalise_forces(force: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:

@@ -19,7 +19,8 @@ option (``top_slice``: "last", the default, keeps the stored order with the last
 "first" flips the stack).
 
 Units. Positions metres -> mm; forces stay raw sensor counts (``meta.units.force = "counts"``),
-baseline-removed. Trajectory attributes: ``force`` is the target force (N), ``angle`` the yaw in
+baseline-removed, or become newtons with a stated calibration (``counts_per_newton``, kept in
+``meta.sensor.counts_per_n``). Trajectory attributes: ``force`` is the target force (N), ``angle`` the yaw in
 degrees (stored as ``yaw_rad``), ``dx``/``dy`` grid offsets in metres (stored as mm).
 """
 
@@ -60,6 +61,7 @@ class ImportOptions:
     labels_dir: str | None = None
     mri_scan: int = 0
     top_slice: str = "last"
+    counts_per_newton: float | None = None
     _calib_cache: dict = field(default_factory=dict, repr=False)
     _label_cache: dict = field(default_factory=dict, repr=False)
 
@@ -312,11 +314,16 @@ def _one_scan(trajs: list[pp.Processed], attrs: list[dict], insert: str, orienta
         labels=[label] if label is not None else [], traj_attrs=traj_attrs, meta=import_meta(every, False))
 
 
-def import_meta(every: int, hand_held: bool) -> dict:
-    """``meta`` of an imported scan set: counts as force unit, 100 Hz / every, how it was made."""
-    return default_meta(xela_uscu(), force_units="counts", sample_rate_hz=100.0 / every,
+def import_meta(every: int, hand_held: bool, counts_per_newton: float | None = None) -> dict:
+    """``meta`` of an imported scan set: counts as force unit (newtons with a calibration, recorded in
+    ``sensor.counts_per_n``), 100 Hz / every, how it was made."""
+    sensor, units, force = xela_uscu(), "counts", "raw sensor counts, first sample of each trajectory subtracted"
+    if counts_per_newton:
+        sensor, units = {**sensor, "counts_per_n": float(counts_per_newton)}, "N"
+        force = f"newtons: raw sensor counts / {counts_per_newton:g} counts per N, first sample subtracted"
+    return default_meta(sensor, force_units=units, sample_rate_hz=100.0 / every,
                         source={"layout": "published-hdf5", "hand_held": hand_held, "every": every,
-                                "force": "raw sensor counts, first sample of each trajectory subtracted",
+                                "force": force,
                                 "frame": "recentred on each file's reference pose; labels mirrored in x"})
 
 
@@ -365,7 +372,9 @@ def _import_files(source, root, opts, shard, on_error, progress, report) -> Scan
     if not parts:
         raise DataError(f"{root}: no scan survived the import ({len(files)} files; see the per-file records)")
     out = concat(parts, names)
-    out.meta = import_meta(opts.every, opts.hand_held)
+    out.meta = import_meta(opts.every, opts.hand_held, opts.counts_per_newton)
+    if opts.counts_per_newton:
+        out.force = (out.force.astype(np.float64) / opts.counts_per_newton).astype(out.force.dtype)
     return out
 
 

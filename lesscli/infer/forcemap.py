@@ -1,7 +1,8 @@
 """Classical force-map imager: the reference every learned imaging result is reported against.
 
 Per poke, the deepest step (most negative pad z) gives each taxel a stiffness sample: its normal
-force over its own indentation depth (``-z`` of the taxel centre, N/mm; taxels shallower than
+force over its own indentation depth (``-z`` of the taxel centre in the scan's surface frame, fitted
+from its contact onsets by :mod:`lesscli.data.surface`; N/mm; taxels shallower than
 ``EPS_DEPTH_MM`` are skipped, so grazing or absent contact adds nothing), placed at the taxel's x-y
 in the phantom frame. Smoothing is normalised convolution onto a ``GRID_MM`` grid
 (Gaussian-weighted average sum(w v) / sum(w)); cells with little weight are not covered, and

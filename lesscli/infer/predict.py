@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from lesscli.data.batching import ScanDataset, check_force_features, collate
+from lesscli.data.compat import for_model
 from lesscli.data.image_labels import AUTO_SLICE, grid_of, target_volume
 from lesscli.errors import DataError, LessError
 from lesscli.infer import forcemap
@@ -126,9 +127,10 @@ def labelling_rule(image_cfg: dict, threshold: float | None = None, min_volume_m
                      float(smooth_mm if smooth_mm is not None else image_cfg.get("smooth_mm") or 0.0))
 
 
-def scans_for_model(path: str, ckpt: dict) -> ScanSet:
-    """The scan set at ``path``, checked against the model's force features (DataError names the file)."""
-    scans = load_scans(path)
+def scans_for_model(path: str, ckpt: dict, model_name: str = "the model") -> ScanSet:
+    """The scan set at ``path``, checked against the model's units, sensor layout and force features and put
+    in the frame its imager reads (DataError names the file)."""
+    scans = for_model(load_scans(path), ckpt, model_name, path)
     check_force_features(scans, ckpt["norm_stats"], path)
     return scans
 
@@ -280,10 +282,10 @@ def predict_file(path: str, data: str, opts: PredictOptions, device: torch.devic
     """
     ckpt = load_checkpoint(path, device)
     if ckpt.get("config", {}).get("model") == forcemap.MODEL:
-        scans = load_scans(data)
+        scans = for_model(load_scans(data), ckpt, path, data)
         return predict_forcemap(ckpt, scans, opts, path, data, progress), ckpt, scans
     imager, ckpt = load_imager(path, device, ckpt)
-    scans = load_scans(data)
+    scans = for_model(load_scans(data), ckpt, path, data)
     return predict(imager, ckpt, scans, opts, device, data, progress), ckpt, scans
 
 

@@ -12,7 +12,9 @@ stiffness map that the recurrence keeps exactly. For every step, each taxel t si
 
     r_t = p_xy + R(roll, pitch, yaw)[:2, :2] @ taxel_xy_t          (mm, relative to the particle)
 
-and, when it presses (pad below the surface and normal force above ``CONTACT_FORCE``), gives a
+and, when it presses (pad below the surface and normal force above ``CONTACT_FORCE``; z is the height
+above the surface fitted from the scan's contact onsets, :mod:`lesscli.data.surface`, never the pose
+frame's zero), gives a
 stiffness sample ``k_t = f_t / (depth + DEPTH_FLOOR_MM)`` (normal force per mm of indentation, in
 normalised units: with ``scale`` normalisation, this encoder's default, each taxel is divided by
 its own typical force, which flat-fields its gain and its place in the pad's pressure profile).

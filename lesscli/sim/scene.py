@@ -11,7 +11,7 @@ Example::
     [phantoms.random]         # only with set = "random": the randomised training family
     count = 48                # (lesscli.phantom.randomised; ranges [low, high], a number v means [v, v])
     [sensor]
-    layout = "xela"           # or taxel_xy_mm = [[x, y], ...] and pad_size_mm = [w, h]
+    layout = "xela"           # or taxel_xy_mm = [[x, y], ...] and pad_size_mm = [w, h]; noise_n, max_force_n
     [contact]
     tier = "green"            # winkler | green | fem
     params = { }              # passed to the tier
@@ -58,7 +58,7 @@ DEFAULT_TIER = "green"
 TOP_KEYS = {"name", "seed", "description", "phantoms", "sensor", "contact", "motion", "labels", "effects"}
 SECTION_KEYS = {
     "phantoms": {"set", "names", "limit", "orientations", "random"},
-    "sensor": {"layout", "name", "taxel_xy_mm", "pad_size_mm", "pitch_mm"},
+    "sensor": {"layout", "name", "taxel_xy_mm", "pad_size_mm", "pitch_mm", "noise_n", "max_force_n"},
     "contact": {"tier", "cache_dir", "on_invalid", "params"},
     "labels": {"shape", "spacing_mm"},
 }
@@ -157,7 +157,18 @@ def _phantoms(table: dict, where: str, base_dir: str, seed: int) -> tuple[list[P
 
 
 def _sensor(table: dict, where: str) -> dict:
+    """The sensor layout, with the sensor's white noise per taxel and force range (N) when the table gives them."""
     check_keys(table, SECTION_KEYS["sensor"], where, "sensor.")
+    extra = {}
+    for key in ("noise_n", "max_force_n"):
+        if key in table:
+            if isinstance(table[key], bool) or not isinstance(table[key], (int, float)) or not table[key] > 0:
+                raise DataError(f"{where}: sensor.{key} must be a number > 0, got {table[key]!r}")
+            extra[key] = float(table[key])
+    return {**_layout(table, where), **extra}
+
+
+def _layout(table: dict, where: str) -> dict:
     if "taxel_xy_mm" not in table:
         layout = table.get("layout", "xela")
         if layout not in SENSOR_LAYOUTS:

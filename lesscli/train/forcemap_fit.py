@@ -2,7 +2,7 @@
 
 The checkpoint is a normal ``less.checkpoint`` (``torch.load(weights_only=True)``) with an empty model
 state and ``config = {"model": "forcemap", "forcemap": <Calibration as a dict>, "image": {"dim",
-"slice"}, "grid": <first training target grid>}``; ``less image predict`` recognises it by
+"slice"}, "grid": <first training target grid>, "data": <the training scans' data signature>}``; ``less image predict`` recognises it by
 ``config["model"]`` (:func:`lesscli.infer.predict.predict_file`).
 """
 
@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from dataclasses import asdict
 
+from lesscli.data.compat import signature
 from lesscli.data.image_labels import AUTO_SLICE, grid_of, target_volume
 from lesscli.errors import DataError
 from lesscli.infer import forcemap
@@ -39,7 +40,7 @@ def fit_forcemap(scans: ScanSet, output: str, dim: int = 3, slice_index: int | N
     touches = [forcemap.scan_touches(scans, s, taxel_xy) for s in range(scans.n_scans)]
     cal, f1 = forcemap.calibrate(touches, labels, targets, name)
     config = {"model": forcemap.MODEL, "forcemap": asdict(cal), "image": {"dim": dim, "slice": slice_index},
-              "grid": grid_to_dict(grid_of(targets[0]))}
+              "grid": grid_to_dict(grid_of(targets[0])), "data": signature(scans)}
     save_checkpoint(output, {}, config, {}, history or [], {"train_inclusion_f1": f1})
     shown = {k: v for k, v in asdict(cal).items() if not k.startswith("prior")}
     return {"output": output, "model": forcemap.MODEL, "dim": dim, "scans": scans.n_scans, **shown,

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from lesscli.data.compat import check_match, model_signature, signature
 from lesscli.data.image_labels import AUTO_SLICE, ImageDataset, collate_images, training_targets
 from lesscli.io.checkpoint import load_checkpoint, save_checkpoint
 from lesscli.io.labels import INCLUSION, N_CLASSES
@@ -273,7 +274,8 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
     check_config(cfg)
     t0 = time.perf_counter()
     encoder, rep = load_representation(rep_path, map_location="cpu")
-    stats = rep["norm_stats"]
+    check_match(model_signature(rep), train, rep_path, names[0])
+    stats = {**rep["norm_stats"], "data": signature(train)}      # the frame the imager is fitted in
     targets, grid = training_targets(train, cfg.image.dim, cfg.image.slice, names[0])
     train_set = ImageDataset(train, stats, targets, names[0])
     val_set, by_f1 = None, False

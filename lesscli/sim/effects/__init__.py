@@ -16,6 +16,7 @@ EFFECTS: dict[str, str] = {          # scene name -> module under lesscli.sim.ef
     "viscoelastic": "viscoelastic",  # Prony-series relaxation per taxel
     "shear": "shear",                # bristle (stick-slip) friction per taxel, Poisson shear
     "sensor": "sensor",              # per-taxel gain, crosstalk, saturation, counts
+    "surface": "surface",            # height offset and tilt of the top in the recorded frame, baseline drift
     "noise": "noise",                # white noise, drift, offsets, timestamp jitter, baseline removal
     "pose": "pose_tracking",         # robot or hand-held pose tracking error
 }

@@ -34,7 +34,10 @@ def crosstalk_matrix(taxel_xy_mm: np.ndarray, pitch_mm: float, fraction: float) 
 def _sensor(state: SimState, params: dict, rng: np.random.Generator) -> SimState:
     txy = state.taxel_xy_mm
     gain = np.exp(rng.normal(0, params["gain_sd"], size=(len(txy), 3)))
-    pitch = float(state.sensor.get("pitch_mm", np.sort(np.linalg.norm(txy - txy[0], axis=1))[1]))
+    pitch = state.sensor.get("pitch_mm")
+    if pitch is None:                       # the nearest neighbour's distance (a lone taxel has no crosstalk)
+        pitch = np.sort(np.linalg.norm(txy - txy[0], axis=1))[1] if len(txy) > 1 else 1.0
+    pitch = float(pitch)
     mix = crosstalk_matrix(txy, pitch, params["crosstalk"])
     force = np.einsum("tu,nua->nta", mix, state.force) * gain
     sat = params["saturation_n"]
