@@ -66,12 +66,17 @@ $(P)/multiple.npz $(P)/large.npz: $(P)/%.npz: $(A)/%.npz
 # on half the training inserts (51), scored on the whole validation split: a search the 2-core budget allows
 $(A)/search/train.npz: $(A)/split/train.npz
 	$(LESS) split $< --by insert --test 0.5 --seed 0 -o $(A)/search/ > /dev/null
+# `make tune` runs every search (a trial already in its log is not run again: delete the log for a new
+# search); a missing config is made by its search, a committed one is used as it is
+TUNE = $(PYTHON) tune.py run --model $* --space tuning/space.toml --train $(A)/search/train.npz \
+  --val $(A)/split/val.npz --work $(A)/tune/$* --log $(TUNE_LOG)/$*.jsonl -o $(CFG)/$*.toml --device $(DEVICE) \
+  --threads $(THREADS) --less '$(LESS)'
 .PHONY: tune $(foreach m,$(ACC_MODELS),tune-$(m))
 tune: $(foreach m,$(ACC_MODELS),tune-$(m))
 $(foreach m,$(ACC_MODELS),tune-$(m)): tune-%: $(A)/search/train.npz $(A)/split/val.npz
-	$(PYTHON) tune.py run --model $* --space tuning/space.toml --train $(A)/search/train.npz --val $(A)/split/val.npz \
-	  --work $(A)/tune/$* --log $(TUNE_LOG)/$*.jsonl -o $(CFG)/$*.toml --device $(DEVICE) --threads $(THREADS) \
-	  --less '$(LESS)'
+	$(TUNE)
+$(CFG)/%.toml: | $(A)/search/train.npz $(A)/split/val.npz
+	$(TUNE)
 
 # ---------------------------------------------------------------- training: <regime dir>/{rep,img}_<model>_s<seed>.pt
 # $(1) model, $(2) seed, $(3) regime folder, $(4) its training set, $(5) its validation set
