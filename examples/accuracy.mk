@@ -97,8 +97,10 @@ $(P)/forcemap.pt: $(P)/train.npz
 
 # ---------------------------------------------------------------- predictions: <regime dir>/pred_<imager>_on_<set>.npz
 # each learned imager with its own config's turns; local ones grow their particle grid over the large inserts
-# the model behind an imager stem: img_<model>[-<variant>]_s<seed> (variants: -full, -init, -maponly, -n<N>-d<D>)
-model_of = $(firstword $(subst -n, ,$(patsubst %-init,%,$(patsubst %-maponly,%,$(patsubst %-full,%,$(word 2,$(subst _, ,$(1))))))))
+# the model behind an imager stem: img_<model>[-<variant>]_s<seed> (variants: -full, -init, -maponly, -frozen,
+# -endtoend, -n<N>-d<D>)
+strip_variant = $(patsubst %-endtoend,%,$(patsubst %-frozen,%,$(patsubst %-init,%,$(patsubst %-maponly,%,$(patsubst %-full,%,$(1))))))
+model_of = $(firstword $(subst -n, ,$(call strip_variant,$(word 2,$(subst _, ,$(1))))))
 define ACC_PREDICT
 $(1)/pred_%_on_$(2).npz: $(1)/%.pt $(1)/$(2).npz
 	$(LESS) image predict $$< $(1)/$(2).npz -o $$@ --device $(DEVICE) \
@@ -206,3 +208,41 @@ $(SCR)/scaling.md: $(SCALE_PREDS)
 	  $(PYTHON) -c 'import json,sys; a,b=(json.loads(open(p).read().splitlines()[-1]) for p in sys.argv[2:]); print(json.dumps({"imager": sys.argv[1], "seconds": a["seconds"] + b["seconds"]}))' \
 	    $$(basename $$f .pt) $$(echo $$f | sed 's|/img_|/rep_|').json $$f.json; done > $(SCR)/times.jsonl
 	$(PYTHON) headline.py $(SCR)/scaling.jsonl --no-paper --times $(SCR)/times.jsonl > $@.part && mv $@.part $@
+
+# ---------------------------------------------------------------- what holds the paper's pair back
+#   make -C examples diagnose -j2 [ACC_TIER=winkler]      -> results/diagnose-<tier>/diagnose.md
+# each of `less` and `global` with its config, seed 0, on the search scans: the imaging fit with the
+# representation frozen (as published) and trained end to end with the imaging loss (--finetune). If the
+# end-to-end fit images the validation scans and the frozen one cannot, the architecture can hold the
+# inclusion and self-supervision at this budget is what loses it.
+DG  := $(A)/diagnose
+DGR := results/diagnose-$(ACC_TIER)
+DIAG_MODELS ?= less global
+define DIAG_TRAIN
+$(DG)/rep_$(1)_s0.pt: $(A)/search/train.npz $(A)/split/val.npz $(CFG)/$(1).toml
+	@mkdir -p $$(@D)
+	$(LESS) pretrain $(A)/search/train.npz --val $(A)/split/val.npz -o $$@ --model $(1) --seed 0 --device $(DEVICE) \
+	  $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml pretrain) --format jsonl > $$@.json
+$(DG)/img_$(1)-frozen_s0.pt: $(DG)/rep_$(1)_s0.pt
+	$(LESS) image fit $(A)/search/train.npz --val $(A)/split/val.npz --rep $$< -o $$@ --dim 3 --seed 0 \
+	  --device $(DEVICE) $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) --format jsonl > $$@.json
+$(DG)/img_$(1)-endtoend_s0.pt: $(DG)/rep_$(1)_s0.pt
+	$(LESS) image fit $(A)/search/train.npz --val $(A)/split/val.npz --rep $$< -o $$@ --dim 3 --seed 0 \
+	  --device $(DEVICE) $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) --finetune --format jsonl > $$@.json
+endef
+$(foreach m,$(DIAG_MODELS),$(eval $(call DIAG_TRAIN,$(m))))
+$(DG)/val.npz: | $(A)/split/val.npz
+	@mkdir -p $(@D)
+	ln -sf ../split/val.npz $@
+$(DG)/train.npz: | $(A)/search/train.npz
+	@mkdir -p $(@D)
+	ln -sf ../search/train.npz $@
+$(eval $(call ACC_PREDICT,$(DG),val))
+$(eval $(call ACC_PREDICT,$(DG),train))
+DIAG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach v,frozen endtoend,$(foreach t,val train,$(DG)/pred_img_$(m)-$(v)_s0_on_$(t).npz)))
+.PHONY: diagnose
+diagnose: $(DGR)/diagnose.md
+$(DGR)/diagnose.md: $(DIAG_PREDS)
+	@mkdir -p $(@D)
+	$(LESS) metrics $^ --summary-only --format jsonl > $(DGR)/diagnose.jsonl
+	$(PYTHON) headline.py $(DGR)/diagnose.jsonl --no-paper > $@.part && mv $@.part $@

@@ -89,8 +89,16 @@ def tiny_imager(dim: int = 2, cap: int | None = None, encoder: str = "less", see
                    "depth_px": grid.shape[0], "patch_spacing_mm": [0.9, 1.0, 1.0], "stitch": stitch,
                    **({"context": context} if context else {})}
         else:
-            enc = GlobalEncoder(FORCE_DIM, dim=8, max_steps_per_particle=cap, n_freq=4)
-            dec = {"name": "global", "d_z": 8, "n_classes": 4, "dim": dim, "width": 8, "shape": list(grid.shape)}
+            if encoder == "global-taxel":
+                from lesscli.io.sensor import xela_uscu
+                from lesscli.models.global_taxel import GlobalTaxelEncoder
+
+                enc = GlobalTaxelEncoder(FORCE_DIM, xela_uscu()["taxel_xy_mm"], dim=8, grid_extent_mm=40.0,
+                                         map_pitch_mm=5.0, max_steps_per_particle=cap, n_freq=4)
+            else:
+                enc = GlobalEncoder(FORCE_DIM, dim=8, max_steps_per_particle=cap, n_freq=4)
+            dec = {"name": "global", "d_z": enc.dim, "n_classes": 4, "dim": dim, "width": 8,
+                   "shape": list(grid.shape)}
         decoder = build_decoder(dec, seed)
     last = [m for m in decoder.modules() if isinstance(m, (torch.nn.ConvTranspose2d, torch.nn.ConvTranspose3d))][-1]
     with torch.no_grad():

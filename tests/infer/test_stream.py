@@ -55,6 +55,7 @@ def batch_logits(imager: Imager, stats: dict, pose: np.ndarray, force: np.ndarra
 
 CASES = [{"dim": 2}, {"dim": 3}, {"dim": 2, "cap": 3}, {"dim": 3, "cap": 2},
          {"dim": 2, "encoder": "global"}, {"dim": 2, "encoder": "global", "cap": 4},
+         {"dim": 3, "encoder": "global-taxel"}, {"dim": 2, "encoder": "global-taxel", "cap": 4},
          {"dim": 2, "stitch": "mean"}, {"dim": 3, "cap": 3, "stitch": "mean"},
          {"dim": 2, "context": 3}, {"dim": 3, "cap": 3, "context": 5, "stitch": "mean"}]
 
