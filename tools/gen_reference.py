@@ -1,0 +1,87 @@
+"""Write docs/reference/: one page per subcommand, from the CLI's own ``--help``.
+
+    python tools/gen_reference.py            # rewrite the pages (make reference)
+    python tools/gen_reference.py --check    # exit 1 naming the pages that differ from today's CLI
+
+A group's page (``image``, ``bench``, ``lift``, ``pose``, ``plot``) holds its own help and then one
+section per subcommand. The help is formatted at a fixed width, so the pages do not depend on the
+terminal that wrote them. tests/test_docs.py fails when a page drifts from the code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from pathlib import Path
+
+import click
+
+ROOT = Path(__file__).resolve().parent.parent
+OUT = ROOT / "docs" / "reference"
+WIDTH = 100
+HEADER = "<!-- written by tools/gen_reference.py from the CLI's --help; do not edit, run `make reference` -->"
+
+
+def _help(command: click.Command, path: list[str], parent: click.Context | None) -> tuple[str, click.Context]:
+    ctx = click.Context(command, info_name=path[-1], parent=parent, terminal_width=WIDTH, max_content_width=WIDTH)
+    return command.get_help(ctx), ctx
+
+
+def _leaves(command: click.Command, path: list[str], parent: click.Context | None):
+    """(path, help) of ``command`` and, for a group, of every subcommand under it, depth first."""
+    text, ctx = _help(command, path, parent)
+    yield path, text
+    if isinstance(command, click.Group):
+        for name in command.list_commands(ctx):
+            yield from _leaves(command.get_command(ctx, name), [*path, name], ctx)
+
+
+def pages() -> dict[str, str]:
+    """File name under docs/reference/ -> its text, for every subcommand of today's CLI."""
+    sys.path.insert(0, str(ROOT))
+    from lesscli.cli.main import cli
+    from lesscli.cli.registry import COMMANDS
+
+    root = click.Context(cli, info_name="less", terminal_width=WIDTH, max_content_width=WIDTH)
+    out = {}
+    for name in sorted(COMMANDS):
+        command = importlib.import_module(f"lesscli.cli.{COMMANDS[name][0]}").cli
+        lines = [HEADER, "", f"# less {name}", "", COMMANDS[name][1], ""]
+        for path, text in _leaves(command, ["less", name], root):
+            if len(path) > 2:
+                lines += [f"## {' '.join(path)}", ""]
+            lines += ["```text", text.rstrip(), "```", ""]
+        out[f"{name}.md"] = "\n".join(lines)
+    index = [HEADER, "", "# Reference", "",
+             "One page per subcommand, written from its `--help` (`less CMD --help` prints the same).", "",
+             "| command | what it does |", "|---|---|"]
+    index += [f"| [`less {n}`]({n}.md) | {COMMANDS[n][1].replace('|', '/')} |" for n in sorted(COMMANDS)]
+    top, _ = _help(cli, ["less"], None)
+    index += ["", "## less", "", "```text", top.rstrip(), "```", ""]
+    out["index.md"] = "\n".join(index)
+    return out
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="compare instead of writing")
+    args = parser.parse_args()
+    want = pages()
+    have = {p.name: p.read_text() for p in OUT.glob("*.md")} if OUT.is_dir() else {}
+    if args.check:
+        stale = sorted(n for n in want.keys() | have.keys() if want.get(n) != have.get(n))
+        for name in stale:
+            print(f"docs/reference/{name}: differs from the CLI's help (run make reference)", file=sys.stderr)
+        return 1 if stale else 0
+    OUT.mkdir(parents=True, exist_ok=True)
+    for name in have.keys() - want.keys():
+        (OUT / name).unlink()
+    for name, text in want.items():
+        (OUT / name).write_text(text)
+    print(f"wrote {len(want)} pages to {OUT.relative_to(ROOT)}/")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
