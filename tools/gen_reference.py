@@ -57,10 +57,46 @@ def pages() -> dict[str, str]:
              "One page per subcommand, written from its `--help` (`less CMD --help` prints the same).", "",
              "| command | what it does |", "|---|---|"]
     index += [f"| [`less {n}`]({n}.md) | {COMMANDS[n][1].replace('|', '/')} |" for n in sorted(COMMANDS)]
+    index += ["", "The settings that `--config` files and `--set KEY=VALUE` reach, with their defaults:",
+              "[settings](settings.md)."]
     top, _ = _help(cli, ["less"], None)
     index += ["", "## less", "", "```text", top.rstrip(), "```", ""]
     out["index.md"] = "\n".join(index)
+    out["settings.md"] = _settings(cli)
     return out
+
+
+SETTINGS = [  # (title, arguments of a --print-config run, what the settings are)
+    ("less simulate", ["simulate", "poke", "-o", "x.npz", "EFFECTS"],
+     ("A scene file's tables with their defaults: the packaged `poke` scene with every effect switched on "
+      "(an effect runs only where its table is in the scene; `less simulate SCENE --print-config` prints "
+      "any scene's).")),
+    ("less pretrain", ["pretrain", "data.npz", "-o", "rep.pt"],
+     "The `--config` tables of `less pretrain` (`[model]`, `[train]`, `[ssl]`) with their defaults."),
+    ("less image fit", ["image", "fit", "data.npz", "--rep", "rep.pt", "-o", "imager.pt"],
+     "The `--config` tables of `less image fit` (`[image]`, `[train]`, `[loss]`) with their defaults."),
+]
+
+
+def _settings(cli: click.Group) -> str:
+    """The resolved settings of the commands that take ``--config`` / ``--set``, from ``--print-config``."""
+    from click.testing import CliRunner
+
+    lines = [HEADER, "", "# Settings", "",
+             "Settings come in layers: defaults < a TOML file (the scene, or `--config FILE`) < options <",
+             "`--set key=value` (dotted keys, `--set train.lr=3e-4`). These are the defaults, as",
+             "`--print-config` prints them.", ""]
+    runner = CliRunner(env={"LESS_CACHE_DIR": "~/.cache/less/contact"})
+    from lesscli.sim.effects import EFFECTS
+
+    for title, args, what in SETTINGS:
+        if "EFFECTS" in args:                                   # every effect on, with its defaults
+            args = [a for a in args if a != "EFFECTS"] + [f"--set=effects.{e}={{}}" for e in EFFECTS]
+        result = runner.invoke(cli, [*args, "--print-config"], catch_exceptions=False)
+        if result.exit_code != 0:
+            raise RuntimeError(f"less {' '.join(args)} --print-config exited {result.exit_code}: {result.output}")
+        lines += [f"## {title}", "", what, "", "```toml", result.output.rstrip(), "```", ""]
+    return "\n".join(lines)
 
 
 def main() -> int:
