@@ -47,6 +47,7 @@ reference: $(STAMP)
 
 # build the wheel and run it from a fresh venv (torch first, then the wheel alone)
 wheel-check: $(STAMP)
+	$(BIN)/python -m pip install -q 'build>=1.0'
 	PYTHON=$(BIN)/python TORCH='$(TORCH)' bash tools/check_wheel.sh
 
 clean:
