@@ -23,7 +23,7 @@ def resolve(path: str) -> str:
     ``quick.toml``); a path with a folder in it is returned as it is, for its reader to name."""
     if path == "-" or os.path.exists(path) or os.sep in path:
         return path
-    name = path[:-5] if path.endswith(".toml") else path
+    name = path.removesuffix(".toml")
     packaged = os.path.join(HERE, f"{name}.toml")
     if os.path.isfile(packaged):
         return packaged
