@@ -20,6 +20,7 @@ mkdir "$WORK/empty" && cd "$WORK/empty"
 PATH="$WORK/venv/bin:$PATH"
 less --help > help.txt && grep -q 'simulate' help.txt
 lesscli --version
+"$WORK/venv/bin/python" -c "import cv2, threadpoolctl; cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)"   # contrib OpenCV
 less simulate quick -o scans.npz --set phantoms.random.count=2 --set motion.n_traj=3 --format table
 less info scans.npz --format json | "$WORK/venv/bin/python" -c 'import json, sys; r = json.load(sys.stdin)[0]; assert r["scans"] == 2, r'
 echo "wheel check passed: $(basename "$WHEEL") installs, 'less --help' and 'less simulate quick' run"
