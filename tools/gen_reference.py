@@ -58,12 +58,37 @@ def pages() -> dict[str, str]:
              "| command | what it does |", "|---|---|"]
     index += [f"| [`less {n}`]({n}.md) | {COMMANDS[n][1].replace('|', '/')} |" for n in sorted(COMMANDS)]
     index += ["", "The settings that `--config` files and `--set KEY=VALUE` reach, with their defaults:",
-              "[settings](settings.md)."]
+              "[settings](settings.md). Every file format, as the code that reads it defines it: [formats](formats.md)."]
     top, _ = _help(cli, ["less"], None)
     index += ["", "## less", "", "```text", top.rstrip(), "```", ""]
     out["index.md"] = "\n".join(index)
     out["settings.md"] = _settings(cli)
+    out["formats.md"] = _formats()
     return out
+
+
+FORMATS = [  # (title, module whose docstring defines the format)
+    ("Scan set (`.npz`, `less.scans/1`)", "lesscli/io/scans.py"),
+    ("Sensor layout (a scan set's `meta['sensor']`)", "lesscli/io/sensor.py"),
+    ("Label volume (NIfTI, or inside a scan set)", "lesscli/io/labels.py"),
+    ("Prediction (`.npz`, `less.pred/1`)", "lesscli/io/predictions.py"),
+    ("Checkpoint (`.pt`)", "lesscli/io/checkpoint.py"),
+    ("Records (JSON lines)", "lesscli/io/records.py"),
+    ("Live samples (`less stream -`)", "lesscli/infer/live.py"),
+]
+
+
+def _formats() -> str:
+    """The file formats, each from the module docstring of the code that reads and writes it."""
+    import ast
+
+    lines = [HEADER, "", "# File formats", "",
+             "Each format as the module that reads and writes it defines it (its docstring); `less info FILE`",
+             "describes any such file.", ""]
+    for title, path in FORMATS:
+        doc = ast.get_docstring(ast.parse((ROOT / path).read_text()))
+        lines += [f"## {title}", "", f"From `{path}`:", "", "```text", doc.rstrip(), "```", ""]
+    return "\n".join(lines)
 
 
 SETTINGS = [  # (title, arguments of a --print-config run, what the settings are)
