@@ -5,7 +5,8 @@
 
 A group's page (``image``, ``bench``, ``lift``, ``pose``, ``plot``) holds its own help and then one
 section per subcommand. The help is formatted at a fixed width, so the pages do not depend on the
-terminal that wrote them. tests/test_docs.py fails when a page drifts from the code.
+terminal that wrote them. tests/test_docs.py runs ``--check`` in a fresh process (click caches each
+command's help option the first time it is asked for) and fails when a page drifts from the code.
 """
 
 from __future__ import annotations
@@ -43,7 +44,9 @@ def pages() -> dict[str, str]:
     from lesscli.cli.main import cli
     from lesscli.cli.registry import COMMANDS
 
-    root = click.Context(cli, info_name="less", terminal_width=WIDTH, max_content_width=WIDTH)
+    # the group's context settings (-h as well as --help) reach every subcommand, as when `less` runs
+    root = click.Context(cli, info_name="less", terminal_width=WIDTH, max_content_width=WIDTH,
+                         **cli.context_settings)
     out = {}
     for name in sorted(COMMANDS):
         command = importlib.import_module(f"lesscli.cli.{COMMANDS[name][0]}").cli
@@ -59,7 +62,7 @@ def pages() -> dict[str, str]:
     index += [f"| [`less {n}`]({n}.md) | {COMMANDS[n][1].replace('|', '/')} |" for n in sorted(COMMANDS)]
     index += ["", "The settings that `--config` files and `--set KEY=VALUE` reach, with their defaults:",
               "[settings](settings.md). Every file format, as the code that reads it defines it: [formats](formats.md)."]
-    top, _ = _help(cli, ["less"], None)
+    top = cli.get_help(root)
     index += ["", "## less", "", "```text", top.rstrip(), "```", ""]
     out["index.md"] = "\n".join(index)
     out["settings.md"] = _settings(cli)
