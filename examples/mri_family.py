@@ -42,7 +42,7 @@ volumes that alone takes below the pillar target: how close to its knife edge th
 volume.
 
 ``--rows a.jsonl,b.jsonl`` segments nothing either: it prints the band table and footer of rows written
-before with ``--out``, the files joined (the README's table over the 700, from the runs of its halves).
+before with ``--out``, the files joined (docs/results/mri-label-family.md's table over the 700, from the runs of its halves).
 
     python examples/mri_family.py --seeds 1000-1059 --out results/mri_family.jsonl
     python examples/mri_family.py --seeds 1000-1059 --partial-volume box
@@ -110,7 +110,7 @@ def lone_short(case):
 
 def small_coarse(seed: int) -> Case:
     """A volume of small spheres at coarse voxels, seeded by ``[seed // 100, seed % 100]`` (seeds 4900-4979 and
-    49200-49279 are examples/README's two probes): 1-3 inclusions, the first of 6-7 mm and the others over the
+    49200-49279 are the two probes of docs/results/mri-label-rounds.md): 1-3 inclusions, the first of 6-7 mm and the others over the
     family's range; every voxel side 0.9-1.2 mm; noise 0.05-0.1; posts, bias, base and contrast as the family's."""
     rng = np.random.default_rng([seed // 100, seed % 100])
     n = int(rng.integers(1, 4))

@@ -50,7 +50,7 @@ def fit_cmd(data, model, rep_path, output, val_path, select, dim, finetune, slic
     stdout.
 
     --model forcemap calibrates the classical force-map imager instead (smoothing width, threshold,
-    size and depth rules, class prior; README: 'less image fit'), the reference for learned results.
+    size and depth rules, class prior; docs/guide/training.md), the reference for learned results.
 
     Example: less image fit split/train.npz --val split/val.npz --rep rep.pt -o imager.pt --dim 3
     """

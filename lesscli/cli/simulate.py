@@ -20,12 +20,15 @@ def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | No
         shard: str | None, fmt: str | None) -> None:
     """Simulate the scans of SCENE.toml into a less.scans/1 scan set with label volumes.
 
+    SCENE.toml is a scene file or the name of a scene shipped with the package: quick (the tutorial's
+    and the demo's randomised training family), poke, primitive, handheld, multiple, large, demo.
+
     One scan per insert and orientation; the output is byte-identical for a given seed, whatever
     --jobs is (default: the free cores, at most one worker a scan), and the shards of --shard i/n
     concatenate to the full set. One summary record (scans,
     trajectories, steps, jobs, threads, seconds, output) goes to stdout (to stderr with -o -).
 
-    Example: less simulate examples/scenes/demo.toml -o demo.npz --set motion.n_traj=20
+    Example: less simulate demo -o demo.npz --set motion.n_traj=20
     """
     import sys
     import time
@@ -33,13 +36,14 @@ def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | No
     from lesscli.cli.common import config_resolved, progress
     from lesscli.io.records import emit_records
     from lesscli.io.scans import append_history, save_scans
+    from lesscli.scenes import resolve
     from lesscli.sim.scene import load_scene, scene_document
     from lesscli.sim.simulate import scan_jobs, simulate
     from lesscli.threads import apply_threads, free_cores, other_load, usable_cores
 
     t0 = time.perf_counter()
     i_n = parse_shard(shard)
-    scene = load_scene(scene_path, overrides, options={"seed": seed})
+    scene = load_scene(resolve(scene_path), overrides, options={"seed": seed})
     config_resolved(scene_document(scene))
     load = other_load()                                                     # read the machine once
     jobs = min(jobs or free_cores(usable_cores(), load), max(1, len(scan_jobs(scene, i_n))))

@@ -1,35 +1,16 @@
 """LESS image reconstruction: every particle state -> a patch of logits placed at the particle.
 
-A shared transposed-convolution network maps each particle's state to a square patch of logits
-(2D: ``patch_px x patch_px`` pixels; 3D: a full-depth column ``depth_px x patch_px x patch_px``) at
-the pixel spacing of the training label grid. Patches are placed at their particle's x-y position in
-millimetres on the output grid, overlapping logits are summed, and the softmax is left to the caller.
-(``stitch="mean"`` averages them over the covering patches instead, which removes the seams that
-uneven overlap counts leave). A pixel that no particle covers keeps logit 0 for every class: uniform probabilities, maximum entropy
-ln(C). A particle that saw no step contributes nothing (its patch is masked), so untouched regions stay
-honestly uncertain.
+A shared transposed-convolution network maps each state to a patch of logits (2D: ``patch_px`` square;
+3D: a full-depth column) at the training label grid's spacing. Patches are placed at their particle's
+x-y in mm and overlapping logits summed (``stitch="mean"`` averages them); the caller takes the softmax.
+Pixels no particle covers, and the patches of particles that saw nothing, keep logit 0: uniform
+probabilities, maximum entropy, so untouched regions stay honestly uncertain.
 
-With ``context=k`` (odd, > 0) every particle's patch also reads its neighbours: one k x k convolution
-over the particle grid (states of particles that saw nothing are zeros, with a seen channel beside
-them) adds ``context_width`` features to each state before decoding, so that a patch could take an
-inclusion's width (and so its height) from the profile across its neighbours rather than from its own
-column stiffness, which mixes the chord with the modulus (on the simulated headline data it gained
-nothing: examples/README.md, "Size: what was tried"). ``context=0`` (the default) is the paper's
-decoder: each patch from its own state only. The receptive field grows by (k - 1) / 2 particle
-spacings, still local; a grown grid (``--grow``) is convolved the same way.
-
-Placement adds each particle's patch to its slice of the image, with its own backward
-(:class:`_Placed`). On a grid with another spacing (e.g. the ``large`` set) patches are resampled to
-the same physical size first.
-
-The transposed convolutions run in their sub-pixel form (:mod:`lesscli.models.subpixel`): in evaluation
-mode as :func:`~lesscli.models.subpixel.run_eval`, and in training mode as
-:func:`~lesscli.models.subpixel.run_train` on the CPU (sub-pixel values, the transposed convolutions'
-own gradients; other devices use the modules), decoding the patches of seen particles only and leaving
-the others zero (placement masks them anyway).
-Both give the plain modules' values and gradients to float32 rounding; on one CPU thread a 3D training
-step at the headline size (width 16, 16 x 16 x 13 columns, 4 scans x 121 particles, 78% seen) takes
-0.36 of the time of decoding every patch with the modules (an ``image fit`` epoch 0.43).
+``context=k`` (odd) adds a k x k convolution over the particle grid, so each patch also reads its
+neighbours' states (still local); ``context=0`` is the paper's decoder. On a grid of another spacing
+(``large``) patches are resampled to the same physical size. The transposed convolutions run in their
+sub-pixel form (:mod:`lesscli.models.subpixel`), decoding seen particles only; values and gradients are
+the plain modules' to float32 rounding. Measurements: docs/results/accuracy-time.md.
 """
 
 from __future__ import annotations

@@ -1,46 +1,24 @@
 """Taxel-aware LESS (``less-taxel``): every particle also keeps a map of what its taxels felt, where.
 
-The paper's force-location encoder (:class:`~lesscli.models.encoders.ForceLocationEncoder`) sums an
-encoding of the pad pose and an MLP of the 90 forces in pad order, so the network must learn to
-rotate the taxel pattern by the pad's yaw before it can tell where under the pad a stiff spot was
-felt, and a GRU must learn to average such readings over many touches. Measured on held-out
-phantoms, a linear probe of the learned states finds the inclusion poorly (AUC ~0.8), and the image
-decoder cannot do better; given a local stiffness map instead, the same decoder can.
-
-So each particle's state here is the paper's GRU state (same FLE, same GRU) followed by a local
-stiffness map that the recurrence keeps exactly. For every step, each taxel t sits at
+Why: the paper's encoder feeds the 90 forces in pad order to an MLP, so the network must learn to turn
+the taxel pattern by the pad's yaw and a GRU to average stiffness over touches; its states locate the
+inclusion poorly, while the same image decoder reading a local stiffness map does well
+(docs/results/images-worth-trusting.md). So the state is the paper's GRU state (same FLE, same GRU)
+plus a stiffness map the recurrence keeps exactly. Each taxel t of a step sits at
 
     r_t = p_xy + R(roll, pitch, yaw)[:2, :2] @ taxel_xy_t          (mm, relative to the particle)
 
-and, when it presses (pad below the surface and normal force above ``CONTACT_FORCE``; z is the height
-above the surface fitted from the scan's contact onsets, :mod:`lesscli.data.surface`, never the pose
-frame's zero), gives a
-stiffness sample ``k_t = f_t / (depth + DEPTH_FLOOR_MM)`` (normal force per mm of indentation, in
-normalised units: with ``scale`` normalisation, this encoder's default, each taxel is divided by
-its own typical force, which flat-fields its gain and its place in the pad's pressure profile).
-A sample counts in proportion to its indentation ``d`` (mm): the force offset and noise of a taxel
-are the same at any depth, so a deep press measures stiffness more surely than a shallow one, and
-the depth floor biases shallow samples low. The map has ``map_cells x map_cells`` cells at
-``map_pitch_mm`` around the particle; cell j collects Gaussian weights ``w_j(r_t)`` (sigma =
-``SIGMA_PER_PITCH`` pitches) and keeps
+and, where it presses (z is the height above the surface fitted from the scan's contact onsets,
+:mod:`lesscli.data.surface`, never the pose frame's zero), gives ``k_t = f_t / (depth + DEPTH_FLOOR_MM)``,
+weighted by its indentation d (a deep press measures stiffness more surely). With Gaussian cell weights ``w_j`` on a
+``map_cells`` square grid at ``map_pitch_mm``:
 
-    M_j = sum w_j(r_t) d log k_t / (W_j + MAP_EPS),   W_j = sum w_j(r_t) d
-    Q_j = sum w_j(r_t) d (log k_t - mean_t' log k_t') / (W_j + MAP_EPS),   c_j = log(1 + W_j)
+    M_j = sum w_j d log k_t / (W_j + MAP_EPS),   W_j = sum w_j d,   c_j = log(1 + W_j)
+    Q_j = sum w_j d (log k_t - mean over the step's pressing taxels) / (W_j + MAP_EPS)
 
-over every step seen so far: a weighted mean of log stiffness (ratios of stiffness become
-differences, which linear layers read), the same of each taxel's contrast to the other pressing
-taxels of its step (a per-touch detrending: it does not depend on the gel's overall stiffness, the
-pad's depth calibration or the total force) and the evidence behind both (mm of indentation; what
-weighting by indentation adds is in the ablation table of examples/README.md). The update from one
-step is a pure function of the state and the step, so the state stays exactly local and streams like the
-GRU's (:meth:`gru_step`). The map has no parameters; self-supervision trains the GRU part, the image
-decoder reads both.
-
-With ``map_contrast="plane"`` (``--set model.map_contrast=plane``) the contrast is taken to a plane
-``a + b u + c v`` fitted over the step's pressing taxels (pad-frame u, v; weighted least squares with a
-small ridge, so one or two pressing taxels give a finite, flat fit) instead of to their mean: a
-stiffness ramp across the pad, such as the soft free edge of an insert makes, leaves no contrast,
-while a bump smaller than the pad still does. Same state width; ablation in examples/README.md.
+``map_contrast="plane"`` takes Q's contrast to a plane fitted over the step's pressing taxels, so a
+stiffness ramp across the pad (an insert's soft edge) leaves none. The map has no parameters and is a
+pure function of the state and the step, so it streams like the GRU (:meth:`gru_step`).
 """
 
 from __future__ import annotations

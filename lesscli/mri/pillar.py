@@ -1,87 +1,35 @@
 """Pillars: the thin silicone post between each inclusion and the base, traced along the insert axis.
 
-Nothing here assumes a pillar's diameter, intensity or which end of the insert the base is at. For
-each inclusion, the insert's voxels near the line through its centre along the insert axis are cut
-into slabs one plane of voxel centres thick, on both sides of the inclusion, each centred on a plane of
-voxel centres one step further from the inclusion (where the insert axis is an array axis, a slab is one
-slice; boundaries through voxel centres would split each slice between two slabs; along a tilted axis the
-planes normal to the array axis nearest it lie that axis's spacing over the tilt's cosine apart, and a slab
-as thick holds one of them wherever the tilt keeps them apart across the ring). Per slab
-(``fraction``: 0 hydrogel, 1 silicone):
+Nothing here assumes a pillar's diameter, intensity or which end of the insert the base is at. For each
+inclusion, the insert's voxels near the line through its centre along the insert axis are cut into slabs
+one plane of voxel centres thick, on both sides of the inclusion (``fraction``: 0 hydrogel, 1 silicone).
+Per slab:
 
-- the ring (an annulus around the core) gives the local background: hydrogel between the inclusion
-  and the base, silicone once the ring enters the base or the skin (its level a median clipped of the
-  voxels far from it, :func:`_ring_level`, so that the skin of a nearby wall, in part of the ring, does
-  not raise it). The trace ends there, or where
-  the ring leaves the insert (a pillar standing on the insert's outer surface): that is the base
-  surface, fitted to the ring levels of a few slabs of hydrogel, the base and two slabs past the
-  insert (:func:`_profile_crossing`: a thin base has no level of its own, the blur of the air beyond
-  it moves every slab), from the crossing half-way between the hydrogel and the base's level read in
-  it (:func:`_base_crossing`). Where too few slabs decide that fit (a post a slab or two tall), the
-  profile is read in an annulus clear of the inclusion's fitted ball (:func:`_clear_end`), and the
-  half-way crossing stands only where that does not decide it either;
-- the core's silicone in excess of the ring level, summed over the slab and divided by the contrast
-  of the inclusion's interior over that ring level, is the pillar's cross-section (mm^2). A sum is
-  unchanged by partial volume and blur, so a pillar 1-2 voxels wide is measured as well as a wide one,
-  and no intensity threshold is involved. Next to an inclusion the blur also spreads the sphere's own
-  silicone beyond its surface, most of it along the line under its centre, where the pillar stands:
-  in the pillar's trace, the inclusion's blurred ball (centre, radius, blur and contrast fitted to its
-  profile away from the pillar's column, :func:`lesscli.mri.ball.fitted_ball`) is taken out of
-  every voxel first (under a small inclusion the cap reached a slab or two beyond its surface);
+- a ring around the core gives the local background (its level a median clipped of far voxels, so a
+  nearby wall's skin does not raise it); the trace ends where the ring turns silicone or leaves the
+  insert, at the base's surface, fitted to the ring levels around the crossing (a thin base has no level
+  of its own);
+- the core's silicone in excess of the ring level, summed and divided by the inclusion's contrast, is
+  the pillar's cross-section (mm^2): a sum is unchanged by partial volume and blur, so no threshold is
+  involved and a post 1-2 voxels wide is measured like a wide one. The inclusion's fitted blurred ball
+  is taken out of every voxel first, as its blur spreads silicone along the pillar's line;
 - the weighted centroid of the excess locates the pillar in the slab.
 
-The hydrogel level that places the half-way crossing is the median ring level of the slabs walked on
-either side (a ring over the whole column would also take in the skin and the base).
+The base is on the side where the inclusions together show more excess silicone. An inclusion has a
+pillar there when the median cross-section exceeds a disc of ``MIN_RADIUS_MM`` and ``NOISE_Z`` standard
+errors of the slab-to-slab scatter pooled over the scan's traces, in a wide core or a narrow one (less
+noise for a thin post). The pillar drawn is a blurred cylinder fitted to a second trace around the line
+through the slab centroids, held on its inclusion's axis (as the phantoms are cast) unless its own line
+fits significantly better; a post measured thinner than ``MIN_RADIUS_MM`` in the end is no post. Short
+posts have few slabs: under ``MIN_LINE_SLABS`` the post stands under the inclusion's fitted centre, and
+under ``MIN_OWN_SLABS`` its radius is fitted to its whole silicone with the ball, or pooled over the
+scan's other posts (the posts of one insert are cast alike). How each rule was found, with its numbers:
+docs/results/mri-label-rounds.md.
 
-The base is on the side where the inclusions together show more excess silicone (on the skin side
-there is none): the cross-sections of the significant posts and of the posts across short gaps to the base
-(a gap that holds silicone is where its inclusion's post is) decide, else every trace's median
-cross-section (:func:`_base_side`). An inclusion found reaching
-past its fitted blurred ball towards the base holds pillar there (under a pillar a slice or two tall
-the opening keeps the pillar's slice); those voxels are the trace's from then on. On that side an
-inclusion has a pillar when the median cross-section exceeds a disc of ``MIN_RADIUS_MM`` and
-``NOISE_Z`` standard errors of the slab-to-slab scatter, read over all the scan's traces each about its
-own median (:func:`_pooled_scatter`: a post's own three or four slabs read it too poorly to test
-against), in the first core (the widest pillar's radius and a margin) or else in one of half that
-radius and the same margin, whose fewer voxels of noise let a thin post in strong noise pass (each
-core against its own traces' scatter; a trace of noise alone may pass either, at most twice as often
-as one). The pillar is then the cylinder of the measured area from the inclusion down to the base
-surface, around the straight line fitted to the slab centroids of a second trace (a core fitted to
-the pillar, so less noise in the centroids). That line and radius start a least-squares fit of a straight blurred cylinder
-(:func:`disc_profile`) to the second trace's voxels, which gives the pillar drawn: a post
-two voxels wide shows a few noisy voxels per slab, whose weighted centroids placed it up to half a
-voxel off, and at that width half a voxel decides about a third of its voxels. The cylinder's blur is
-fitted with it (:func:`fit_blurred_cylinder`), from the inclusion's: the blur across a post is the
-scan's across the insert axis, which a ball's one blur, averaged over all directions, misreads where
-the slices are thicker or thinner than the in-plane voxels (and with it the radius). The post is then
-held on its inclusion's axis (the line through the fitted ball's centre along the insert axis, as the
-phantoms are cast) unless a line of its own fits significantly better, one along the insert axis first and
-a tilted one only past that, the tests reading the noise as the denoising correlated it (:func:`own_or_centred`). A post measured
-thinner than ``MIN_RADIUS_MM`` in the end is no post (its first, wider core let noise pass the test;
-without posts, about one inclusion in ten of the family's had one, drawn with a voxel or none and with
-its warning missing), by its fitted cylinder or by its second trace's median cross-section: a trace of
-noise 17 mm long under a sphere near the skin read a disc of 0.26 mm there and a cylinder over 0.5 mm,
-the fit's blur and radius trading against each other on a few voxels per slab. Short pillars are
-measured over few slabs, each as noisy as the next:
-
-- with fewer than ``MIN_LINE_SLABS`` slabs a line is not told apart from noise, and the pillar stands
-  under its inclusion's centre, as the phantoms are built (one pillar under each sphere's centre,
-  :func:`lesscli.phantom.catalogue.hanging`) and as a gap too short to measure already assumes: under
-  the fitted ball's centre (:func:`_ball_axis`; the body's where no ball was fitted), which the post's
-  stub and partial volume at the body's surface do not move as they move the body's;
-- with fewer than ``MIN_OWN_SLABS`` slabs the radius is fitted to the post's whole silicone
-  (:func:`_post_radius`) around the line it stands on, from the ball's surface to the base's, the
-  ball's radius fitted again with it: the blur carries much of a post a slab or two tall into the
-  inclusion's and the base's slabs. Where that shows a post and the scan has other pillars' slabs, the
-  cross-section is the median over the slabs of all the scan's pillars that show one (the posts of one
-  insert are cast alike); longer pillars keep their own. A gap too short to hold a slab takes the
-  median radius of the scan's measured pillars, else that fit too (:func:`_gap_radius`).
-
-This module walks the steps (:func:`find_pillars`) and draws the posts. The parts it walks them with:
-:mod:`lesscli.mri.column` (a column, its slabs and rings, the ring's level), :mod:`lesscli.mri.trace` (a
-trace along it and the base's surface it meets), :mod:`lesscli.mri.section` (a post's cross-section, the
-base's side), :mod:`lesscli.mri.cylinder` (the blurred cylinder's fit and its F tests) and
-:mod:`lesscli.mri.ball` (the inclusion's blurred ball, fitted clear of the column).
+This module walks the steps (:func:`find_pillars`) and draws the posts, with :mod:`lesscli.mri.column`
+(a column, its slabs and rings), :mod:`lesscli.mri.trace` (a trace and the base's surface it meets),
+:mod:`lesscli.mri.section` (a post's cross-section, the base's side), :mod:`lesscli.mri.cylinder` (the
+blurred cylinder's fit and its F tests) and :mod:`lesscli.mri.ball` (the inclusion's blurred ball).
 """
 
 from __future__ import annotations

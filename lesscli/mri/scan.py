@@ -228,7 +228,7 @@ def _load_dicom(path: str, series: str | None = None) -> MRIScan:
     try:
         import pydicom
     except ImportError:
-        raise DataError(f"{path}: reading DICOM needs pydicom (pip install 'lesscli[dicom]'), "
+        raise DataError(f"{path}: reading DICOM needs pydicom (pip install 'less-tactile[dicom]'), "
                         "or convert the series to NIfTI first") from None
     names = sorted(os.path.relpath(os.path.join(root, f), path) for root, _dirs, files in os.walk(path) for f in files)
     images = []

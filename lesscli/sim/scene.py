@@ -282,7 +282,7 @@ def scene_document(scene: Scene) -> dict:
     if phantoms["set"] == RANDOM_SET:
         phantoms["random"] = _random_ranges(table.get("random", {}), scene.source, scene.seed).to_dict()
     labels = {"shape": list(scene.labels["shape"]), "spacing_mm": scene.labels["spacing_mm"]}
-    sensor = {k: scene.sensor[k] for k in SECTION_KEYS["sensor"] if k in scene.sensor}
+    sensor = {k: scene.sensor[k] for k in sorted(SECTION_KEYS["sensor"]) if k in scene.sensor}   # a set: sorted, so reruns agree
     motion = {"kind": scene.motion["kind"], **scene.motion["params"]}
     return {"name": scene.name, "seed": scene.seed, "description": scene.doc.get("description"),
             "phantoms": phantoms, "sensor": sensor, "contact": dict(scene.contact), "motion": motion,

@@ -40,7 +40,7 @@ class ImageModelConfig:
 
     dim: int = 3                  # 2: image (slice), 3: volume
     decoder: str = ""             # patch | global; "" pairs with the encoder (less -> patch, global -> global)
-    width: int = 32               # channels of the decoder's first feature map (README: `less image fit`)
+    width: int = 32               # channels of the decoder's first feature map (docs/guide/training.md)
     patch_px: int = 32            # patch side in label pixels (4 * 2^k, k >= 1)
     stitch: str = "sum"           # overlapping patch logits: sum (paper) or mean
     context: int = 0              # k x k convolution over the particle grid before decoding (odd; 0: none)
@@ -153,7 +153,7 @@ def inclusion_f1(model: torch.nn.Module, dataset, batch_size: int, device: torch
 # inclusions). None: argmax; thresholds below 0.5 label a class that is likely but not the likeliest, so an
 # unsure model is not forced to predict nothing; 0 mm^3: no region rule; 0 mm: no smoothing. The smoothing widths (one to
 # five pixels of the label grids, 0.48-0.95 mm) even out patch seams and single-pixel spurs; much wider
-# ones would round off the smallest inclusions (examples/README.md, "Sizing: the labelling rule").
+# ones would round off the smallest inclusions (docs/results/sizing.md).
 THRESHOLD_CHOICES = (None, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 MIN_VOLUME_CHOICES_MM3 = (0.0, 50.0, 100.0, 150.0)
 SMOOTH_CHOICES_MM = (0.0, 1.0, 1.5, 2.0, 2.5)

@@ -9,7 +9,7 @@ after it) are shown only when asked for (``-v``).
 ``--tensorboard DIR`` writes every number of each epoch record (the keys of ``<stem>.log.jsonl``:
 ``train_loss``, ``val_loss``, ``val_score``, ``val_baseline_mse``, ``lr``) as a scalar of that name
 at step = epoch, with ``torch.utils.tensorboard``, which needs the ``tensorboard`` package (the
-optional extra ``pip install 'lesscli[tensorboard]'``).
+optional extra ``pip install 'less-tactile[tensorboard]'``).
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ def require_tensorboard(logdir: str) -> None:
         importlib.import_module("torch.utils.tensorboard")
     except ImportError as exc:
         raise LessError(f"--tensorboard {logdir}: the 'tensorboard' package is not installed ({exc}); "
-                        "pip install 'lesscli[tensorboard]' or leave the option out") from None
+                        "pip install 'less-tactile[tensorboard]' or leave the option out") from None
 
 
 class TensorBoardScalars:

@@ -4,7 +4,7 @@ The rows span the family's ranges by design (pillar 1.5-4 mm wide and 1-15 mm ta
 1-3 of them, base up or down, rotations, voxels 0.4-1.2 mm anisotropic, both contrasts, noise
 0.02-0.1, bias 0.1-0.4); their seeds are not among those the segmentation was tuned on (0-99 of
 ``draw_case``). Acceptance: Dice insert >= 0.97, inclusion >= 0.93 and, where the pillar is at least 2
-voxels wide, pillar >= 0.80, per inclusion. The wide sweep behind README's table is
+voxels wide, pillar >= 0.80, per inclusion. The wide sweep behind the table of docs/results/mri-label-family.md is
 ``examples/mri_family.py``.
 """
 
@@ -873,7 +873,7 @@ def test_outer_surface_end_faces_within_a_slice(name):
 def test_box_partial_volume_keeps_a_thin_posts_silicone_and_the_ramp_adds_to_it(spacing):
     """The family's generator itself: without noise and bias a post's silicone per slice (the blur
     keeps its sum) is its disc's area under the box partial volume (within 2 %), while the ramp's fill
-    adds to it (the bias of the ramp family described in README)."""
+    adds to it (the bias of the ramp family described in docs/results/mri-label-family.md)."""
     diameter = 1.8
     excess = {}
     for pv in ("box", "ramp"):
@@ -925,7 +925,7 @@ def test_the_ramp_draws_a_post_as_a_wider_one_the_scan_cannot_tell_apart(voxel_m
     a curved surface, one wider by about voxel^2 / (24 radius), and the profile fits that wider disc as
     closely as the box's fits the true one, far inside the family's least noise (0.02 of the brighter
     tissue, 0.03 of the contrast or more): no reading of the scan tells the ramp's post from a wider one,
-    and the ramp's misses in the README are its own."""
+    and the ramp's misses on docs/results/mri-label-family.md are its own."""
     import mri_family
     from scipy import ndimage
 
@@ -994,7 +994,7 @@ def test_insert_scores_leave_out_a_slice_undecided_at_an_outer_face(gap, left_ou
 
 
 def test_family_script_rows_and_footer(tmp_path):
-    """`examples/mri_family.py` (README's table and counts): one box volume, its rows and the footer."""
+    """`examples/mri_family.py` (the table and counts of docs/results/mri-label-family.md): one box volume, its rows and the footer."""
     import subprocess
     import sys
     from pathlib import Path
@@ -1071,7 +1071,7 @@ def test_family_script_tilted(tmp_path):
 
 
 def test_family_script_small_coarse(tmp_path):
-    """`examples/mri_family.py --small-coarse` (examples/README's probes of small spheres at coarse voxels): the
+    """`examples/mri_family.py --small-coarse` (the probes in docs/results/mri-label-rounds.md of small spheres at coarse voxels): the
     volume drawn from ``[seed // 100, seed % 100]``, its first sphere 6-7 mm, every voxel side 0.9-1.2 mm, noise
     0.05-0.1."""
     import subprocess

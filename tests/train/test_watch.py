@@ -87,7 +87,7 @@ def test_tensorboard_missing_is_one_line_before_training(tmp_path, monkeypatch, 
         main([*command, "-o", "out.pt", "--device", "cpu", "--tensorboard", "tb"])
     err = capsys.readouterr().err.strip().splitlines()
     assert exit_info.value.code == 1 and len(err) == 1
-    assert "--tensorboard tb: the 'tensorboard' package is not installed" in err[0] and "lesscli[tensorboard]" in err[0]
+    assert "--tensorboard tb: the 'tensorboard' package is not installed" in err[0] and "less-tactile[tensorboard]" in err[0]
     assert not list(tmp_path.iterdir())                          # nothing loaded (tr.npz does not even exist)
 
 

@@ -1,0 +1,3 @@
+from lesscli.cli.main import entry
+
+entry()

@@ -1,0 +1,1 @@
+"""Dataset operations (subsample, concat, split, import) and torch datasets."""

@@ -1,0 +1,1 @@
+"""Inference: batch prediction of label images from scan sets."""

@@ -1,0 +1,1 @@
+"""File formats: scan sets, label volumes, predictions, records, atomic writes."""

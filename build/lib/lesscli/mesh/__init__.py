@@ -1,0 +1,1 @@
+"""Label volumes -> per-class surface meshes in millimetres -> GLB / STL / PLY."""

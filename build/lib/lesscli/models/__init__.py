@@ -1,0 +1,1 @@
+"""Models: particle encoder (LESS), GLOBAL baseline, positional encoding, decoders, losses."""

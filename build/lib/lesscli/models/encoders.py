@@ -1,0 +1,290 @@
+"""LESS particle encoder and the GLOBAL single-state baseline.
+
+For every particle: gather its in-field steps in time order, centre their x-y on the particle,
+encode each (pose, force) pair with the force-location encoder (sinusoidal pose encoding + MLP of
+the force, summed), and run one GRU whose weights all particles share. Only particles that saw at
+least one step are run, each only over its own real steps (:mod:`lesscli.models.recurrence`): the
+state read at the last real step equals a masked update, and no compute is spent on padding or on
+particles that saw nothing. Training and evaluation take the same path.
+
+A particle's state is a function of its own gathered steps only: touches added or moved outside its
+receptive field leave it unchanged to float rounding (~1e-7: the matrix sizes follow the other
+particles' step counts, and BLAS may round a row differently in a product of another size).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from lesscli.models.encoding import POSE_DIM, PoseEncoding
+from lesscli.models.particles import Gathered, gather_receptive_field, particle_grid
+from lesscli.models.recurrence import ragged_gru, ragged_gru_from_gates
+from lesscli.types import Batch
+
+
+def mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:
+    """Two-layer perceptron with a GELU (smooth, so finite-difference checks behave)."""
+    return nn.Sequential(nn.Linear(d_in, d_hidden), nn.GELU(), nn.Linear(d_hidden, d_out))
+
+
+@dataclass
+class ParticleStates:
+    """Final particle states.
+
+    Attributes:
+        z: (B, P, d_z) float, the state at each particle's last valid step (zeros when it saw nothing).
+        xy_mm: (P, 2) particle positions in the phantom frame (GLOBAL: P = 1, xy = 0).
+        seen: (B, P) bool, the particle saw at least one step.
+    """
+
+    z: Tensor
+    xy_mm: Tensor
+    seen: Tensor
+
+
+@dataclass
+class ParticleSequence:
+    """GRU outputs for the particles that saw something (N rows = seen (batch, particle) pairs).
+
+    Attributes:
+        batch_index, particle_index: (N,) long, which (b, p) each row is.
+        z: (N, C, d_z) GRU state after each gathered step (None from ``gather_sequence``).
+        pose: (N, C, 6) gathered poses, x-y centred on the particle.
+        force: (N, C, F) gathered forces (normalised).
+        mask: (N, C) bool, real steps (pose/force slots past ``count`` repeat the last step; z is 0 there).
+        count: (N,) long, real steps per row (>= 1).
+        shape: (B, P) of the full particle grid.
+        xy_mm: (P, 2) particle positions.
+        gathered: the encoder's gather behind the rows (what :meth:`ParticleEncoder.states_at` reads).
+    """
+
+    batch_index: Tensor
+    particle_index: Tensor
+    z: Tensor | None
+    pose: Tensor
+    force: Tensor
+    mask: Tensor
+    count: Tensor
+    shape: tuple[int, int]
+    xy_mm: Tensor
+    gathered: tuple | None = None
+
+    def final_states(self) -> ParticleStates:
+        """Scatter each row's state at its last real step into a (B, P, d_z) tensor."""
+        b, p = self.shape
+        rows = torch.arange(self.z.shape[0], device=self.z.device)
+        last = self.z[rows, self.count - 1]
+        z = self.z.new_zeros(b, p, self.z.shape[-1])
+        z = z.index_put((self.batch_index, self.particle_index), last)
+        seen = torch.zeros(b, p, dtype=torch.bool, device=self.z.device)
+        seen[self.batch_index, self.particle_index] = True
+        return ParticleStates(z=z, xy_mm=self.xy_mm, seen=seen)
+
+
+class ForceLocationEncoder(nn.Module):
+    """FLE: PE(centred pose) + MLP(force), (..., 6) and (..., F) -> (..., dim)."""
+
+    def __init__(self, force_dim: int, dim: int, n_freq: int = 16) -> None:
+        super().__init__()
+        self.pose_encoding = PoseEncoding(dim, n_freq)
+        self.force_mlp = mlp(force_dim, dim, dim)
+
+    def forward(self, pose: Tensor, force: Tensor) -> Tensor:
+        return self.pose_encoding(pose) + self.force_mlp(force)
+
+
+class ParticleEncoder(nn.Module):
+    """LESS: a grid of particles with local receptive fields and a shared GRU.
+
+    Args:
+        force_dim: F, force features per step (taxels x 3).
+        dim: d_z, width of the encoder and the GRU state.
+        spacing_mm: particle spacing.
+        grid_extent_mm: side of the square the grid covers (centred on ``grid_center_mm``).
+        receptive_field_mm: radius beta of each particle's receptive disc.
+        max_steps_per_particle: cap on gathered steps per particle (earliest kept); None = no cap.
+        n_freq: wavelengths per pose coordinate in the positional encoding.
+        grid_center_mm: x, y of the grid centre.
+        particles_per_axis: an exact number of particles per axis (even too) instead of the extent's.
+    """
+
+    name = "less"
+    force_norm = "global"        # the force normalisation it is trained with by default (data.batching)
+
+    def __init__(self, force_dim: int, dim: int = 128, spacing_mm: float = 6.0, grid_extent_mm: float = 60.0,
+                 receptive_field_mm: float = 10.0, max_steps_per_particle: int | None = None, n_freq: int = 16,
+                 grid_center_mm: tuple[float, float] = (0.0, 0.0), particles_per_axis: int | None = None) -> None:
+        super().__init__()
+        if not receptive_field_mm > 0:
+            raise ValueError(f"receptive_field_mm must be > 0, got {receptive_field_mm}")
+        self.settings = {"force_dim": int(force_dim), "dim": int(dim), "spacing_mm": float(spacing_mm),
+                         "grid_extent_mm": float(grid_extent_mm), "receptive_field_mm": float(receptive_field_mm),
+                         "max_steps_per_particle": None if max_steps_per_particle is None
+                         else int(max_steps_per_particle),
+                         "n_freq": int(n_freq), "grid_center_mm": [float(c) for c in grid_center_mm],
+                         "particles_per_axis": None if particles_per_axis is None else int(particles_per_axis)}
+        self.dim = int(dim)
+        self.force_dim = int(force_dim)
+        self.receptive_field_mm = float(receptive_field_mm)
+        self.max_steps = self.settings["max_steps_per_particle"]
+        self.fle = ForceLocationEncoder(force_dim, dim, n_freq)
+        self.gru = nn.GRU(dim, dim, batch_first=True)
+        self.register_buffer("xy_mm", self._grid(), persistent=False)
+
+    def _grid(self) -> Tensor:
+        s = self.settings
+        return particle_grid(s["grid_extent_mm"], s["spacing_mm"], tuple(s["grid_center_mm"]),
+                             s["particles_per_axis"])
+
+    def config(self) -> dict:
+        """Constructor arguments plus ``name``: ``ENCODERS[c.pop('name')](**c)`` rebuilds the encoder."""
+        return {"name": self.name, **copy.deepcopy(self.settings)}
+
+    def with_grid(self, extent_mm: float, center_xy_mm: tuple[float, float] | None = None) -> ParticleEncoder:
+        """A copy over a grid of another extent (and centre), same spacing and weights."""
+        kwargs = copy.deepcopy(self.settings)
+        kwargs["grid_extent_mm"], kwargs["particles_per_axis"] = float(extent_mm), None
+        if center_xy_mm is not None:
+            kwargs["grid_center_mm"] = [float(c) for c in center_xy_mm]
+        other = type(self)(**kwargs)
+        other.load_state_dict(self.state_dict())
+        other.train(self.training)
+        return other.to(device=self.xy_mm.device, dtype=next(self.parameters()).dtype)
+
+    def force_decoder(self) -> nn.Module:
+        """The SSL force decoder that pairs with this encoder (a fresh one)."""
+        from lesscli.models.force_decoder import ForceDecoder
+
+        return ForceDecoder(self.force_dim, self.dim, self.settings["n_freq"])
+
+    @property
+    def n_particles(self) -> int:
+        return int(self.xy_mm.shape[0])
+
+    def _gather(self, batch: Batch) -> tuple[Gathered, Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """The receptive-field gather and, for the N seen (batch, particle) rows: batch index, particle
+        index, step indices (N, C), centred poses (N, C, 6) and real-step mask (N, C)."""
+        xy = self.xy_mm.to(batch.pose.dtype)
+        g = gather_receptive_field(batch.pose[..., :2], batch.valid, xy, self.receptive_field_mm, self.max_steps)
+        bi, pi = g.seen.nonzero(as_tuple=True)
+        index = g.index[bi, pi]                                      # (N, C)
+        shift = torch.zeros(pi.shape[0], 1, POSE_DIM, dtype=batch.pose.dtype, device=batch.pose.device)
+        shift[:, 0, :2] = xy[pi]
+        return g, bi, pi, index, batch.pose[bi[:, None], index] - shift, g.mask[bi, pi]
+
+    def _folded_states(self, batch: Batch, gathered: tuple, last_only: bool, at: Tensor | None = None) -> Tensor:
+        """The ragged GRU over the folded input gates of ``gathered`` (:meth:`_gather`): (N, C, d_z) states,
+        (N, d_z) with ``last_only``, or (N, k, d_z) after the slots ``at`` (N, k) (each row run only up to
+        its last slot in ``at``)."""
+        g, bi, pi, index, pose, mask = gathered
+        count = g.count[bi, pi]
+        if at is not None and at.shape[0]:
+            count = at.max(1).values + 1
+            mask = torch.arange(mask.shape[1], device=mask.device) < count[:, None]
+        gates = self._input_gates(batch, pose[mask], bi[:, None].expand_as(index)[mask], index[mask])
+        return ragged_gru_from_gates(gates, count, self.gru, int(mask.shape[1]), last_only, at)
+
+    def gather_sequence(self, batch: Batch) -> ParticleSequence:
+        """Every seen particle's gathered steps, without states (``z`` None; see :meth:`states_at`)."""
+        gathered = self._gather(batch)
+        g, bi, pi, index, pose, mask = gathered
+        return ParticleSequence(batch_index=bi, particle_index=pi, z=None, pose=pose,
+                                force=batch.force[bi[:, None], index], mask=mask, count=g.count[bi, pi],
+                                shape=(int(g.count.shape[0]), int(g.count.shape[1])),
+                                xy_mm=self.xy_mm.to(batch.pose.dtype), gathered=gathered)
+
+    def states_at(self, batch: Batch, seq: ParticleSequence, at: Tensor | None = None) -> Tensor:
+        """GRU states of :meth:`gather_sequence`'s rows: (N, C, d_z) after every slot, or (N, k, d_z) after
+        the slots ``at`` (N, k), each below its row's count (the recurrence stops at a row's last one)."""
+        if self._folds_inputs():
+            return self._folded_states(batch, seq.gathered, last_only=False, at=at)
+        real = self.fle(seq.pose[seq.mask], seq.force[seq.mask])      # inputs of real steps only
+        z = self._run_gru(real.new_zeros(*seq.mask.shape, real.shape[-1]).index_put((seq.mask,), real), seq.count)
+        return z if at is None else z.gather(1, at[..., None].expand(-1, -1, z.shape[-1]))
+
+    def encode_sequence(self, batch: Batch) -> ParticleSequence:
+        """Run the GRU over every seen particle's gathered steps (see :class:`ParticleSequence`)."""
+        seq = self.gather_sequence(batch)
+        seq.z = self.states_at(batch, seq)
+        return seq
+
+    def _folds_inputs(self) -> bool:
+        """The paper's FLE feeds the GRU directly (no subclass changes the inputs or the recurrence)."""
+        return isinstance(self._modules.get("fle"), ForceLocationEncoder) \
+            and type(self)._run_gru is ParticleEncoder._run_gru
+
+    def _input_gates(self, batch: Batch, pose: Tensor, scan: Tensor, step: Tensor) -> Tensor:
+        """The GRU's input gates ``W_ih FLE(pose, force) + b_ih`` of S real steps, with the linear maps folded.
+
+        ``W_ih (P phi(pose) + p + MLP(force))``: the pose part goes through the product ``W_ih P`` (3H x
+        6 * 2 n_freq, much narrower than d_z), the force part is computed once per scan step and gathered
+        (a step lies in the fields of several particles).
+
+        Args:
+            batch: the batch (its forces).
+            pose: (S, 6) centred poses of the real steps.
+            scan, step: (S,) long, the batch row and time step of each.
+
+        Returns:
+            (S, 3H).
+        """
+        w, proj = self.gru.weight_ih_l0, self.fle.pose_encoding.proj
+        per_step = self.fle.force_mlp(batch.force) @ w.t()                   # (B, L, 3H)
+        bias = torch.addmv(self.gru.bias_ih_l0, w, proj.bias)
+        return torch.addmm(bias, self.fle.pose_encoding.features(pose), (w @ proj.weight).t()) + per_step[scan, step]
+
+    def _run_gru(self, x: Tensor, count: Tensor) -> Tensor:
+        """GRU over (N, C, dim) inputs, each row only up to its ``count`` real steps (inputs past it are
+        zeros and never read; see :func:`~lesscli.models.recurrence.ragged_gru`).
+
+        Returns (N, C, dim) states; slots past a row's count are zeros.
+        """
+        return ragged_gru(x, count, self.gru)
+
+    def gru_step(self, x: Tensor, h: Tensor) -> Tensor:
+        """One step of the shared GRU as a cell: inputs x and states h, (N, d_z) each -> new states."""
+        gru = self.gru
+        return torch.gru_cell(x, h, gru.weight_ih_l0, gru.weight_hh_l0, gru.bias_ih_l0, gru.bias_hh_l0)
+
+    def forward(self, batch: Batch) -> ParticleStates:
+        """Batch -> ParticleStates with z (B, P, d_z)."""
+        if not self._folds_inputs():
+            return self.encode_sequence(batch).final_states()
+        gathered = self._gather(batch)
+        g, bi, pi = gathered[:3]
+        last = self._folded_states(batch, gathered, last_only=True)
+        z = last.new_zeros(*g.count.shape, self.dim).index_put((bi, pi), last)
+        return ParticleStates(z=z, xy_mm=self.xy_mm.to(batch.pose.dtype), seen=g.seen)
+
+
+class GlobalEncoder(ParticleEncoder):
+    """GLOBAL baseline: the same encoder over the whole sequence, no filtering, no centring.
+
+    One state per scan (P = 1, particle at x = y = 0, unbounded receptive field).
+
+    Args:
+        force_dim: F, force features per step.
+        dim: d_z.
+        max_steps_per_particle: cap on steps (earliest kept); None = no cap.
+        n_freq: wavelengths per pose coordinate.
+    """
+
+    name = "global"
+
+    def __init__(self, force_dim: int, dim: int = 128, max_steps_per_particle: int | None = None,
+                 n_freq: int = 16, **_ignored) -> None:
+        super().__init__(force_dim, dim=dim, spacing_mm=1.0, grid_extent_mm=0.0, receptive_field_mm=math.inf,
+                         max_steps_per_particle=max_steps_per_particle, n_freq=n_freq)
+        self.settings = {k: self.settings[k] for k in ("force_dim", "dim", "max_steps_per_particle", "n_freq")}
+
+    def _grid(self) -> Tensor:
+        return torch.zeros(1, 2)
+
+    def with_grid(self, extent_mm: float, center_xy_mm: tuple[float, float] | None = None) -> GlobalEncoder:
+        """GLOBAL has one state whatever the phantom size: a copy of itself."""
+        return copy.deepcopy(self)

@@ -1,0 +1,1 @@
+"""MRI scans to label volumes (segmentation, phantom frame, reports) and synthetic MRI for tests."""

@@ -1,0 +1,1 @@
+"""Figures: truth | prediction | uncertainty panels and time strips (matplotlib, Agg chosen inside functions)."""

@@ -1,0 +1,167 @@
+"""Figures of sweeps: a metric against pose noise (one line per angle level), accuracy against time
+(the trade-off's settings, the contact tiers of ``bench sim``) and F1 against touches (``bench guide``).
+
+Each function builds its own Agg canvas (no global backend state) and writes the PNG atomically.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from lesscli.io.atomic import atomic_path
+from lesscli.plots.render import agg_figure
+
+FIGSIZE_IN = (6.4, 4.4)
+LADDER_DPI = 120
+LADDER_STYLE = {"winkler": ("o", "tab:orange"), "green": ("s", "tab:blue"), "fem": ("^", "tab:green")}
+
+
+def save_png(fig, path: str, dpi: float | None = None) -> None:
+    """Write ``fig`` to ``path`` as a PNG atomically (at the figure's own dpi unless ``dpi`` is given)."""
+    with atomic_path(path, ".png") as tmp:
+        fig.savefig(tmp, format="png", dpi=dpi)
+
+
+def _num(value) -> float:
+    return float("nan") if value is None else float(value)
+
+
+def noise_figure(rows: Sequence[Mapping], path: str, metric: str = "f1", title: str = "") -> None:
+    """Metric vs position-noise sigma, one line per angle sigma, error bars = std over repeats.
+
+    Args:
+        rows: sweep rows with ``pos_mm``, ``ang_rad``, ``<metric>`` and ``<metric>_std``.
+        path: output PNG.
+        metric: the plotted key (F1 values in [0, 1] are drawn in percent).
+        title: figure title.
+    """
+    fig = agg_figure(FIGSIZE_IN)
+    ax = fig.add_subplot(1, 1, 1)
+    scale = 100.0 if metric.startswith("f1") else 1.0
+    for ang in sorted({float(r["ang_rad"]) for r in rows}):
+        line = sorted((r for r in rows if float(r["ang_rad"]) == ang), key=lambda r: float(r["pos_mm"]))
+        x = np.array([float(r["pos_mm"]) for r in line])
+        y = np.array([_num(r.get(metric)) for r in line]) * scale
+        err = np.nan_to_num(np.array([_num(r.get(f"{metric}_std")) for r in line]), nan=0.0) * scale
+        ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=f"{ang:g} rad")
+    ax.set_xlabel("position noise sigma (x, y, z), mm")
+    ax.set_ylabel(f"{metric} (%)" if scale != 1.0 else metric)
+    ax.legend(title="angle noise sigma", fontsize="small")
+    ax.grid(alpha=0.3)
+    ax.set_title(title or "Pose-noise robustness (phantom frame, i.i.d. Gaussian)")
+    save_png(fig, path)
+
+
+def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
+    """Indices of the points not dominated by another (lower or equal time and higher or equal score,
+    one strictly), sorted by time. NaN points are never on the front."""
+    idx = [i for i, (t, s) in enumerate(points) if np.isfinite(t) and np.isfinite(s)]
+    front = []
+    for i in idx:
+        ti, si = points[i]
+        dominated = any((points[j][0] <= ti and points[j][1] >= si) and (points[j][0] < ti or points[j][1] > si)
+                        for j in idx if j != i)
+        if not dominated:
+            front.append(i)
+    return sorted(front, key=lambda i: points[i][0])
+
+
+def pareto_figure(rows: Sequence[Mapping], path: str, time_key: str = "train_s",
+                  scores: Sequence[str] = ("f1_single", "f1_multiple"), title: str = "") -> None:
+    """Score vs time per setting (one marker per knob), the Pareto front of each score as a line.
+
+    Args:
+        rows: one row per setting with ``knob``, ``value``, ``time_key`` and the score keys.
+        path: output PNG.
+        time_key: the x axis (seconds).
+        scores: the y keys, one panel each (F1 in [0, 1], drawn in percent).
+        title: figure title.
+    """
+    fig = agg_figure((5.2 * len(scores), 4.4))
+    axes = fig.subplots(1, len(scores), squeeze=False)[0]
+    knobs = list(dict.fromkeys(str(r["knob"]) for r in rows))
+    markers = "osD^v<>pP*Xh"
+    for ax, score in zip(axes, scores):
+        pts = [(_num(r.get(time_key)), _num(r.get(score)) * 100.0) for r in rows]
+        for k, knob in enumerate(knobs):
+            sel = [i for i, r in enumerate(rows) if str(r["knob"]) == knob]
+            ax.scatter([pts[i][0] for i in sel], [pts[i][1] for i in sel], marker=markers[k % len(markers)],
+                       label=knob, zorder=3)
+            for i in sel:
+                ax.annotate(str(rows[i]["value"]), pts[i], fontsize=7, xytext=(3, 3), textcoords="offset points")
+        front = pareto_front(pts)
+        if front:
+            ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], "k--", lw=1, label="Pareto front")
+        ax.set_xscale("log")
+        ax.set_xlabel(f"{time_key} (s, log)")
+        ax.set_ylabel(f"{score} (%)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize="small")
+    fig.suptitle(title or "Accuracy against time")
+    save_png(fig, path)
+
+
+def line_figure(rows: Sequence[Mapping], path: str, x_key: str, y_keys: Sequence[str], xlabel: str,
+                title: str = "") -> None:
+    """Scores vs one setting (e.g. F1 on single and multiple vs receptive field), F1 in percent.
+
+    Rows may carry ``<y>_std`` for error bars.
+    """
+    fig = agg_figure(FIGSIZE_IN)
+    ax = fig.add_subplot(1, 1, 1)
+    line = sorted(rows, key=lambda r: float(r[x_key]))
+    x = np.array([float(r[x_key]) for r in line])
+    for key in y_keys:
+        y = np.array([_num(r.get(key)) for r in line]) * 100.0
+        err = np.nan_to_num(np.array([_num(r.get(f"{key}_std")) for r in line]), nan=0.0) * 100.0
+        ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=key)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("F1 (%)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small")
+    ax.set_title(title)
+    save_png(fig, path)
+
+
+def touches_figure(path: str, means: Mapping[str, Sequence[tuple[int, float]]], title: str) -> None:
+    """F1 vs touches (markers at the evaluation points).
+
+    Args:
+        path: output PNG.
+        means: strategy -> [(touches, F1)], the F1 averaged over phantoms and seeds.
+        title: figure title.
+    """
+    fig = agg_figure((5.5, 4))
+    ax = fig.add_subplot(1, 1, 1)
+    for s, curve in means.items():
+        ax.plot([n for n, _ in curve], [f for _, f in curve], marker="o", ms=3, label=s)
+    ax.set_xlabel("touches")
+    ax.set_ylabel("inclusion F1 (mean over phantoms and seeds)")
+    ax.set_title(title)
+    ax.legend()
+    save_png(fig, path)
+
+
+def ladder_figure(rows: Sequence[Mapping], path: str) -> None:
+    """Error vs time per step (log-log), one marker per tier, labelled by check and mesh.
+
+    Rows without an error or a time (the reference itself has error 0) are left out.
+    """
+    fig = agg_figure((7, 5))
+    ax = fig.add_subplot(1, 1, 1)
+    for row in rows:
+        if not row.get("error") or not row.get("ms_per_step"):
+            continue
+        err = float(row["error"])
+        marker, colour = LADDER_STYLE.get(row["tier"], ("x", "k"))
+        ax.scatter(row["ms_per_step"], err, marker=marker, color=colour, label=row["tier"])
+        mesh = f" {row['mesh_mm']:g}mm" if row.get("mesh_mm") else ""
+        ax.annotate(f"{row['check']}{mesh}", (row["ms_per_step"], err), fontsize=7)
+    handles, labels = ax.get_legend_handles_labels()
+    uniq = dict(zip(labels, handles))
+    ax.legend(uniq.values(), uniq.keys())
+    ax.set(xscale="log", yscale="log", xlabel="time per step (ms)", ylabel="relative error",
+           title="contact tiers: accuracy vs time")
+    save_png(fig, path, dpi=LADDER_DPI)

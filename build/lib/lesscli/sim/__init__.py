@@ -1,0 +1,1 @@
+"""Palpation simulator: kinematics, contact tiers, motions, effects and scenes."""

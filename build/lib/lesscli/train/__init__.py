@@ -1,0 +1,1 @@
+"""Training: SSL pretraining, the generic loop, checkpoints, distributed setup."""
