@@ -18,7 +18,9 @@
 # results/tuning-<tier>/). Test sets are read by the `accuracy` target only.
 
 ACC_TIER   ?= green
-ACC_SUFFIX := $(if $(filter green,$(ACC_TIER)),,-$(ACC_TIER))
+# the full protocol (green) writes results/accuracy/ and results/accuracy-paper/; another tier's run of it
+# results/accuracy-protocol-<tier>/ and results/accuracy-paper-protocol-<tier>/
+ACC_SUFFIX := $(if $(filter green,$(ACC_TIER)),,-protocol-$(ACC_TIER))
 A          := work/accuracy-$(ACC_TIER)
 P          := $(A)/paper
 AR         := results/accuracy$(ACC_SUFFIX)
