@@ -100,8 +100,8 @@ $(P)/forcemap.pt: $(P)/train.npz
 # ---------------------------------------------------------------- predictions: <regime dir>/pred_<imager>_on_<set>.npz
 # each learned imager with its own config's turns; local ones grow their particle grid over the large inserts
 # the model behind an imager stem: img_<model>[-<variant>]_s<seed> (variants: -full, -init, -maponly, -frozen,
-# -endtoend, -n<N>-d<D>)
-strip_variant = $(patsubst %-endtoend,%,$(patsubst %-frozen,%,$(patsubst %-init,%,$(patsubst %-maponly,%,$(patsubst %-full,%,$(1))))))
+# -endtoend, -long, -n<N>-d<D>)
+strip_variant = $(patsubst %-long,%,$(patsubst %-endtoend,%,$(patsubst %-frozen,%,$(patsubst %-init,%,$(patsubst %-maponly,%,$(patsubst %-full,%,$(1)))))))
 model_of = $(firstword $(subst -n, ,$(call strip_variant,$(word 2,$(subst _, ,$(1))))))
 define ACC_PREDICT
 $(1)/pred_%_on_$(2).npz: $(1)/%.pt $(1)/$(2).npz
@@ -233,6 +233,15 @@ $(DG)/img_$(1)-endtoend_s0.pt: $(DG)/rep_$(1)_s0.pt
 	  --device $(DEVICE) $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) --finetune --format jsonl > $$@.json
 endef
 $(foreach m,$(DIAG_MODELS),$(eval $(call DIAG_TRAIN,$(m))))
+# capacity: the paper regime's seed-0 representation, decoded with five times the imaging epochs (100), scored
+# on its own training scans and on the held-out ones: can the model fit what it was trained on?
+DIAG_LONG_EPOCHS ?= 100
+define DIAG_LONG
+$(P)/img_$(1)-long_s0.pt: $(P)/rep_$(1)_s0.pt
+	$(LESS) image fit $(P)/train.npz --val $(P)/val.npz --rep $$< -o $$@ --dim 3 --seed 0 --device $(DEVICE) \
+	  $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) --epochs $(DIAG_LONG_EPOCHS) --format jsonl > $$@.json
+endef
+$(foreach m,$(DIAG_MODELS),$(eval $(call DIAG_LONG,$(m))))
 $(DG)/val.npz: | $(A)/split/val.npz
 	@mkdir -p $(@D)
 	ln -sf ../split/val.npz $@
@@ -242,9 +251,14 @@ $(DG)/train.npz: | $(A)/search/train.npz
 $(eval $(call ACC_PREDICT,$(DG),val))
 $(eval $(call ACC_PREDICT,$(DG),train))
 DIAG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach v,frozen endtoend,$(foreach t,val train,$(DG)/pred_img_$(m)-$(v)_s0_on_$(t).npz)))
+DIAG_LONG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach t,train test,$(P)/pred_img_$(m)-long_s0_on_$(t).npz))
 .PHONY: diagnose
-diagnose: $(DGR)/diagnose.md
+diagnose: $(DGR)/diagnose.md $(DGR)/capacity.md
 $(DGR)/diagnose.md: $(DIAG_PREDS)
 	@mkdir -p $(@D)
 	$(LESS) metrics $^ --summary-only --format jsonl > $(DGR)/diagnose.jsonl
 	$(PYTHON) headline.py $(DGR)/diagnose.jsonl --no-paper > $@.part && mv $@.part $@
+$(DGR)/capacity.md: $(DIAG_LONG_PREDS)
+	@mkdir -p $(@D)
+	$(LESS) metrics $^ --summary-only --format jsonl > $(DGR)/capacity.jsonl
+	$(PYTHON) headline.py $(DGR)/capacity.jsonl --no-paper > $@.part && mv $@.part $@
