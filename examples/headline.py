@@ -18,8 +18,9 @@ from pathlib import Path
 
 IMAGERS = ["less", "global", "less-taxel", "global-taxel", "forcemap", "average"]
 NAMES = {"forcemap": "classical", "average": "average"}
-SET_NAMES = {"test": "single (held-out scans)", "handheld": "hand-held-like", "train": "train (its own scans)"}
-SET_ORDER = ["single", "test", "multiple", "large", "handheld", "train"]
+SET_NAMES = {"test": "single (held-out scans)", "handheld": "hand-held-like", "train": "train (its own scans)",
+             "val": "validation"}
+SET_ORDER = ["val", "single", "test", "multiple", "large", "handheld", "train"]
 SINGLE = ("single", "test")
 COLUMNS = [("f1_micro_2d", "2D F1", 3), ("com_error_mm_2d", "2D centroid mm", 2),
            ("diameter_error_mm_2d", "2D diameter mm", 2), ("f1_micro_3d", "3D F1", 3),
