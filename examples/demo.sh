@@ -11,6 +11,7 @@
 #   DEMO_OUT=/tmp/demo_small TRAIN_SET_ARGS="--set phantoms.random.count=6" \
 #   PRETRAIN_ARGS="--dim 8 --epochs 1 --set ssl.k_input=4 --set ssl.k_query=4" \
 #   FIT_ARGS="--epochs 1 --set image.patch_px=16 --set image.width=8" bash examples/demo.sh
+# Another sensor: DEMO_SCENE=examples/scenes/pad4x4.toml (a 4 x 4 pad) or examples/scenes/probe.toml (one taxel).
 set -euo pipefail
 
 : "${LESS_MODEL:=less-taxel}"
@@ -21,7 +22,7 @@ HELDOUT_NAMES='["St8C5","St8C9","St8D13","St10C9","St10D5","St10D13","St12C5","S
 
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 OUT="${DEMO_OUT:-demo-out}"
-SCENE="$HERE/scenes/quick.toml"
+SCENE="${DEMO_SCENE:-$HERE/scenes/quick.toml}"
 DEVICE="${DEMO_DEVICE:-cpu}"
 read -r -a TRAIN_SET <<< "$TRAIN_SET_ARGS"
 read -r -a PRETRAIN <<< "$PRETRAIN_ARGS"

@@ -190,7 +190,7 @@ def run_live(imager, ckpt: dict, lines, emitter: Emitter, on_error: str, defer: 
     """Image live JSON lines from ``lines`` (bytes or text); malformed lines, lines that are not UTF-8
     and samples whose time goes backwards are reported with their number. A model that reads the surface
     frame gets each pose on the surface fitted over the onsets of the touches so far
-    (:class:`lesscli.data.surface.OnlineSurface`; a trajectory ends where its time restarts)."""
+    (:class:`lesscli.data.surface.OnlineSurface`; a touch ends when the pad lifts off)."""
     from lesscli.cli.common import LOG
     from lesscli.errors import DataError
     from lesscli.infer.live import parse_live_line

@@ -8,6 +8,7 @@ import shlex
 
 import numpy as np
 
+from lesscli.data.compat import model_signature
 from lesscli.errors import DataError
 from lesscli.io.labels import CLASS_NAMES, LabelVolume, check_codes
 from lesscli.io.scans import ScanSet
@@ -157,6 +158,7 @@ def describe_checkpoint(ckpt: dict, full_history: bool = False) -> list[dict]:
         kind = "imager" if "image" in config else "representation"
         model = config.get("encoder", {}).get("name")
     norm, image = ckpt.get("norm_stats") or {}, config.get("image") or {}
+    sig = model_signature(ckpt)
     return [{
         "kind": kind, "format": f"{ckpt.get('format')}/{ckpt.get('version')}", "model": model,
         "decoder": config.get("decoder", {}).get("name"),
@@ -166,9 +168,17 @@ def describe_checkpoint(ckpt: dict, full_history: bool = False) -> list[dict]:
         "settings": settings, "grid": config.get("grid"),
         "labelling": {k: image[k] for k in ("threshold", "min_volume_mm3", "smooth_mm") if k in image} or None,
         "image": config.get("image"),
-        "force_units": norm.get("force_units"), "training_steps": norm.get("n_steps"),
+        "force_units": sig.get("force_units") or norm.get("force_units"), "pose_frame": sig.get("pose_frame"),
+        "sensor": _sensor_line(sig), "training_steps": norm.get("n_steps"),
         "history": commands if full_history else history_summary(commands),
     }]
+
+
+def _sensor_line(sig: dict) -> str | None:
+    """``name (T taxels)`` of a checkpoint's sensor, None when it was not recorded."""
+    taxels = sig.get("taxels")
+    name = (sig.get("sensor") or {}).get("name")
+    return None if taxels is None else f"{name or 'sensor'} ({taxels} taxels)"
 
 
 def describe_file(path: str, full_history: bool = False, series: str | None = None) -> list[dict]:

@@ -209,14 +209,16 @@ def surface_frame(scans):
 
 
 class OnlineSurface:
-    """The same rule for a live stream: each trajectory's onset is found once the trajectory has ended
-    (a sample's time restarts below the previous one), and the surface is refitted over every onset seen
-    so far; poses are put on the current surface as they arrive. Until the first touch has ended, the
-    surface is flat at the lowest pad point of the first sample whose force passed the noise part of the
-    onset level (before that, the frame's zero: nothing has been touched yet).
+    """The same rule for a live stream, touch by touch. A touch begins with a sample out of contact (its
+    force is the touch's baseline) and ends when its force, having passed the noise part of the onset
+    level (``ONSET_SIGMAS * noise_n * sqrt(T)``), falls back below it (the pad lifted off), or when a
+    sample's time restarts below the previous one (a replayed trajectory). At its end the touch's onset
+    is found as in batch and the surface refitted over every onset so far; poses are put on the current
+    surface as they arrive. Until the first touch has ended, the surface is flat at the lowest pad point
+    of the first sample above the noise level (before that, the frame's zero: nothing has been touched).
 
     Args:
-        sensor: the checkpoint's sensor layout (``pad_size_mm`` / ``taxel_xy_mm``, ``noise_n``).
+        sensor: the checkpoint's sensor table (``pad_size_mm`` / ``taxel_xy_mm``, ``noise_n``).
         taxels: T.
     """
 
@@ -224,12 +226,13 @@ class OnlineSurface:
         self.half = pad_half_size(sensor)
         self.taxels = taxels
         self.noise_n = float(sensor.get("noise_n") or DEFAULT_NOISE_N) if noise_n is None else noise_n
+        self.noise_level = ONSET_SIGMAS * self.noise_n * np.sqrt(taxels)
         self.surface = Surface()
         self.onsets: list[np.ndarray] = []
         self._low: list[np.ndarray] = []
         self._normal: list[float] = []
         self._last_t: float | None = None
-        self._provisional = False
+        self._touching = False
 
     def _close(self) -> None:
         if len(self._low) >= 2:
@@ -238,16 +241,21 @@ class OnlineSurface:
             if onset is not None:
                 self.onsets.append(onset)
                 self.surface = fit_surface(np.asarray(self.onsets))
-        self._low, self._normal = [], []
+        self._low, self._normal, self._touching = [], [], False
 
     def push(self, pose: np.ndarray, force: np.ndarray, t: float | None = None) -> np.ndarray:
         """One raw sample -> its pose (6,) in the current surface frame."""
         if t is not None and self._last_t is not None and t < self._last_t:
             self._close()
         self._last_t = t
-        self._low.append(lowest_point(pose, self.half)[0])
-        self._normal.append(float(np.asarray(force, np.float64).reshape(self.taxels, 3)[:, 2].sum()))
-        if not self.onsets and not self._provisional and len(self._normal) > 1 \
-                and self._normal[-1] - self._normal[0] > ONSET_SIGMAS * self.noise_n * np.sqrt(self.taxels):
-            self.surface, self._provisional = Surface(float(self._low[-1][2]), 0.0, 0.0, 0), True
+        low = lowest_point(pose, self.half)[0]
+        normal = float(np.asarray(force, np.float64).reshape(self.taxels, 3)[:, 2].sum())
+        if self._normal and normal - self._normal[0] > self.noise_level:
+            if not self._touching and not self.onsets:
+                self.surface = Surface(float(low[2]), 0.0, 0.0, 0)        # provisional: the first touch's onset
+            self._touching = True
+        elif self._touching:
+            self._close()                                                    # lifted off: this sample starts the next
+        self._low.append(low)
+        self._normal.append(normal)
         return to_surface(pose, self.surface)[0]

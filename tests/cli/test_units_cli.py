@@ -99,3 +99,39 @@ def test_implausible_poses_and_forces_are_refused_naming_the_file(files, run_les
         save_scans(str(tmp_path / name), bad)
         proc = run_less("image", "predict", files / "im.pt", name, "-o", "p.npz", cwd=tmp_path)
         _refused(proc, name, name, what, tmp_path, "p.npz")
+
+
+def test_live_stream_puts_each_pose_on_the_surface_of_the_touches_so_far(files, run_less, tmp_path):
+    """A model in the surface frame images live samples as a StreamingImager fed the OnlineSurface's poses;
+    the same samples in the pose frame image differently (the top sits 2 mm up)."""
+    import json
+
+    import torch
+
+    from lesscli.data.surface import FRAME, OnlineSurface
+    from lesscli.infer.stream import StreamingImager, entropy_summary
+    from lesscli.io.scans import load_scans
+
+    scans = load_scans(str(files / "ok.npz"))
+    imager, stats, config = tiny_imager(dim=2)
+    sig = {**signature(scans), "pose_frame": FRAME}
+    save_checkpoint(str(tmp_path / "sf.pt"), imager.state_dict(), config, {**stats, "data": sig}, [])
+    pose = scans.pose.astype(np.float64)
+    pose[:, 2] += 2.0
+    times = np.arange(scans.n_steps) * 0.5                  # live time never goes back
+    lines = [json.dumps({"t": float(t), "pose": p.tolist(), "force": f.tolist()})
+             for t, p, f in zip(times, pose, scans.force.astype(np.float64))]
+    proc = run_less("stream", tmp_path / "sf.pt", "-", "--emit-every", str(scans.n_steps),
+                    input="\n".join(lines).encode(), check=True)
+    (row,) = [json.loads(line) for line in proc.stdout.decode().splitlines() if line.strip()]
+
+    def final_entropy(on_surface: bool) -> float:
+        stream = StreamingImager(imager, stats)
+        online = OnlineSurface(scans.meta["sensor"], scans.n_taxels)
+        with torch.no_grad():
+            for t, p, f in zip(times, pose, scans.force):
+                stream.push(online.push(p, f, float(t)) if on_surface else p, f)
+        return entropy_summary(stream.entropy(), stream.probs().shape[0])["entropy_mean_nats"]
+
+    assert row["entropy_mean_nats"] == pytest.approx(final_entropy(True), abs=1e-4)
+    assert abs(final_entropy(False) - final_entropy(True)) > 1e-3

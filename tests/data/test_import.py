@@ -194,3 +194,21 @@ def test_cli_import_writes_records_and_a_valid_scan_set(root, run_less, tmp_path
     assert scans.n_scans == 4 and scans.meta["history"][-1]["command"].startswith("less import")
     np.testing.assert_allclose(REF_ROT.T @ REF_ROT, np.eye(3), atol=1e-12)  # fixture sanity
     assert REF_POS_M.shape == (3,)
+
+
+def test_counts_per_newton_converts_and_records_the_calibration(root, run_less, tmp_path):
+    run_less("import", root, "-o", "c.npz", check=True, cwd=tmp_path)
+    run_less("import", root, "-o", "n.npz", "--counts-per-newton", "150", check=True, cwd=tmp_path)
+    from lesscli.data.surface import surfaces
+    from lesscli.io.scans import load_scans
+
+    counts, newtons = load_scans(str(tmp_path / "c.npz")), load_scans(str(tmp_path / "n.npz"))
+    assert counts.meta["units"]["force"] == "counts" and "counts_per_n" not in counts.meta["sensor"]
+    assert newtons.meta["units"]["force"] == "N" and newtons.meta["sensor"]["counts_per_n"] == 150.0
+    assert "150 counts per N" in newtons.meta["source"]["force"]
+    np.testing.assert_allclose(newtons.force, counts.force / 150.0, rtol=1e-6, atol=1e-6)
+    # the fixture's pad starts 2 mm above a top at the reference frame's zero: its touches find it there
+    for scans in (counts, newtons):
+        assert all(-0.5 < s.a_mm <= 0.0 and s.onsets == 3 for s in surfaces(scans))
+    bad = run_less("import", root, "-o", "x.npz", "--counts-per-newton", "0", cwd=tmp_path)
+    assert bad.returncode == 2 and not (tmp_path / "x.npz").exists()

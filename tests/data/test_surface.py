@@ -103,11 +103,11 @@ def test_the_online_surface_reaches_the_batch_surface_once_every_touch_has_ended
     first = online.push(scans.pose[0], scans.force[0], 0.0)
     assert first[2] == pytest.approx(scans.pose[0, 2])                  # nothing seen yet: the frame's zero
     for i in range(1, scans.n_steps):
-        online.push(scans.pose[i], scans.force[i], float(scans.time_s[i]))
+        online.push(scans.pose[i], scans.force[i], i * 0.01)              # live time runs on: touches end at lift-off
         if i == 39:                                                     # the first touch, before it ends
             top = 0.6 + 0.02 * scans.pose[0, 1]
             assert online.surface.onsets == 0 and -0.5 < online.surface.a_mm - top < 0.0
-    online.push(scans.pose[0], scans.force[0], 0.0)                     # a new touch closes the last one
+    online.push(scans.pose[0], scans.force[0], scans.n_steps * 0.01)      # lifted off: the last touch ends
     batch = sf.surfaces(scans)[0]
     assert (online.surface.a_mm, online.surface.b, online.surface.c) == pytest.approx(
         (batch.a_mm, batch.b, batch.c), abs=1e-9)

@@ -33,6 +33,9 @@ def test_the_pipeline_runs_on_another_sensor(run_less, tmp_path, scene, taxels):
                     check=True)
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines() if line.strip()]
     assert {r["model"] for r in rows} == {"forcemap", "less-taxel"}
+    info = json.loads(run_less("info", "im.pt", "fm.pt", "--format", "json", check=True).stdout)
+    name = scans.meta["sensor"]["name"]
+    assert [(r["pose_frame"], r["sensor"]) for r in info] == [("surface", f"{name} ({taxels} taxels)")] * 2
     # the checkpoints carry the sensor: the default 30-taxel scans are refused by both
     from factories import random_scanset
 
