@@ -117,10 +117,10 @@ OURS_PREDS  := $(foreach t,$(OURS_SETS),$(foreach i,$(imagers),$(A)/pred_$(i)_on
 PAPER_PREDS := $(foreach t,$(PAPER_SETS),$(foreach i,$(imagers),$(P)/pred_$(i)_on_$(t).npz))
 
 # ---------------------------------------------------------------- tables
+# phony, so that a table is written again whenever asked (the Makefile's .SECONDARY would take a table
+# as up to date while predictions of added seeds are missing)
 .PHONY: accuracy accuracy-ours accuracy-paper
 accuracy: accuracy-ours accuracy-paper
-accuracy-ours: $(AR)/accuracy.md
-accuracy-paper: $(PR)/accuracy.md
 # $(1) table folder, $(2) predictions, $(3) training set of the average baseline
 define ACC_TABLE
 	@mkdir -p $(1)
@@ -129,9 +129,9 @@ define ACC_TABLE
 	  > $(1)/accuracy.md.part && mv $(1)/accuracy.md.part $(1)/accuracy.md
 	$(PYTHON) headline.py $(1)/accuracy.jsonl > $(1)/headline.md
 endef
-$(AR)/accuracy.md: $(OURS_PREDS)
+accuracy-ours: $(OURS_PREDS)
 	$(call ACC_TABLE,$(AR),$^,$(A)/split/train.npz)
-$(PR)/accuracy.md: $(PAPER_PREDS)
+accuracy-paper: $(PAPER_PREDS)
 	$(call ACC_TABLE,$(PR),$^,$(P)/train.npz)
 
 # ---------------------------------------------------------------- the parts of less-taxel (our regime, 3 seeds)
@@ -162,11 +162,10 @@ $(ABL)/val.npz $(ABL)/single.npz $(ABL)/multiple.npz: $(ABL)/%.npz: | $(A)/split
 $(foreach t,$(ABL_SETS),$(eval $(call ACC_PREDICT,$(ABL),$(t))))
 ABL_PREDS := $(foreach t,$(ABL_SETS),$(foreach v,full init maponly,$(foreach s,$(SEEDS),$(ABL)/pred_img_less-taxel-$(v)_s$(s)_on_$(t).npz)))
 .PHONY: ablation
-ablation: $(ABR)/ablation.md
-$(ABR)/ablation.md: $(ABL_PREDS)
-	@mkdir -p $(@D)
+ablation: $(ABL_PREDS)
+	@mkdir -p $(ABR)
 	$(LESS) metrics $^ --summary-only --format jsonl > $(ABR)/ablation.jsonl
-	$(PYTHON) headline.py $(ABR)/ablation.jsonl --no-paper > $@.part && mv $@.part $@
+	$(PYTHON) headline.py $(ABR)/ablation.jsonl --no-paper > $(ABR)/ablation.md.part && mv $(ABR)/ablation.md.part $(ABR)/ablation.md
 
 # ---------------------------------------------------------------- scaling: the paper's pair against data and width
 #   make -C examples scaling -j2 [ACC_TIER=winkler] [DEVICE=cuda SCALE_DIMS="16 64 256 1024"]
