@@ -71,8 +71,8 @@ less render "$OUT/pred_steps.npz" -o "$OUT/figures/less" "${FIGURE_SCANS[@]}" --
 printf '\ndemo done in %ds. Held-out catalogue inserts, never seen in training:\n\n' "$((SECONDS - t0))"
 cat "$OUT/headline.txt"
 echo "(a model that predicts no inclusion scores F1 = 0; every metric, 2D and 3D: $OUT/metrics.txt)"
-printf '\nImager: %s/imager.pt (any scan simulated with quick.toml'"'"'s settings: less image predict %s/imager.pt SCANS.npz -o pred.npz)\n' \
-  "$OUT" "$OUT"
+printf '\nImager: %s/imager.pt (any scan simulated with %s'"'"'s settings: less image predict %s/imager.pt SCANS.npz -o pred.npz)\n' \
+  "$OUT" "$(basename "$SCENE")" "$OUT"
 printf 'Figures: %s/figures/compare/ (truth | LESS | classical), %s/figures/less/ (%d PNG files), e.g.\n' "$OUT" "$OUT" \
   "$(find "$OUT/figures" -name '*.png' | wc -l)"
 ls "$OUT"/figures/compare/*.png | head -n 2
