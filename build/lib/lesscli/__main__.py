@@ -1,3 +1,0 @@
-from lesscli.cli.main import entry
-
-entry()

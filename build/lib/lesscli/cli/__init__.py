@@ -1,1 +1,0 @@
-"""Command-line interface: one module per subcommand, loaded lazily (see registry.py)."""

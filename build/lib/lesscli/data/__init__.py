@@ -1,1 +1,0 @@
-"""Dataset operations (subsample, concat, split, import) and torch datasets."""

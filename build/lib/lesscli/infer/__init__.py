@@ -1,1 +1,0 @@
-"""Inference: batch prediction of label images from scan sets."""

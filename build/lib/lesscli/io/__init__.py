@@ -1,1 +1,0 @@
-"""File formats: scan sets, label volumes, predictions, records, atomic writes."""

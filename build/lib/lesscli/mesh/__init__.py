@@ -1,1 +1,0 @@
-"""Label volumes -> per-class surface meshes in millimetres -> GLB / STL / PLY."""

@@ -1,1 +1,0 @@
-"""Models: particle encoder (LESS), GLOBAL baseline, positional encoding, decoders, losses."""

@@ -1,1 +1,0 @@
-"""MRI scans to label volumes (segmentation, phantom frame, reports) and synthetic MRI for tests."""

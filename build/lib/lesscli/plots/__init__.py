@@ -1,1 +1,0 @@
-"""Figures: truth | prediction | uncertainty panels and time strips (matplotlib, Agg chosen inside functions)."""

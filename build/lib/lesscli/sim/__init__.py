@@ -1,1 +1,0 @@
-"""Palpation simulator: kinematics, contact tiers, motions, effects and scenes."""

@@ -1,1 +1,0 @@
-"""Training: SSL pretraining, the generic loop, checkpoints, distributed setup."""
