@@ -16,6 +16,16 @@ GRID_SHAPE = (26, 128, 128)
 GRID_SPACING_MM = (0.9, 0.4774, 0.4774)
 
 
+def example_script(name: str):
+    """``examples/<name>.py`` loaded as a module (the scripts are not a package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, REPO / "examples" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def grid_origin(shape=GRID_SHAPE, spacing=GRID_SPACING_MM) -> np.ndarray:
     """Origin that centres the grid on x = y = 0 and puts the top slice at z = 0 (phantom frame)."""
     d, h, w = shape

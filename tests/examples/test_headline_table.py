@@ -2,22 +2,20 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import statistics
 import subprocess
 import sys
 from pathlib import Path
 
+from factories import example_script
+
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = REPO / "examples" / "headline.py"
 
 
 def _module():
-    spec = importlib.util.spec_from_file_location("headline", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return example_script("headline")
 
 
 def _row(file, model, f1_3d, f1_2d, com=1.0, row="file"):
