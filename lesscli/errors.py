@@ -30,6 +30,19 @@ class TrainingError(LessError):
     """Training cannot continue (e.g. non-finite loss); the message names the step."""
 
 
+class OutputError(LessError):
+    """An output could not be written (full disk, its folder gone, read-only): the message names the
+    file; ``path`` is it."""
+
+    def __init__(self, path: str, reason: str) -> None:
+        super().__init__(f"{path}: cannot write it ({reason}); nothing was written")
+        self.path = path
+
+
+class BusyError(LessError):
+    """Another process is writing the same output (its lock is held)."""
+
+
 def closest(name: str, choices: Iterable[str]) -> str | None:
     """The valid name closest to ``name``, for 'did you mean' hints (None if nothing is close)."""
     found = difflib.get_close_matches(str(name), sorted(choices), n=1, cutoff=0.5)

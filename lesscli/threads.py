@@ -1,19 +1,27 @@
 """The thread policy: how many CPU threads a command's torch (and BLAS) work gets.
 
-Threads are chosen, not inherited. Threads that wait on each other collapse when the cores are
-shared, so the count follows the cores actually free when the command starts: the cores this process
-may run on minus the load of everything else, at least one. That load is the smaller of the 1-minute
-load average and the processes runnable right now (a short sample): the average alone still counts a
-job that ended a minute ago, the sample alone misses a bursty one between its bursts.
+Threads are chosen, not inherited, and the default does not depend on what else the machine is doing,
+so the same command gives the same numbers whether it runs alone or beside busy neighbours (the
+thread count changes the order of floating-point sums, hence the last bits of every result):
 
-- Latency-bound work (a stream update, a guide query) runs on one thread, unless
-  the work is large and at least two cores are clearly free.
-- Throughput work (training, benchmarks of it) uses every free core.
-- ``jobs`` worker processes split the free cores between them (at least one each).
-- ``--threads N`` overrides the choice.
+- Throughput work (training, imaging, simulation, benchmarks of them) takes the cores this process
+  may run on (its CPU affinity), split between ``jobs`` worker processes (at least one each): a number
+  fixed by the machine, not by its load.
+- A user's ``OMP_NUM_THREADS`` (set before the command started) is that count instead, per process;
+  for latency-bound work it caps the choice below. The toolkit never overwrites it.
+- Latency-bound work (a stream update, a guide query), which is real-time and gives no file whose
+  bits matter, follows the load: one thread, unless the work is large and at least two cores are
+  clearly free (the cores minus the others' load).
+- ``--threads N`` fixes the count; ``--threads auto`` asks for the load-adaptive choice for any work
+  (the free cores, at least one), trading bit-identical reruns for speed on a shared machine.
 
-:func:`choose_threads` is the pure rule (table-tested); :func:`apply_threads` reads the machine,
-applies the choice to torch and, where threadpoolctl is installed, to the BLAS/OpenMP pools.
+The others' load is the smaller of the 1-minute load average and the processes runnable right now (a
+short sample): the average alone still counts a job that ended a minute ago, the sample alone misses
+a bursty one between its bursts.
+
+:func:`choose_threads` is the load-adaptive rule and :func:`resolve_threads` the whole policy (both
+pure, table-tested); :func:`apply_threads` reads the machine where the policy needs it, applies the
+choice to torch and, where threadpoolctl is installed, to the BLAS/OpenMP pools.
 
 Fewer threads keep latency-bound work from waiting on its own threads, not on other processes: with
 more runnable processes than cores, an update now and then waits out another's time slice.
@@ -33,6 +41,7 @@ from typing import Literal
 from lesscli.errors import LessError
 
 Work = Literal["latency", "throughput"]
+AUTO = "auto"                    # --threads auto: the load-adaptive choice for any work
 
 # Floating-point operations per call above which a latency-bound call gains from a thread pool: a few
 # ms of one core. Below it the cost of waking and joining threads is of the order of the work itself.
@@ -114,7 +123,8 @@ def free_cores(cores: int, load: float) -> int:
 
 def choose_threads(cores: int, load: float, work: Work = "throughput", size: float = 0,
                    override: int | None = None, jobs: int = 1) -> int:
-    """Threads for each of ``jobs`` workers doing ``work`` of ``size`` flops per call.
+    """The load-adaptive rule: threads for each of ``jobs`` workers doing ``work`` of ``size`` flops per
+    call, from the free cores (the default for latency-bound work, and ``--threads auto``).
 
     Args:
         cores: usable cores (CPU affinity).
@@ -132,36 +142,94 @@ def choose_threads(cores: int, load: float, work: Work = "throughput", size: flo
     return share
 
 
-def apply_threads(work: Work = "throughput", size: float | Callable[[], float] = 0, override: int | None = None,
-                  jobs: int = 1, torch_too: bool = True, extra_load: float = 0.0, load: float | None = None) -> int:
-    """Choose threads for each of ``jobs`` processes from the machine's free cores, set them here (before
-    the workers fork), and return the count. ``size`` may be a function, called only when the choice
-    needs it (not with ``override``); ``torch_too=False`` leaves torch unimported (numpy work);
-    ``extra_load`` counts busy processes started too recently for the 1-minute load to show them; ``load``
-    is the others' load when the caller has read it already (the machine is read once, and not at all
-    with ``override``)."""
-    log = logging.getLogger("less")
-    if override is not None:
-        n = choose_threads(usable_cores(), 0.0, work, 0, override, jobs)
-        log.info("threads: %d (--threads)", n)
-    else:
-        load = other_load(extra_load) if load is None else load
-        n = choose_threads(usable_cores(), load, work, size() if callable(size) else size, None, jobs)
-        log.info("threads: %d (cores %d, others' load %.2f)", n, usable_cores(), load)
+def user_threads() -> int | None:
+    """The user's ``OMP_NUM_THREADS`` when it was set outside this process (a value this module wrote
+    itself does not count) and is a whole number >= 1; None otherwise (a malformed one is logged)."""
+    text = os.environ.get("OMP_NUM_THREADS")
+    if text is None or not text.strip() or text == _WRITTEN.get("OMP_NUM_THREADS"):
+        return None
+    try:
+        n = int(text.strip())
+    except ValueError:
+        n = 0
+    if n < 1:
+        logging.getLogger("less").warning("OMP_NUM_THREADS=%r is not a whole number >= 1; ignored", text)
+        return None
+    return n
+
+
+def resolve_threads(work: Work, cores: int, override: int | str | None = None, user: int | None = None,
+                    jobs: int = 1, load: Callable[[], float] = lambda: 0.0,
+                    size: Callable[[], float] = lambda: 0.0) -> tuple[int, str]:
+    """The policy (module docstring): threads for each of ``jobs`` workers, and why, as (count, reason).
+
+    Args:
+        work: ``latency`` or ``throughput``.
+        cores: usable cores (CPU affinity).
+        override: ``--threads``: a count, or :data:`AUTO` for the load-adaptive choice.
+        user: the user's ``OMP_NUM_THREADS`` (:func:`user_threads`), or None.
+        jobs: worker processes sharing the cores.
+        load: the others' load, read only when the choice follows it.
+        size: floating-point operations of the dominant call, asked only by latency-bound work.
+    """
+    if isinstance(override, int):
+        return max(1, override), "--threads"
+    if override == AUTO or work == "latency":
+        others = load()
+        n = choose_threads(cores, others, work, size() if work == "latency" else 0, None, jobs)
+        why = f"{'--threads auto' if override == AUTO else 'latency-bound'}: cores {cores}, others' load {others:.2f}"
+        if user is not None and override != AUTO and n > user:
+            return user, f"{why}, capped by OMP_NUM_THREADS"
+        return n, why
+    if user is not None:
+        return user, "OMP_NUM_THREADS"
+    return max(1, cores // max(1, jobs)), f"cores {cores}" + (f" / {jobs} workers" if jobs > 1 else "")
+
+
+def apply_threads(work: Work = "throughput", size: float | Callable[[], float] = 0,
+                  override: int | str | None = None, jobs: int = 1, torch_too: bool = True,
+                  extra_load: float = 0.0, load: float | None = None) -> int:
+    """Choose threads for each of ``jobs`` processes (:func:`resolve_threads`), set them here (before the
+    workers fork), and return the count. The machine's load is read only where the choice follows it
+    (latency-bound work, ``--threads auto``): ``load`` when the caller has read it already, else now,
+    plus ``extra_load`` busy processes started too recently for the 1-minute load to show them. ``size``
+    may be a function, called only when the choice needs it; ``torch_too=False`` leaves torch unimported
+    (numpy work)."""
+    cores = usable_cores()
+    read = (lambda: load) if load is not None else (lambda: other_load(extra_load))
+    sized = size if callable(size) else (lambda: size)
+    n, why = resolve_threads(work, cores, override, user_threads(), jobs, read, sized)
+    logging.getLogger("less").info("threads: %d (%s)", n, why)
     set_threads(n, torch_too)
     return n
 
 
+def parse_threads(text: str | int | None) -> int | str | None:
+    """``--threads`` text: a whole number >= 1 or ``auto`` (ValueError otherwise); None stays None."""
+    if text is None or isinstance(text, int):
+        return text
+    if text.strip().lower() == AUTO:
+        return AUTO
+    n = int(text)
+    if n < 1:
+        raise ValueError(text)
+    return n
+
+
 # Read by BLAS/OpenMP libraries when they load: scipy bundles its own OpenBLAS, loaded on first use,
-# after the limit below has been applied to the pools already loaded.
+# after the limit below has been applied to the pools already loaded. OpenBLAS and MKL read their own
+# variable before OMP_NUM_THREADS, so a user's OMP_NUM_THREADS can stay as it is.
 POOL_ENV_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+_WRITTEN: dict[str, str] = {}    # the values this module put into the environment
 
 
 def set_threads(n: int, torch_too: bool = True) -> None:
     """Set torch's intra-op threads (``torch_too``) and, where threadpoolctl is installed, the BLAS/OpenMP
-    pools (forked workers inherit both); pools loaded later start with ``n`` threads from the environment."""
+    pools (forked workers inherit both); pools loaded later start with ``n`` threads from the environment.
+    A variable the user set is left as it is."""
     for name in POOL_ENV_VARS:
-        os.environ[name] = str(n)
+        if name not in os.environ or os.environ[name] == _WRITTEN.get(name):
+            os.environ[name] = _WRITTEN[name] = str(n)
     if torch_too:
         import torch
 
@@ -172,6 +240,18 @@ def set_threads(n: int, torch_too: bool = True) -> None:
         pass
     else:
         threadpool_limits(n)
+
+
+def deterministic_kernels(device) -> None:
+    """Torch's deterministic kernels where the work runs on the CPU. With several threads some kernels
+    otherwise add in the order the threads finish: a sum into indexed rows (``index_put_`` with
+    ``accumulate``, the backward of ``x[index]``) gave weights that differed in the last bits from one
+    run to the next. On a GPU the choice is left to torch (its deterministic kernels are slower there,
+    and some have none)."""
+    import torch
+
+    if torch.device(device).type == "cpu":
+        torch.use_deterministic_algorithms(True, warn_only=True)
 
 
 REALTIME_PRIORITY = 10           # SCHED_FIFO priority of --realtime (1-99): above every normal process, low among RT

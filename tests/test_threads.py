@@ -1,4 +1,6 @@
-"""The thread policy (a pure rule, table-tested), ``--threads`` reaching torch, and ``bench stream --load``."""
+"""The thread policy (pure rules, table-tested; fixed by the cores unless the work is latency-bound or
+``--threads auto`` asks), the user's ``OMP_NUM_THREADS``, ``--threads`` reaching torch, and ``bench stream
+--load``."""
 
 from __future__ import annotations
 
@@ -6,6 +8,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import click
 import pytest
@@ -27,10 +30,14 @@ from lesscli.threads import (
     combined_load,
     free_cores,
     other_load,
+    parse_threads,
+    resolve_threads,
     runnable_now,
+    user_threads,
 )
 
 BIG, SMALL = LARGE_WORK, LARGE_WORK - 1
+BIN = Path(sys.executable).parent
 
 
 @pytest.mark.parametrize("cores, load, expected", [
@@ -262,3 +269,83 @@ def test_realtime_commands_run_under_it_or_stop_with_one_line(command, tiny_file
     else:
         assert out.returncode == 1 and out.stdout == ""
         assert out.stderr.strip().count("\n") == 0 and "--realtime" in out.stderr
+
+
+# ---------------------------------------------------------------------------------------------- the policy
+
+def _busy(load: float):
+    """A load reader that records that it was asked."""
+    asked = []
+
+    def read() -> float:
+        asked.append(load)
+        return load
+    return read, asked
+
+
+@pytest.mark.parametrize("work, cores, override, user, jobs, load, expected, reads_load", [
+    ("throughput", 8, None, None, 1, 7.0, 8, False),     # training beside a busy machine: still every core
+    ("throughput", 8, None, None, 2, 7.0, 4, False),     # workers split the cores, not the free ones
+    ("throughput", 2, None, None, 4, 0.0, 1, False),     # more workers than cores: one each
+    ("throughput", 8, None, 3, 1, 7.0, 3, False),        # the user's OMP_NUM_THREADS
+    ("throughput", 8, 5, 3, 1, 7.0, 5, False),           # --threads wins over it
+    ("throughput", 8, "auto", None, 1, 3.0, 5, True),    # --threads auto: the free cores
+    ("throughput", 8, "auto", 2, 1, 3.0, 5, True),       # ... asked for, so the user's count does not cap it
+    ("latency", 8, None, None, 1, 0.0, 1, True),         # stream / guide follow the load (small work: one)
+    ("latency", 2, None, None, 1, 1.5, 1, True),
+    ("latency", 8, 3, None, 1, 0.0, 3, False),
+])
+def test_the_default_is_fixed_by_the_cores_and_only_asked_for_work_follows_the_load(
+        work, cores, override, user, jobs, load, expected, reads_load):
+    read, asked = _busy(load)
+    n, why = resolve_threads(work, cores, override, user, jobs, read)
+    assert n == expected and bool(asked) == reads_load, why
+
+
+def test_large_latency_work_takes_free_cores_but_at_most_the_users_count():
+    read, _ = _busy(0.0)
+    assert resolve_threads("latency", 8, None, None, 1, read, lambda: BIG)[0] == 8
+    capped = (2, "latency-bound: cores 8, others' load 0.00, capped by OMP_NUM_THREADS")
+    assert resolve_threads("latency", 8, None, 2, 1, read, lambda: BIG) == capped
+
+
+@pytest.mark.parametrize("text, expected", [("3", 3), ("auto", "auto"), ("AUTO", "auto"), (None, None)])
+def test_parse_threads(text, expected):
+    assert parse_threads(text) == expected
+
+
+@pytest.mark.parametrize("text", ["0", "-2", "x", "1.5"])
+def test_parse_threads_refuses(text):
+    with pytest.raises(ValueError):
+        parse_threads(text)
+
+
+def test_the_users_omp_num_threads_is_respected_and_left_alone(tiny_files):
+    """Through the console script: OMP_NUM_THREADS=1 is the count (on any machine) and stays as it was;
+    without it the count is the cores, and --threads auto is accepted."""
+    env = {k: v for k, v in os.environ.items() if k not in POOL_ENV_VARS}
+    args = [str(BIN / "less"), "-v", "image", "predict", "im.pt", "s.npz", "-o", "p.npz", "--format", "jsonl"]
+    probe = "; import os; print('OMP', os.environ.get('OMP_NUM_THREADS'))"
+    out = subprocess.run(args, cwd=tiny_files, env={**env, "OMP_NUM_THREADS": "1"}, capture_output=True,
+                         text=True, timeout=300, check=True)
+    assert json.loads(out.stdout.splitlines()[-1])["threads"] == 1 and "threads: 1 (OMP_NUM_THREADS)" in out.stderr
+    plain = subprocess.run(args, cwd=tiny_files, env=env, capture_output=True, text=True, timeout=300, check=True)
+    assert json.loads(plain.stdout.splitlines()[-1])["threads"] == len(os.sched_getaffinity(0))
+    auto = subprocess.run([*args, "--threads", "auto"], cwd=tiny_files, env=env, capture_output=True, text=True,
+                          timeout=300, check=True)
+    assert "threads: " in auto.stderr and "--threads auto: cores" in auto.stderr
+    bad = subprocess.run([*args, "--threads", "many"], cwd=tiny_files, env=env, capture_output=True, text=True,
+                         timeout=300, check=False)
+    assert bad.returncode == 2 and "'many' is not a whole number >= 1 nor 'auto'" in bad.stderr
+    # the policy never writes the user's variable: a child started by the command sees what the user set
+    code = ("import os, sys; os.environ['OMP_NUM_THREADS'] = '1'; from lesscli.threads import apply_threads, "
+            "set_threads; apply_threads('throughput', torch_too=False); set_threads(5, torch_too=False)" + probe)
+    assert subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120,
+                          check=True).stdout.split() == ["OMP", "1"]
+
+
+def test_a_malformed_omp_num_threads_is_ignored_with_one_line(monkeypatch, caplog):
+    monkeypatch.setenv("OMP_NUM_THREADS", "lots")
+    with caplog.at_level("WARNING", logger="less"):
+        assert user_threads() is None
+    assert "OMP_NUM_THREADS='lots' is not a whole number >= 1; ignored" in caplog.text

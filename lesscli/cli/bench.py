@@ -11,6 +11,7 @@ import importlib
 
 import click
 
+from lesscli.cli.common import with_global_options
 from lesscli.errors import closest
 
 # name -> (module under lesscli.cli, one-line help)
@@ -37,7 +38,7 @@ class _LazyBenchGroup(click.Group):
             if hint:
                 ctx.fail(f"no benchmark '{name}'. Did you mean '{hint}'?")
             return None
-        return importlib.import_module(f"lesscli.cli.{BENCHES[name][0]}").cli
+        return with_global_options(importlib.import_module(f"lesscli.cli.{BENCHES[name][0]}").cli)
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         rows = [(n, BENCHES[n][1]) for n in self.list_commands(ctx)]

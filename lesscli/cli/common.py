@@ -16,6 +16,7 @@ LOG = logging.getLogger("less")
 class _State:
     verbose: int = 0
     quiet: bool = False
+    verbose_given: int = 0      # -v counted by the group's option (those after the subcommand add to it)
 
 
 STATE = _State()
@@ -23,7 +24,7 @@ STATE = _State()
 
 def configure(verbose: int = 0, quiet: bool = False) -> None:
     """Set up stderr logging for this process from ``-v``/``-q``."""
-    STATE.verbose, STATE.quiet = verbose, quiet
+    STATE.verbose, STATE.quiet, STATE.verbose_given = verbose, quiet, verbose
     level = logging.ERROR if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
     if verbose == 0 and not quiet:
         level = logging.WARNING
@@ -36,12 +37,64 @@ def configure(verbose: int = 0, quiet: bool = False) -> None:
     LOG.setLevel(level)
 
 
+def _more_verbose(ctx: click.Context, param: click.Parameter, value: int) -> int:
+    if value:
+        configure(verbose=STATE.verbose_given + value, quiet=STATE.quiet)
+    return value
+
+
+def _quieter(ctx: click.Context, param: click.Parameter, value: bool) -> bool:
+    if value:
+        configure(verbose=STATE.verbose, quiet=True)
+    return value
+
+
+GLOBAL_OPTION_MARK = "_less_global_options"
+
+
+def with_global_options(command: click.Command) -> click.Command:
+    """``command`` (and every command of a group below it) also taking ``-v`` and ``-q`` after its name,
+    as they are taken before it: ``less pretrain data.npz -o rep.pt -q`` is ``less -q pretrain ...``;
+    and holding its outputs' locks while it runs (``output_option(lock=True)``)."""
+    if getattr(command, GLOBAL_OPTION_MARK, False):
+        return command
+    setattr(command, GLOBAL_OPTION_MARK, True)
+    if isinstance(command, click.Group):
+        for sub in command.commands.values():
+            with_global_options(sub)
+    else:
+        command.invoke = _locking(command.invoke)
+    command.params += [
+        click.Option(["-v", "--verbose", "_sub_verbose"], count=True, expose_value=False, hidden=True,
+                     callback=_more_verbose, help="More logging on stderr (as before the subcommand)."),
+        click.Option(["-q", "--quiet", "_sub_quiet"], is_flag=True, expose_value=False, hidden=True,
+                     callback=_quieter, help="Only errors on stderr (as before the subcommand)."),
+    ]
+    return command
+
+
+class Group(click.Group):
+    """A command group whose listing gives each subcommand's whole first sentence (click cuts it to
+    the terminal's width with '...')."""
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = [(name, cmd.get_short_help_str(limit=1000)) for name in self.list_commands(ctx)
+                if (cmd := self.get_command(ctx, name)) is not None and not cmd.hidden]
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+
 def progress(iterable: Iterable | None = None, **kwargs):
-    """A tqdm progress bar on stderr, silent with ``-q`` (and when stderr is not a terminal and -v is off)."""
+    """Progress on stderr, silent with ``-q``: a tqdm bar on a terminal, else plain lines for a log (one per
+    epoch, or per 10 % of the work; no cursor codes: lesscli.cli.progress)."""
     from tqdm import tqdm
 
-    disable = STATE.quiet or (not sys.stderr.isatty() and STATE.verbose == 0)
-    return tqdm(iterable, file=sys.stderr, disable=disable, dynamic_ncols=True, **kwargs)
+    if STATE.quiet or sys.stderr.isatty():
+        return tqdm(iterable, file=sys.stderr, disable=STATE.quiet, dynamic_ncols=True, **kwargs)
+    from lesscli.cli.progress import PlainProgress
+
+    return PlainProgress(iterable, file=sys.stderr, **kwargs)
 
 
 def format_option(func):
@@ -140,9 +193,30 @@ def orientations_option(default: str = "0-7", help: str = "Orientations k (x 45 
                         callback=lambda ctx, param, value: orientation_list(value, "--orientations"))
 
 
-def threads_option(help: str = "CPU threads for torch and BLAS (default: chosen from the free cores)."):
-    """``--threads N``: overrides the thread policy (lesscli.threads) on every command that does torch work."""
-    return click.option("--threads", type=click.IntRange(1), default=None, metavar="N", help=help)
+class ThreadsType(click.ParamType):
+    """``--threads``: a whole number >= 1, or ``auto`` (the load-adaptive choice; lesscli.threads)."""
+
+    name = "threads"
+
+    def convert(self, value, param, ctx):
+        from lesscli.threads import parse_threads
+
+        try:
+            return parse_threads(value)
+        except ValueError:
+            self.fail(f"'{value}' is not a whole number >= 1 nor 'auto'", param, ctx)
+
+
+THROUGHPUT_THREADS = ("CPU threads for torch and BLAS: a number, or 'auto' to follow the machine's load (faster "
+                      "beside busy processes, not bit-identical). Default: OMP_NUM_THREADS if set, else the "
+                      "usable cores, whatever the load.")
+LATENCY_THREADS = ("CPU threads for torch and BLAS (default: one, more for large updates when cores are free; "
+                   "at most OMP_NUM_THREADS if set).")
+
+
+def threads_option(help: str = THROUGHPUT_THREADS):
+    """``--threads N|auto``: overrides the thread policy (lesscli.threads) on every command that does torch work."""
+    return click.option("--threads", type=ThreadsType(), default=None, metavar="N|auto", help=help)
 
 
 def realtime_option():
@@ -173,22 +247,55 @@ def device_option(help: str = "auto (CUDA when available, else CPU), cpu, cuda o
     return click.option("--device", default="auto", show_default=True, help=help)
 
 
-def checked_output(folder: bool = False):
+def checked_output(folder: bool = False, lock: bool = False):
     """A click callback that checks an output path (see lesscli.io.atomic.check_output) at parse time,
-    before the command does any work."""
+    before the command does any work; with ``lock`` it also takes the output's lock for the command's
+    run (lesscli.io.atomic.output_lock: a second writer of the same output refuses at its start)."""
     def callback(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
         from lesscli.io.atomic import check_output
 
         if value is not None:
             check_output(value, folder=folder, option=param.opts[0] if param.opts else "-o")
+            if lock:                   # taken when the command starts (a usage error then leaves no lock)
+                ctx.meta.setdefault(LOCKS, []).append(value)
         return value
     return callback
 
 
-def output_option(required: bool = True, help: str = "Output file ('-' for stdout).", folder: bool = False):
-    """``-o/--output PATH``, checked before the command starts (``folder``: the output is a folder)."""
+LOCKS = "less.output_locks"         # ctx.meta: outputs whose lock the command holds while it runs
+
+
+def _locking(invoke):
+    """``invoke`` holding the locks of the outputs its options named (:func:`checked_output`)."""
+    def run(ctx: click.Context):
+        import contextlib
+
+        from lesscli.io.atomic import output_lock
+
+        with contextlib.ExitStack() as stack:
+            for path in ctx.meta.pop(LOCKS, []):
+                stack.enter_context(output_lock(path))
+            return invoke(ctx)
+    return run
+
+
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def checked_figure(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    """A click callback for a figure path: a .png, .pdf or .svg name (written in that format) or ``-``
+    (PNG on stdout), else a usage error; then checked as an output (:func:`checked_output`)."""
+    if value is not None and value != "-" and not value.lower().endswith(FIGURE_SUFFIXES):
+        raise click.BadParameter(f"'{value}': a figure is written as .png, .pdf or .svg (by its extension)")
+    return checked_output()(ctx, param, value)
+
+
+def output_option(required: bool = True, help: str = "Output file ('-' for stdout).", folder: bool = False,
+                  lock: bool = False):
+    """``-o/--output PATH``, checked before the command starts (``folder``: the output is a folder;
+    ``lock``: held for the run, :func:`checked_output`)."""
     return click.option("-o", "--output", "output", type=click.Path(), required=required, help=help,
-                        callback=checked_output(folder))
+                        callback=checked_output(folder, lock))
 
 
 _PRINT_CONFIG = "less.print_config"
@@ -222,109 +329,6 @@ def config_resolved(doc: dict) -> None:
 
         click.echo(dump_toml(doc), nl=False)
         raise click.exceptions.Exit(0)
-
-
-def training_options(default_epochs: int, tables: str, set_example: str):
-    """The options every training command shares (``--epochs`` ... ``--resume``); None = not given.
-
-    The command receives them as keyword arguments ``epochs, batch_size, lr, seed, device,
-    config_path, overrides, resume, tensorboard, threads`` (collect them with ``**train_opts``).
-    """
-    options = [
-        click.option("--epochs", type=int, default=None, help=f"Epochs.  [default: {default_epochs}]"),
-        click.option("--batch-size", type=int, default=None, help="Scans per batch.  [default: 2]"),
-        click.option("--lr", type=float, default=None, help="Adam learning rate (cosine decay).  [default: 1e-4]"),
-        click.option("--seed", type=int, default=None, help="Seed for initialisation and sampling.  [default: 0]"),
-        click.option("--device", default=None, help="auto, cpu, cuda or cuda:N.  [default: auto]"),
-        click.option("--config", "config_path", type=click.Path(), default=None,
-                     help=f"TOML file with {tables} tables."),
-        set_options(f"Override a setting, e.g. {set_example} (repeatable)."),
-        click.option("--resume", is_flag=True, help="Continue from <stem>.last.pt with the same settings."),
-        threads_option(),
-        click.option("--tensorboard", default=None, type=click.Path(file_okay=False), metavar="DIR",
-                     help="Also write each epoch's losses and scores as TensorBoard scalars into DIR "
-                          "(needs the tensorboard extra)."),
-    ]
-
-    def decorate(func):
-        for option in reversed(options):
-            func = option(func)
-        return func
-    return decorate
-
-
-def training_config(cls, explicit: dict, train_opts: dict):
-    """``cls`` config from defaults < ``--config`` < ``explicit`` and the shared options < ``--set`` (printed
-    and the command ended here with ``--print-config``)."""
-    from lesscli.train.config import load_config, to_dict
-
-    loop = {f"train.{k}": train_opts[k] for k in ("epochs", "batch_size", "lr", "seed", "device")}
-    cfg = load_config(cls, train_opts["config_path"], train_opts["overrides"], {**explicit, **loop})
-    config_resolved(to_dict(cfg))
-    return cfg
-
-
-def run_training(train_fn, what: str, data: str, val_path: str | None, cfg, output: str, fmt: str | None,
-                 tensorboard: str | None = None, threads: int | None = None) -> None:
-    """Load DATA and --val, train under torchrun/DDP when launched so, and print the summary on rank 0.
-
-    ``train_fn(train, val, env=, history=, watch=, names=)`` trains and returns a summary record. Rank
-    0 shows the epoch bar (batch bars with -v) and writes the TensorBoard scalars (``tensorboard``);
-    a missing tensorboard package is an error before anything is loaded. Each process takes its
-    share of the free cores (``threads`` overrides; lesscli.threads), recorded in the summary.
-    """
-    import os
-
-    from lesscli.io.records import emit_records
-    from lesscli.io.scans import append_history
-    from lesscli.threads import apply_threads
-    from lesscli.train import distributed
-    from lesscli.train.watch import TensorBoardScalars, Watch, require_tensorboard
-
-    if tensorboard:
-        require_tensorboard(tensorboard)
-    n_threads = apply_threads("throughput", override=threads, jobs=int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
-    train = training_scans(data)
-    val = training_scans(val_path) if val_path else None
-    if val is not None:
-        from lesscli.data.compat import check_match, signature
-
-        check_match(signature(train), val, data, val_path)
-    env = distributed.setup(cfg.train.device)
-    board = TensorBoardScalars(tensorboard) if tensorboard and env.is_main else None
-    watch = Watch(progress, progress if STATE.verbose else None, [board] if board else []) if env.is_main else Watch()
-    try:
-        history = append_history({}, seed=cfg.train.seed)["history"]
-        summary = train_fn(train, val, env=env, history=history, names=(data, val_path or ""), watch=watch)
-    finally:
-        if board:
-            board.close()
-        distributed.teardown(env)
-    if not env.is_main:
-        return
-    summary["threads"] = n_threads
-    if output == "-":
-        LOG.warning("%s summary: %s", what, summary)
-    else:
-        emit_records([summary], fmt)
-
-
-def training_scans(path: str):
-    """Load a scan set to learn from, in its surface frame (lesscli.data.surface): untouched scans (no steps)
-    teach nothing and are left out with a warning; a set with no touches at all is a DataError."""
-    from lesscli.data.compat import prepare
-    from lesscli.errors import DataError
-    from lesscli.io.scans import load_scans
-
-    scans = load_scans(path)
-    touched = scans.touched_scans()
-    if len(touched) < scans.n_scans:
-        if not len(touched):
-            raise DataError(f"{path}: no scan has any steps; there is nothing to learn from")
-        LOG.warning("%s: %d of %d scans have no steps (untouched); training leaves them out",
-                    path, scans.n_scans - len(touched), scans.n_scans)
-        scans = scans.select_scans(touched)
-    return prepare(scans, path)
 
 
 def comma_list(text: str, cast: type, what: str) -> tuple:

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import checked_output, device_option, format_option, labelling_options, threads_option
+from lesscli.cli.common import (
+    LATENCY_THREADS,
+    checked_output,
+    device_option,
+    format_option,
+    labelling_options,
+    threads_option,
+)
 
 
 @click.command("guide")
@@ -27,7 +34,7 @@ from lesscli.cli.common import checked_output, device_option, format_option, lab
               help="Uncertainty to cover: 'entropy' (all classes) or 'inclusion' (inclusion vs the rest).")
 @labelling_options
 @device_option()
-@threads_option()
+@threads_option(LATENCY_THREADS)
 @format_option
 def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margin_mm, width_mm, score, threshold,
         min_volume_mm3, smooth_mm, device, threads, fmt) -> None:

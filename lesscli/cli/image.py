@@ -6,17 +6,18 @@ from __future__ import annotations
 import click
 
 from lesscli.cli.common import (
+    Group,
     checked_output,
     device_option,
     format_option,
     labelling_options,
     output_option,
     threads_option,
-    training_options,
 )
+from lesscli.cli.training import training_options
 
 
-@click.group("image")
+@click.group("image", cls=Group)
 def cli() -> None:
     """Tactile imaging: 2D/3D label images with per-pixel uncertainty."""
 
@@ -27,7 +28,8 @@ def cli() -> None:
               help="less: a learned decoder on --rep; forcemap: calibrate the classical force-map reference.")
 @click.option("--rep", "rep_path", type=click.Path(), default=None,
               help="Representation checkpoint from 'less pretrain' (required for learned models).")
-@output_option(help="Best imaging checkpoint (.pt); beside it <stem>.last.pt (--resume) and <stem>.log.jsonl.")
+@output_option(help="Best imaging checkpoint (.pt); beside it <stem>.last.pt (--resume) and <stem>.log.jsonl.",
+               lock=True)
 @click.option("--val", "val_path", type=click.Path(), default=None, help="Validation scan set: selects the best epoch.")
 @click.option("--select", type=click.Choice(["f1", "loss"]), default=None,
               help="Best epoch on --val by inclusion F1 (ties: loss) or by loss.  [default: f1]")
@@ -36,7 +38,8 @@ def cli() -> None:
 @click.option("--slice", "slice_index", type=int, default=None,
               help="2D: label slice index (default: through the inclusion centre).")
 @click.option("--decoder", default=None, help="patch or global (default: pairs with the encoder).")
-@training_options(300, "[image], [train], [loss]", "--set image.width=64 --set loss.gamma=1")
+@training_options("300, the paper's (hours on a CPU at paper size; --epochs 5 for a first look)",
+                  "[image], [train], [loss]", "--set image.width=64 --set loss.gamma=1")
 @format_option
 def fit_cmd(data, model, rep_path, output, val_path, select, dim, finetune, slice_index, decoder, fmt,
             **train_opts) -> None:
@@ -60,15 +63,17 @@ def fit_cmd(data, model, rep_path, output, val_path, select, dim, finetune, slic
                              tensorboard=train_opts["tensorboard"])
     if not rep_path:
         raise click.UsageError("--rep is required for learned models (--model less)")
-    from lesscli.cli.common import run_training, training_config
-    from lesscli.train.image_fit import ImageFitConfig, fit_imager
+    from lesscli.cli.training import run_training, training_config
+    from lesscli.train.image_fit import ImageFitConfig, check_config, fit_imager
 
     explicit = {"image.dim": int(dim) if dim else None, "image.finetune": finetune, "image.slice": slice_index,
                 "image.select": select, "image.decoder": decoder}
-    cfg = training_config(ImageFitConfig, explicit, train_opts)
+    cfg = training_config(ImageFitConfig, explicit, train_opts, check_config,
+                          {"image.dim": "--dim", "image.slice": "--slice", "image.select": "--select",
+                           "image.decoder": "--decoder"})
     run_training(lambda train, val, **kw: fit_imager(train, val, rep_path, cfg, output, resume=train_opts["resume"], **kw),
                  "image fit", data, val_path, cfg, output, fmt, train_opts["tensorboard"],
-                 train_opts["threads"])
+                 train_opts["threads"], train_opts["resume"])
 
 
 def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
@@ -77,7 +82,8 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
     given = [f"--{k}" for k, v in learned_only.items() if v] + ["--print-config"] * print_config_requested()
     if given:
         raise click.UsageError(f"{', '.join(given)} only apply to learned models, not --model forcemap")
-    from lesscli.cli.common import LOG, training_scans
+    from lesscli.cli.common import LOG
+    from lesscli.cli.training import training_scans
     from lesscli.io.records import emit_records
     from lesscli.io.scans import append_history
     from lesscli.train.forcemap_fit import fit_forcemap
@@ -93,7 +99,7 @@ def _fit_forcemap(data, output, dim, slice_index, fmt, **learned_only) -> None:
 @cli.command("predict")
 @click.argument("model", type=click.Path())
 @click.argument("data", type=click.Path())
-@output_option(help="Prediction file (less.pred/1 .npz; '-' for stdout).")
+@output_option(help="Prediction file (less.pred/1 .npz; '-' for stdout).", lock=True)
 @labelling_options
 @click.option("--steps", type=click.IntRange(min=1), default=None,
               help="Image N evenly spaced prefixes of each scan's sequence.")
@@ -127,21 +133,25 @@ def predict_cmd(model, data, output, threshold, min_volume_mm3, smooth_mm, steps
 
     from lesscli.cli.common import LOG, progress
     from lesscli.infer.predict import PredictOptions, predict_file, write_nifti
+    from lesscli.io.atomic import atomic_group
     from lesscli.io.predictions import save_predictions
     from lesscli.io.records import emit_records
     from lesscli.io.scans import append_history
-    from lesscli.threads import apply_threads
+    from lesscli.threads import apply_threads, deterministic_kernels
     from lesscli.train.distributed import resolve_device
 
     t0 = time.perf_counter()
     n_threads = apply_threads("throughput", override=threads)     # whole scans in batches
     opts = PredictOptions(threshold, steps, every, grow, batch_size, slice_index, min_volume_mm3, smooth_mm, int(turns))
-    preds, ckpt, scans = predict_file(model, data, opts, resolve_device(device), progress=progress)
+    dev = resolve_device(device)
+    deterministic_kernels(dev)
+    preds, ckpt, scans = predict_file(model, data, opts, dev, progress=progress)
     preds.meta.update({"imager": model, "set": data,
                        "history": append_history({"history": [
         h for h in ckpt.get("history", []) if "epoch" not in h]})["history"]})
-    save_predictions(output, preds)
-    paths = write_nifti(preds, nifti_dir) if nifti_dir else []
+    with atomic_group():                 # the prediction file and its NIfTI volumes appear together, or none
+        save_predictions(output, preds)
+        paths = write_nifti(preds, nifti_dir) if nifti_dir else []
     summary = {"output": output, "scans": scans.n_scans, "predictions": len(preds.scans),
                "dim": preds.meta["dim"], "particles": preds.meta["particles"],
                "mean_entropy_nats": float(np.mean([p.entropy.mean() for p in preds.scans])) if preds.scans else None,

@@ -9,7 +9,7 @@ from lesscli.cli.common import LOG, format_option, output_option, parse_shard
 
 @click.command("import")
 @click.argument("root", type=click.Path())
-@output_option()
+@output_option(lock=True)
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True,
               help="Keep every N-th step of each trajectory (50 pokes, 10 primitives; 1 keeps 100 Hz).")
 @click.option("--trajectories", type=click.IntRange(min=1), default=None,

@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 
 import click
 
-from lesscli.cli.common import checked_output, format_option, orientations_option
+from lesscli.cli.common import Group, checked_output, format_option, orientations_option
 from lesscli.errors import LessError
 
 
@@ -76,11 +76,17 @@ def _parse_ids(ctx, param, value: str | None) -> tuple[int, int] | None:
     return lift_id, rotator_id
 
 
-@click.group()
-@click.option("--port", envvar="LESS_LIFT_PORT", help="Serial port of the servo bus (env LESS_LIFT_PORT).")
-@click.option("--baud", type=int, default=None, help="Baud rate (default from lift.toml, else 57600).")
-@click.option("--config", "config_path", type=click.Path(dir_okay=False), help="lift.toml (limits, geometry, ids).")
-@click.option("--ids", callback=_parse_ids, help="LIFT,ROTATOR servo ids (default 1,2).")
+PORT_HELP = "Serial port of the servo bus (env LESS_LIFT_PORT)."
+BAUD_HELP = "Baud rate (default from lift.toml, else 57600)."
+CONFIG_HELP = "lift.toml (limits, geometry, ids)."
+IDS_HELP = "LIFT,ROTATOR servo ids (default 1,2)."
+
+
+@click.group(cls=Group)
+@click.option("--port", envvar="LESS_LIFT_PORT", help=PORT_HELP)
+@click.option("--baud", type=int, default=None, help=BAUD_HELP)
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help=CONFIG_HELP)
+@click.option("--ids", callback=_parse_ids, help=IDS_HELP)
 @format_option
 @click.pass_context
 def cli(ctx, port, baud, config_path, ids, fmt) -> None:
@@ -92,12 +98,18 @@ def cli(ctx, port, baud, config_path, ids, fmt) -> None:
 
 
 def _pass_options(func):
-    """``click.pass_obj`` for the commands that print records; they also take ``--format`` after their
-    name (``less lift status --format table``), which overrides the group's."""
+    """``click.pass_obj`` for the commands that drive the bus; they also take the group's options after
+    their name (``less lift status --port /dev/ttyUSB0 --format table``), which override the group's."""
     @functools.wraps(func)
-    def run(*args, fmt: str | None = None, **kwargs):
+    def run(*args, fmt: str | None = None, sub_port: str | None = None, sub_baud: int | None = None,
+            sub_config: str | None = None, sub_ids: tuple[int, int] | None = None, **kwargs):
         opts = click.get_current_context().find_object(_Options)
-        return func(replace(opts, fmt=fmt) if fmt else opts, *args, **kwargs)
+        given = {"fmt": fmt, "port": sub_port, "baud": sub_baud, "config_path": sub_config, "ids": sub_ids}
+        return func(replace(opts, **{k: v for k, v in given.items() if v is not None}), *args, **kwargs)
+    run = click.option("--ids", "sub_ids", callback=_parse_ids, help=IDS_HELP)(run)
+    run = click.option("--config", "sub_config", type=click.Path(dir_okay=False), help=CONFIG_HELP)(run)
+    run = click.option("--baud", "sub_baud", type=int, default=None, help=BAUD_HELP)(run)
+    run = click.option("--port", "sub_port", default=None, help=PORT_HELP)(run)
     return format_option(run)
 
 

@@ -47,7 +47,7 @@ class LazyGroup(click.Group):
         if name not in COMMANDS:
             return None
         module = importlib.import_module(f"lesscli.cli.{COMMANDS[name][0]}")
-        return module.cli
+        return common.with_global_options(module.cli)
 
     def resolve_command(self, ctx, args):
         name = args[0] if args else ""
@@ -71,7 +71,8 @@ def cli(verbose: int, quiet: bool) -> None:
     """less: learned tactile imaging with local scene representations (LESS).
 
     Every subcommand reads files and writes files; records go to stdout as JSON lines (a table on a
-    terminal), progress and logs go to stderr. Use '-' for stdin/stdout.
+    terminal), progress and logs go to stderr. Use '-' for stdin/stdout. -q and -v may also follow
+    the subcommand (less pretrain data.npz -o rep.pt -q).
     """
     common.configure(verbose=verbose, quiet=quiet)
 

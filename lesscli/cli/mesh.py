@@ -22,14 +22,15 @@ def load_volume(path: str, scan: int, truth: bool):
     """A LabelVolume from a label NIfTI or from scan ``scan`` of a prediction file."""
     from lesscli.errors import DataError
     from lesscli.io.labels import load_nifti_labels
-    from lesscli.io.predictions import load_predictions
+    from lesscli.io.predictions import load_predictions, whole_scans
 
     if path.endswith((".nii", ".nii.gz")):
         return load_nifti_labels(path)
     preds = load_predictions(path)
-    if not 0 <= scan < len(preds.scans):
-        raise DataError(f"{path}: scan {scan} does not exist (the file holds {len(preds.scans)} scans)")
-    pred = preds.scans[scan]
+    whole = whole_scans(preds.scans)           # a --steps file: each scan's whole sequence, not its prefixes
+    if not 0 <= scan < len(whole):
+        raise DataError(f"{path}: scan {scan} does not exist (the file holds {len(whole)} scans)")
+    pred = preds.scans[whole[scan]]
     if truth:
         if pred.truth is None:
             raise DataError(f"{path}: scan {scan} has no truth to mesh (drop --truth)")
@@ -39,7 +40,7 @@ def load_volume(path: str, scan: int, truth: bool):
 
 @click.command("mesh")
 @click.argument("source", type=click.Path())
-@output_option(help="Output mesh: .glb (one node per class), .stl or .ply.")
+@output_option(help="Output mesh: .glb (one node per class; metres, +Y up), .stl or .ply (mm, z up).")
 @click.option("--scan", type=int, default=0, show_default=True, help="Scan of a prediction file to mesh.")
 @click.option("--truth", is_flag=True, help="Mesh the scan's true labels instead of the prediction.")
 @click.option("--classes", default="insert,pillar,inclusion", show_default=True,
@@ -54,7 +55,8 @@ def cli(source: str, output: str, scan: int, truth: bool, classes: str, smooth: 
     """Surfaces of each class by marching cubes, in phantom-frame millimetres.
 
     SOURCE is a prediction file (less.pred/1; use --scan/--truth) or a label NIfTI. Normals point
-    outward; a GLB holds one named node per class. One record per class goes to stdout.
+    outward; a GLB holds one named node per class, in metres with +Y up as glTF defines (viewers
+    show a 60 mm phantom 0.06 m wide), STL and PLY are in mm, z up. One record per class goes to stdout.
 
     Example: less mesh pred.npz -o inclusion.glb --classes inclusion,pillar
     """

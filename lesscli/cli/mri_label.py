@@ -66,11 +66,10 @@ def _label(scan_path: str, output: str, spacing: str | None, series: str | None,
            grid_shape: str, grid_spacing: str, orientations: list[int], report: bool, qc: str | None, strict: bool,
            fmt: str | None) -> None:
     from lesscli.errors import DataError
-    from lesscli.io.atomic import atomic_path
-    from lesscli.io.labels import save_nifti
+    from lesscli.io.atomic import atomic_group
     from lesscli.io.records import emit_records
     from lesscli.mri import report as rep
-    from lesscli.mri.scan import load_scan, save_labels, zyx_affine
+    from lesscli.mri.scan import load_scan
     from lesscli.mri.segment import segment
 
     scan = load_scan(scan_path, _triple(spacing, "--spacing-mm") if spacing else None, series)
@@ -80,29 +79,43 @@ def _label(scan_path: str, output: str, spacing: str | None, series: str | None,
     for message in seg.warnings:
         LOG.warning("%s: %s", scan_path, message)
     rows = [{"row": "contrast", "silicone_brighter": seg.silicone_brighter, **seg.levels}]
-    if grid == "scan":
-        save_labels(output, seg.labels, scan)
-        rows += rep.class_rows(seg.labels, scan.affine) + rep.inclusion_rows(seg.labels, scan.affine)
-    else:
-        from lesscli.mri.frame import find_frame, resample, up_hint_from
-
-        frame = find_frame(seg.labels, scan.affine, up_hint_from(seg.labels, seg.silicone, scan.affine), scan_path)
-        shape, gspacing = _triple(grid_shape, "--grid-shape", int), _triple(grid_spacing, "--grid-spacing-mm")
-        for i, (k, path) in enumerate(zip(orientations, _orientation_paths(output, orientations))):
-            vol = resample(seg.labels, scan.affine, frame, shape, gspacing, k, f"{scan_path}_{k}")
-            with atomic_path(path, ".nii.gz" if path.endswith(".gz") else ".nii") as tmp:
-                save_nifti(tmp, vol)
-            if i == 0:
-                aff = zyx_affine(vol.origin_mm, vol.spacing_mm)
-                rows += [rep.frame_row(frame)] + rep.class_rows(vol.data, aff) + rep.inclusion_rows(vol.data, aff)
-    if qc:
-        rep.save_qc(qc, seg.corrected, seg.labels, seg.spacing_mm, title=f"{scan_path}: blue insert, orange outline "
-                    "pillar, red inclusion")
+    with atomic_group():                 # the labels and the --plot figure appear together, or none of them
+        rows += _write_labels(scan, seg, output, scan_path, grid, grid_shape, grid_spacing, orientations)
+        if qc:
+            rep.save_qc(qc, seg.corrected, seg.labels, seg.spacing_mm, title=f"{scan_path}: blue insert, orange "
+                        "outline pillar, red inclusion")
     if report:
         rows += rep.shape_rows(seg.inclusion_shapes, scan.affine)
         rows += rep.base_rows(seg.base_surface, seg.spacing_mm, seg.labels.shape, scan.affine)
         rows += rep.post_rows(seg.posts, seg.spacing_mm, scan.affine)
         emit_records(rows + rep.warning_rows(seg.warnings), fmt)
+
+
+def _write_labels(scan, seg, output: str, scan_path: str, grid: str, grid_shape: str, grid_spacing: str,
+                  orientations: list[int]) -> list[dict]:
+    """Write the labels on the scan's grid, or resampled onto the phantom grid per orientation; the
+    report rows of what was written."""
+    from lesscli.io.atomic import atomic_path
+    from lesscli.io.labels import save_nifti
+    from lesscli.mri import report as rep
+    from lesscli.mri.scan import save_labels, zyx_affine
+
+    if grid == "scan":
+        save_labels(output, seg.labels, scan)
+        return rep.class_rows(seg.labels, scan.affine) + rep.inclusion_rows(seg.labels, scan.affine)
+    from lesscli.mri.frame import find_frame, resample, up_hint_from
+
+    rows = []
+    frame = find_frame(seg.labels, scan.affine, up_hint_from(seg.labels, seg.silicone, scan.affine), scan_path)
+    shape, gspacing = _triple(grid_shape, "--grid-shape", int), _triple(grid_spacing, "--grid-spacing-mm")
+    for i, (k, path) in enumerate(zip(orientations, _orientation_paths(output, orientations))):
+        vol = resample(seg.labels, scan.affine, frame, shape, gspacing, k, f"{scan_path}_{k}")
+        with atomic_path(path, ".nii.gz" if path.endswith(".gz") else ".nii") as tmp:
+            save_nifti(tmp, vol)
+        if i == 0:
+            aff = zyx_affine(vol.origin_mm, vol.spacing_mm)
+            rows += [rep.frame_row(frame)] + rep.class_rows(vol.data, aff) + rep.inclusion_rows(vol.data, aff)
+    return rows
 
 
 @click.command("mri-label")

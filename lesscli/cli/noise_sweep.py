@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import checked_output, comma_list, device_option, format_option, seed_option
+from lesscli.cli.common import checked_figure, comma_list, device_option, format_option, seed_option
 
 TABLE_COLUMNS = ["pos_mm", "ang_rad", "repeats", "f1_micro", "f1_micro_std", "f1", "f1_std", "com_error_mm",
                  "com_error_mm_std", "diameter_error_mm"]
@@ -26,8 +26,8 @@ def _levels(text: str, what: str) -> list[float]:
               help="Angle noise sigmas (roll, pitch, yaw), rad.")
 @click.option("--repeats", type=click.IntRange(min=1), default=3, show_default=True, help="Noise draws per cell.")
 @seed_option()
-@click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
-              help="PNG: F1 vs position noise, one line per angle level.")
+@click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_figure,
+              help="Figure (.png, .pdf or .svg): the metric vs position noise, one line per angle level.")
 @click.option("--metric", type=click.Choice(["f1_micro", "f1", "com_error_mm", "diameter_error_mm"]),
               default="f1_micro", show_default=True, help="Plotted metric.")
 @click.option("--threshold", type=click.FloatRange(0, 1), default=None,

@@ -4,17 +4,18 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option
+from lesscli.cli.common import Group, checked_figure, format_option
 
 
-@click.group("plot")
+@click.group("plot", cls=Group)
 def cli() -> None:
     """Figures from the files other commands write."""
 
 
 @cli.command("log")
 @click.argument("logs", nargs=-1, required=True, type=click.Path(dir_okay=False), metavar="RUN.log.jsonl...")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="PNG to write ('-': stdout).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), callback=checked_figure,
+              help="Figure to write, in the format its extension names: .png, .pdf or .svg ('-': PNG on stdout).")
 @click.option("--label", "labels", multiple=True, metavar="NAME",
               help="Name of each run in the legend, in the order of the logs (default: the path without .log.jsonl).")
 @format_option
@@ -27,7 +28,7 @@ def log_cmd(logs: tuple[str, ...], output: str, labels: tuple[str, ...], fmt: st
     compare in one picture. One summary record per run goes to stdout (epochs, last training loss,
     best validation loss, F1 and force ratio; to stderr with -o -).
 
-    Example: less plot log runs/rep_s0.log.jsonl runs/rep_s1.log.jsonl -o curves.png
+    Example: less plot log runs/rep_s0.log.jsonl runs/rep_s1.log.jsonl -o curves.pdf
     """
     import sys
 

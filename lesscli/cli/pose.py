@@ -5,14 +5,24 @@ cv2 and the vision modules are imported inside the command bodies only.
 
 from __future__ import annotations
 
+import math
+
 import click
 
-from lesscli.cli.common import checked_output, format_option, output_option, progress, seed_option
+from lesscli.cli.common import Group, checked_output, format_option, output_option, progress, seed_option
 
 MAX_FRAME_WARNINGS = 5      # frames without a pose named on stderr before a count takes over
 
 
-@click.group("pose")
+def _positive_rate(value: float | None) -> float | None:
+    """``--fps``: a finite rate above 0 (nan and inf are refused, as 0 and negative rates are)."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise click.BadParameter(f"{value!r}: a frame rate is a finite number of frames per second above 0",
+                                 param_hint="'--fps'")
+    return value
+
+
+@click.group("pose", cls=Group)
 def cli() -> None:
     """Track the sensor with AprilTags, render test frames, calibrate to the robot, measure accuracy."""
 
@@ -34,7 +44,8 @@ def cli() -> None:
 @click.option("--global-mode", type=click.Choice(["static", "per-frame"]), default="static", show_default=True,
               help="static: one PnP over the global tag's corners from all frames (fixed camera); "
                    "per-frame: solve it in every frame.")
-@click.option("--fps", type=float, default=None, help="Frame rate when there is no timestamps.txt (or to override).")
+@click.option("--fps", type=float, default=None, callback=lambda ctx, param, v: _positive_rate(v),
+              help="Frame rate when there is no timestamps.txt (or to override).")
 def track_cmd(frames: str, camera_path: str, output: str, sensor_tag: int, global_tag: int, tag_size_mm: float,
               tag_to_sensor: str | None, refine: str, edge_fit: bool, global_mode: str, fps: float | None) -> None:
     """Sensor pose in the global tag's frame for every frame of FRAMES.

@@ -4,19 +4,20 @@ from __future__ import annotations
 
 import click
 
-from lesscli.cli.common import format_option, output_option, parse_shard, set_options
+from lesscli.cli.common import ThreadsType, format_option, output_option, parse_shard, set_options
 
 
 @click.command("simulate")
 @click.argument("scene_path", type=click.Path(), metavar="SCENE.toml")
-@output_option(help="Output scan set (.npz, '-' for stdout).")
+@output_option(help="Output scan set (.npz, '-' for stdout).", lock=True)
 @set_options("Override a scene value, e.g. --set motion.n_traj=10 --set contact.tier=winkler.")
 @click.option("--seed", type=int, default=None, help="Override the scene's seed.")
-@click.option("--jobs", type=click.IntRange(1), default=None,
-              help="Worker processes (over scans); default: the free cores (usable cores minus the load).")
+@click.option("--jobs", type=ThreadsType(), default=None, metavar="N|auto",
+              help="Worker processes (over scans); default: the usable cores (at most one a scan); 'auto': the "
+                   "free cores (usable cores minus the load). The output is the same for any N.")
 @click.option("--shard", default=None, metavar="I/N", help="Simulate only shard I of N (0-based, contiguous).")
 @format_option
-def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | None, jobs: int | None,
+def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | None, jobs: int | str | None,
         shard: str | None, fmt: str | None) -> None:
     """Simulate the scans of SCENE.toml into a less.scans/1 scan set with label volumes.
 
@@ -24,7 +25,7 @@ def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | No
     and the demo's randomised training family), poke, primitive, handheld, multiple, large, demo.
 
     One scan per insert and orientation; the output is byte-identical for a given seed, whatever
-    --jobs is (default: the free cores, at most one worker a scan), and the shards of --shard i/n
+    --jobs is (default: the usable cores, at most one worker a scan), and the shards of --shard i/n
     concatenate to the full set. One summary record (scans,
     trajectories, steps, jobs, threads, seconds, output) goes to stdout (to stderr with -o -).
 
@@ -39,15 +40,18 @@ def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | No
     from lesscli.scenes import resolve
     from lesscli.sim.scene import load_scene, scene_document
     from lesscli.sim.simulate import scan_jobs, simulate
-    from lesscli.threads import apply_threads, free_cores, other_load, usable_cores
+    from lesscli.threads import AUTO, apply_threads, free_cores, other_load, usable_cores
 
     t0 = time.perf_counter()
     i_n = parse_shard(shard)
     scene = load_scene(resolve(scene_path), overrides, options={"seed": seed})
     config_resolved(scene_document(scene))
-    load = other_load()                                                     # read the machine once
-    jobs = min(jobs or free_cores(usable_cores(), load), max(1, len(scan_jobs(scene, i_n))))
-    threads = apply_threads("throughput", jobs=jobs, torch_too=False, load=load)   # per worker: --jobs splits the cores
+    adaptive = jobs == AUTO
+    load = other_load() if adaptive else None                               # read the machine once, if asked
+    wanted = free_cores(usable_cores(), load) if adaptive else (jobs or usable_cores())
+    jobs = min(wanted, max(1, len(scan_jobs(scene, i_n))))
+    threads = apply_threads("throughput", jobs=jobs, torch_too=False, load=load,   # per worker: --jobs splits
+                            override=AUTO if adaptive else None)                   # the cores
     scans = simulate(scene, jobs=jobs, shard=i_n,
                      progress=lambda it, total: progress(it, total=total, desc="scans", unit="scan"))
     scans.meta = append_history(scans.meta, seed=scene.seed)

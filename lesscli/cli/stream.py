@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import click
 
 from lesscli.cli.common import (
+    LATENCY_THREADS,
     checked_output,
     device_option,
     labelling_options,
@@ -38,7 +39,7 @@ LATENCY_PERCENTILES = (50, 90, 99)
 @labelling_options
 @click.option("--defer", is_flag=True, help="Re-decode patches only when a record is written (same images, faster).")
 @device_option()
-@threads_option()
+@threads_option(LATENCY_THREADS)
 @realtime_option()
 def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, min_volume_mm3, smooth_mm, defer, device,
         threads, realtime) -> None:

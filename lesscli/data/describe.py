@@ -94,23 +94,42 @@ def _class_voxels(volumes: list[np.ndarray]) -> dict:
     return {name: int(n) for name, n in zip(CLASS_NAMES, counts)}
 
 
+ZYX = "z, y, x"                 # the axis order every grid record gives (the toolkit's D, H, W)
+
+
 def describe_labels(volume: LabelVolume) -> list[dict]:
-    """One record of a label volume: its grid, and each class's voxels and volume."""
+    """One record of a label volume: its grid (z, y, x, as every grid record), and each class's voxels
+    and volume."""
     voxel_mm3 = float(np.prod(volume.spacing_mm))
     voxels = _class_voxels([volume.data])
-    return [{"kind": "label volume", "shape": list(volume.shape), "spacing_mm": volume.spacing_mm.tolist(),
+    return [{"kind": "label volume", "axes": ZYX, "shape": list(volume.shape), "spacing_mm": volume.spacing_mm.tolist(),
              "origin_mm": volume.origin_mm.tolist(), "class_voxels": voxels,
              "class_volume_mm3": {k: n * voxel_mm3 for k, n in voxels.items()}}]
 
 
+def world_axes(affine) -> list[int] | None:
+    """For each array axis, the world axis (0 x, 1 y, 2 z) it runs along most (the largest direction
+    cosine of its affine column); None where two array axes run along the same one (a very oblique grid)."""
+    dominant = np.abs(np.asarray(affine, np.float64)[:3, :3]).argmax(axis=0)
+    return [int(d) for d in dominant] if sorted(dominant.tolist()) == [0, 1, 2] else None
+
+
 def describe_image(scan) -> list[dict]:
     """One record of an MRI scan (:class:`lesscli.mri.scan.MRIScan`, a NIfTI file or a DICOM folder that is
-    not a label volume): its grid and its intensities."""
+    not a label volume): its grid, given z, y, x as a label volume's is (``file_axes`` says which world
+    axis each of the file's own axes runs along), and its intensities."""
     data = np.asarray(scan.data)
     finite = data[np.isfinite(data)] if data.dtype.kind == "f" else data.ravel()
     levels = np.percentile(finite, [0, 1, 50, 99, 100]).tolist() if finite.size else [None] * 5
-    return [{"kind": "image volume", "format": scan.kind, "shape": list(data.shape), "dtype": str(data.dtype),
-             "spacing_mm": np.asarray(scan.spacing_mm, float).tolist(),
+    spacing = np.asarray(scan.spacing_mm, float)
+    runs = world_axes(scan.affine) if data.ndim == 3 else None
+    if runs is None:                       # not a 3D grid near the world axes: the file's own order
+        axes, order, file_axes = "i, j, k (the file's order)", list(range(data.ndim)), None
+    else:
+        axes, order, file_axes = ZYX, [runs.index(2), runs.index(1), runs.index(0)], ", ".join("xyz"[d] for d in runs)
+    return [{"kind": "image volume", "format": scan.kind, "axes": axes, "file_axes": file_axes,
+             "shape": [int(data.shape[i]) for i in order], "dtype": str(data.dtype),
+             "spacing_mm": [float(spacing[i]) for i in order] if spacing.size == len(order) else spacing.tolist(),
              "intensity": dict(zip(("min", "p1", "median", "p99", "max"), levels)),
              "non_finite_voxels": int(data.size - finite.size)}]
 
@@ -127,11 +146,14 @@ def _holds_codes(data: np.ndarray) -> bool:
 def describe_predictions(preds, full_history: bool = False) -> list[dict]:
     """One record of a prediction file (:class:`lesscli.io.predictions.PredictionSet`): what was imaged,
     on which grids, by which model, and what it labelled."""
+    from lesscli.io.predictions import scan_numbers
+
     scans, meta = preds.scans, dict(preds.meta)
     history = meta.pop("history", [])
     return [{
         "kind": "prediction set", "schema": f"{meta.pop('schema', None)}/{meta.pop('version', None)}",
-        "scans": len(scans), "with_truth": sum(p.truth is not None for p in scans),
+        "scans": len(set(scan_numbers(scans))), "images": len(scans),
+        "with_truth": sum(p.truth is not None for p in scans),
         "inserts": sorted({p.insert for p in scans}), "orientations": sorted({p.orientation for p in scans}),
         "classes": sorted({int(p.probs.shape[0]) for p in scans}),
         "grid_shapes": sorted({tuple(int(n) for n in p.probs.shape[1:]) for p in scans}),

@@ -64,7 +64,9 @@ def parse_live_line(text: str | bytes, force_dim: int, after_t: float | None = N
 
 def _numbers(value, key: str) -> np.ndarray:
     """A JSON (nested) list of numbers finite in float32 (the model's precision) as float64, or
-    ValueError naming ``key``."""
+    ValueError naming ``key``. JSON's true and false are not numbers (numpy would read them as 1 and 0)."""
+    if _holds_bool(value):
+        raise ValueError(f"'{key}' holds true/false; it must be a list of numbers")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -74,3 +76,10 @@ def _numbers(value, key: str) -> np.ndarray:
     if np.abs(arr).max() > np.finfo(np.float32).max:
         raise ValueError(f"'{key}' holds {np.abs(arr).max():g}, beyond float32 range (the model's precision)")
     return arr
+
+
+def _holds_bool(value) -> bool:
+    """Whether ``value`` is, or a (nested) list of it holds, a JSON true or false."""
+    if isinstance(value, bool):
+        return True
+    return isinstance(value, list) and any(_holds_bool(v) for v in value)

@@ -28,7 +28,7 @@ from lesscli.data.image_labels import AUTO_SLICE, grid_of, target_volume
 from lesscli.errors import DataError, LessError
 from lesscli.infer import forcemap
 from lesscli.io.checkpoint import load_checkpoint
-from lesscli.io.predictions import Labelling, PredictionSet, ScanPrediction, nothing_known
+from lesscli.io.predictions import Labelling, PredictionSet, ScanPrediction, nothing_known, scan_numbers
 from lesscli.io.scans import ScanSet, load_scans
 from lesscli.models.imager import Imager, grid_from_dict
 from lesscli.sim.state import rotate_pose
@@ -198,6 +198,24 @@ def check_turnable(grid: ImageGrid, where: str) -> None:
                         f"{h} x {w} pixels of {dy:g} x {dx:g} mm from ({oy:g}, {ox:g}) mm")
 
 
+CONTACT_SHARE = 0.1             # a step touches where its total force exceeds this share of the scan's largest
+MAX_TOUCH_MARKS = 2000          # touches stored per prediction (evenly thinned beyond)
+
+
+def touch_points(scans: ScanSet, s: int, steps: int) -> np.ndarray:
+    """(T, 2) float32: x, y (mm) of the pad's centre at the steps among the first ``steps`` of scan ``s``
+    that were in contact, i.e. whose total force (the norm of the taxels' summed force) exceeds
+    :data:`CONTACT_SHARE` of the scan's largest; at most :data:`MAX_TOUCH_MARKS`, evenly thinned."""
+    sl = scans.scan_steps(s)
+    force = np.linalg.norm(scans.force[sl].astype(np.float64).sum(axis=1), axis=-1)
+    if not force.size or force.max() <= 0:
+        return np.zeros((0, 2), np.float32)
+    seen = np.flatnonzero(force[:steps] > CONTACT_SHARE * force.max())
+    if len(seen) > MAX_TOUCH_MARKS:
+        seen = seen[np.linspace(0, len(seen) - 1, MAX_TOUCH_MARKS).round().astype(int)]
+    return scans.pose[sl][seen, :2].astype(np.float32)
+
+
 def _scan_prediction(scans: ScanSet, s: int, probs: np.ndarray, grid: ImageGrid, truth: np.ndarray | None,
                      steps: int, labelling: Labelling) -> ScanPrediction:
     """One prediction record; a prefix of 0 steps images as nothing known (uniform probabilities)."""
@@ -206,7 +224,8 @@ def _scan_prediction(scans: ScanSet, s: int, probs: np.ndarray, grid: ImageGrid,
     return ScanPrediction(probs=probs, origin_mm=np.array(grid.origin_mm),
                           spacing_mm=np.array(grid.spacing_mm), truth=truth, insert=str(scans.scan_insert[s]),
                           orientation=int(scans.scan_orientation[s]), steps=int(steps),
-                          label=labelling.labels(probs, grid.spacing_mm))
+                          label=labelling.labels(probs, grid.spacing_mm), scan=int(s),
+                          touch_xy_mm=touch_points(scans, s, steps))
 
 
 def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, device: torch.device | str = "cpu",
@@ -289,25 +308,20 @@ def predict_file(path: str, data: str, opts: PredictOptions, device: torch.devic
     return predict(imager, ckpt, scans, opts, device, data, progress), ckpt, scans
 
 
-def prediction_scans(preds: list[ScanPrediction]) -> list[int]:
-    """Scan number of each prediction: prefixes of one scan are consecutive with rising steps."""
-    out: list[int] = []
-    for i, p in enumerate(preds):
-        prev = preds[i - 1] if i else None
-        same = prev is not None and (prev.insert, prev.orientation) == (p.insert, p.orientation) and p.steps > prev.steps
-        out.append(out[-1] if same else (out[-1] + 1 if out else 0))
-    return out
-
-
 def write_nifti(preds: PredictionSet, folder: str) -> list[str]:
-    """Label and entropy volumes per prediction as NIfTI with their affine (all or none written).
+    """Label, entropy and class-probability volumes per prediction as NIfTI with their affine, and the
+    class colour tables for 3D Slicer and ITK-SNAP (lesscli.io.colour_tables); all or none written.
 
-    Files are ``<scan>_<insert>_o<orientation>[_t<steps>]_{labels,entropy}.nii.gz``; returns their paths.
+    Files are ``<scan>_<insert>_o<orientation>[_t<steps>]_labels.nii.gz`` (uint8 codes, NIfTI intent
+    "label"), ``..._entropy.nii.gz`` (nats) and ``..._prob_<class>.nii.gz`` (one float32 map per class),
+    plus ``labels.ctbl`` and ``labels_itksnap.txt``; returns their paths (in ``folder``).
     """
     from lesscli.io.atomic import atomic_dir
-    from lesscli.io.labels import save_nifti, save_nifti_array
+    from lesscli.io.colour_tables import write_colour_tables
+    from lesscli.io.labels import CLASS_NAMES, save_nifti, save_nifti_array
+    from lesscli.plots.palette import CLASS_RGBA
 
-    scan_of = prediction_scans(preds.scans)
+    scan_of = scan_numbers(preds.scans)
     multi = np.bincount(scan_of, minlength=1) > 1 if scan_of else np.zeros(0, bool)
     paths = []
     with atomic_dir(folder) as tmp:
@@ -316,7 +330,13 @@ def write_nifti(preds: PredictionSet, folder: str) -> list[str]:
             if multi[scan_of[i]]:
                 stem += f"_t{p.steps}"
             vol = p.label_volume()
-            save_nifti(os.path.join(tmp, f"{stem}_labels.nii.gz"), vol)
-            save_nifti_array(os.path.join(tmp, f"{stem}_entropy.nii.gz"), p.entropy.astype(np.float32), vol)
-            paths += [os.path.join(folder, f"{stem}_{kind}.nii.gz") for kind in ("labels", "entropy")]
+            names = [f"{stem}_labels.nii.gz", f"{stem}_entropy.nii.gz"]
+            save_nifti(os.path.join(tmp, names[0]), vol, intent="label")
+            save_nifti_array(os.path.join(tmp, names[1]), p.entropy.astype(np.float32), vol)
+            for code, cls in enumerate(CLASS_NAMES):
+                names.append(f"{stem}_prob_{cls}.nii.gz")
+                save_nifti_array(os.path.join(tmp, names[-1]), np.asarray(p.probs[code], np.float32), vol)
+            paths += [os.path.join(folder, n) for n in names]
+        tables = write_colour_tables(tmp, CLASS_NAMES, CLASS_RGBA)
+        paths += [os.path.join(folder, os.path.basename(t)) for t in tables]
     return paths

@@ -10,13 +10,14 @@ A checkpoint is a dict of tensors and plain Python values::
      "extra": {...}}
 
 Any checkpoint whose ``config["encoder"]`` is an encoder config and whose model state holds the
-encoder under the prefix ``encoder.`` can be opened with ``lesscli.models.registry.load_representation`` (pretraining
+encoder under the prefix ``encoder.`` can be opened with ``lesscli.train.representation.load_representation`` (pretraining
 writes such files; an imaging model that keeps its encoder as the submodule ``encoder`` and copies
 the representation's ``config["encoder"]`` does too).
 """
 
 from __future__ import annotations
 
+import io
 import os
 import pickle
 import zipfile
@@ -48,8 +49,10 @@ def save_checkpoint(path: str, model_state: dict, config: dict, norm_stats: dict
     payload = {"format": FORMAT, "version": VERSION,
                "model_state": {k: v.detach().cpu() for k, v in model_state.items()},
                "config": config, "norm_stats": norm_stats, "history": list(history), "extra": extra or {}}
-    with atomic_path(path, ".pt") as tmp:
-        torch.save(payload, tmp)
+    buffer = io.BytesIO()              # serialised in memory first: a full disk then fails as an OSError
+    torch.save(payload, buffer)        # naming the file (torch's own writer raises an internal error)
+    with atomic_path(path, ".pt") as tmp, open(tmp, "wb") as fh:
+        fh.write(buffer.getbuffer())
 
 
 def load_checkpoint(path: str, map_location: str | torch.device = "cpu") -> dict:
@@ -81,9 +84,21 @@ def check_checkpoint(ckpt, path: str) -> None:
             raise DataError(f"{path}: checkpoint '{key}' must be a {kind.__name__}, got {type(ckpt.get(key)).__name__}")
     if not all(isinstance(v, torch.Tensor) for v in ckpt["model_state"].values()):
         raise DataError(f"{path}: checkpoint 'model_state' must map names to tensors")
+    _check_finite_weights(ckpt["model_state"], path)
     if not isinstance(ckpt.get("extra", {}), dict):
         raise DataError(f"{path}: checkpoint 'extra' must be a dict")
     _check_norm_stats(ckpt["norm_stats"], path)
+
+
+def _check_finite_weights(state: dict, path: str) -> None:
+    """Every floating-point weight finite: a checkpoint of a run that diverged is named as the problem
+    here, not the output it would have produced."""
+    for name, tensor in state.items():
+        if tensor.is_floating_point() or tensor.is_complex():
+            bad = int((~torch.isfinite(tensor)).sum())
+            if bad:
+                raise DataError(f"{path}: weight '{name}' holds NaN or inf ({bad} of {tensor.numel()} values); "
+                                "the checkpoint is broken (a diverged run?): train again or use another one")
 
 
 def _check_norm_stats(stats: dict, path: str) -> None:

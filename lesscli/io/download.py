@@ -105,9 +105,10 @@ class _RunningMd5:
         self.bytes += len(chunk)
 
 
-def _transfer(remote: RemoteFile, part: str, bar, timeout_s: float, md5: _RunningMd5) -> int | None:
+def _transfer(remote: RemoteFile, part: str, bar, timeout_s: float, md5: _RunningMd5) -> tuple[int | None, bool]:
     """One GET from the end of ``part``: append what arrives (and hash it into ``md5``). Returns the total
-    size when the server tells it.
+    size when the server tells it, and whether the bytes continued what ``part`` held (a 206 answer to a
+    range from a non-zero offset) rather than starting the file over (200: the whole file re-sent).
 
     Raises:
         urllib.error.HTTPError: the server answered an error status (416 included).
@@ -116,6 +117,7 @@ def _transfer(remote: RemoteFile, part: str, bar, timeout_s: float, md5: _Runnin
     offset = os.path.getsize(part) if os.path.exists(part) else 0
     with urllib.request.urlopen(_request(remote.url, offset), timeout=timeout_s) as resp:
         total = None
+        continued = resp.status == 206 and offset > 0
         if resp.status == 206:
             match = _CONTENT_RANGE.match(resp.headers.get("Content-Range", ""))
             if not match or int(match[1]) != offset:
@@ -135,11 +137,12 @@ def _transfer(remote: RemoteFile, part: str, bar, timeout_s: float, md5: _Runnin
                 fh.write(chunk)
                 md5.update(chunk)
                 bar.update(len(chunk))
-    return total
+    return total, continued
 
 
-def _verify(remote: RemoteFile, part: str, md5: _RunningMd5) -> str:
-    """Size and MD5 of the finished ``part`` against the published ones; the hex digest."""
+def _verify(remote: RemoteFile, part: str, md5: _RunningMd5, pieces: int) -> str:
+    """Size and MD5 of the finished ``part`` (put together from ``pieces`` transfers) against the published
+    ones; the hex digest."""
     size = os.path.getsize(part)
     if remote.size is not None and size != remote.size:
         raise DownloadError(f"{remote.url}: got {size} bytes, the record says {remote.size}")
@@ -148,8 +151,15 @@ def _verify(remote: RemoteFile, part: str, md5: _RunningMd5) -> str:
     if remote.md5 and digest != remote.md5.lower():
         with contextlib.suppress(FileNotFoundError):
             os.remove(part)
+        if pieces > 1:       # joined from several transfers: a stale or damaged piece may be the cause
+            advice = (f"it was joined from {pieces} transfers, so a fresh one (less fetch again, which now "
+                      "starts from zero) may give the published file")
+        else:                # one whole transfer: fetching again will most likely give the same bytes
+            advice = ("the server sent these bytes in one whole transfer, so fetching again will most likely "
+                      "give the same: the file on the server differs from its record (check the record id and "
+                      "--base-url, or tell the archive)")
         raise DownloadError(f"{remote.name}: checksum mismatch (md5 {digest}, published {remote.md5}) from "
-                            f"{remote.url}; the download was deleted, run again")
+                            f"{remote.url}; the download was deleted; {advice}")
     return digest
 
 
@@ -167,7 +177,9 @@ def download(remote: RemoteFile, dest: str, progress: Callable, retries: int = R
 
     Returns:
         ``{"file", "bytes", "md5", "status", "seconds"}``; status ``present`` (already complete and
-        verified), ``downloaded`` or ``resumed`` (continued a ``.part`` from an earlier run or retry).
+        verified), ``resumed`` (the file joined from the bytes of several transfers: a ``.part`` of an
+        earlier run or try continued with a range request) or ``downloaded`` (in one transfer, also when a
+        server that ignores ranges re-sent the whole file).
 
     Raises:
         DownloadError: dead link (HTTP error), no connection after the retries, wrong size or checksum.
@@ -179,7 +191,7 @@ def download(remote: RemoteFile, dest: str, progress: Callable, retries: int = R
         if not remote.md5 or digest == remote.md5.lower():
             return {**record, "bytes": os.path.getsize(dest), "md5": digest, "status": "present"}
     part = dest + ".part"
-    resumed = os.path.exists(part) and os.path.getsize(part) > 0
+    pieces = 1 if os.path.exists(part) and os.path.getsize(part) > 0 else 0   # a .part of an earlier run
     md5 = _RunningMd5()
     with progress(total=remote.size, unit="B", unit_scale=True, unit_divisor=1024, desc=remote.name) as bar:
         for attempt in range(retries + 1):
@@ -187,16 +199,17 @@ def download(remote: RemoteFile, dest: str, progress: Callable, retries: int = R
             if remote.size is not None and have == remote.size:
                 break
             if attempt:
-                resumed = resumed or have > 0
                 time.sleep(backoff_s * attempt)
             try:
-                total = _transfer(remote, part, bar, timeout_s, md5)
+                total, continued = _transfer(remote, part, bar, timeout_s, md5)
+                pieces = pieces + 1 if continued else 1      # a 200 re-sent the whole file: one piece again
             except urllib.error.HTTPError as exc:
                 if exc.code == 416 and have:         # the range starts past the end: start over
                     os.remove(part)
                     continue
                 raise DownloadError(f"{remote.url}: {_describe(exc)} (dead link?)") from None
             except (OSError, http.client.HTTPException) as exc:
+                pieces = max(pieces, 1) if os.path.exists(part) and os.path.getsize(part) else 0
                 if attempt == retries:
                     raise DownloadError(f"{remote.url}: transfer failed after {retries + 1} tries "
                                         f"({_describe(exc)}); run again to resume") from None
@@ -207,7 +220,7 @@ def download(remote: RemoteFile, dest: str, progress: Callable, retries: int = R
         else:
             raise DownloadError(f"{remote.url}: transfer incomplete after {retries + 1} tries "
                                 f"({os.path.getsize(part)} bytes); run again to resume")
-    digest = _verify(remote, part, md5)
+    digest = _verify(remote, part, md5, pieces)
     os.replace(part, dest)
-    return {**record, "bytes": os.path.getsize(dest), "md5": digest, "status": "resumed" if resumed else "downloaded",
-            "seconds": round(time.perf_counter() - t0, 3)}
+    return {**record, "bytes": os.path.getsize(dest), "md5": digest,
+            "status": "resumed" if pieces > 1 else "downloaded", "seconds": round(time.perf_counter() - t0, 3)}

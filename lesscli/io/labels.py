@@ -84,12 +84,15 @@ def check_codes(data: np.ndarray, where: str) -> None:
                         f"found {high if high >= N_CLASSES else low}")
 
 
-def save_nifti(path: str, volume: LabelVolume, dtype=np.uint8) -> None:
-    """Write ``volume`` to NIfTI at ``path`` (atomicity is the caller's: pass a temporary path)."""
+def save_nifti(path: str, volume: LabelVolume, dtype=np.uint8, intent: str | None = None) -> None:
+    """Write ``volume`` to NIfTI at ``path`` (atomicity is the caller's: pass a temporary path); ``intent``
+    a NIfTI intent name (``"label"``: the file holds label codes)."""
     import nibabel as nib
 
     img = nib.Nifti1Image(np.transpose(volume.data, (2, 1, 0)).astype(dtype), volume.affine())
     img.header.set_xyzt_units("mm")
+    if intent:
+        img.header.set_intent(intent, name="less labels")
     nib.save(img, path)
 
 

@@ -87,3 +87,23 @@ def read_npz(path: str, what: str) -> dict[str, np.ndarray]:
     except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, KeyError) as exc:
         raise DataError(f"{name}: not a readable .npz {what} (truncated or corrupt: {exc})") from None
     return arrays
+
+
+ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)     # the earliest time a zip entry can hold: members carry no clock time
+
+
+def write_npz(path: str, arrays: dict[str, np.ndarray], compress: bool = True) -> None:
+    """Write ``arrays`` as a ``.npz`` archive at ``path``, the bytes a function of the arrays alone.
+
+    ``np.savez`` stamps each member with the time of writing, so equal data written twice gave different
+    files; here every member carries :data:`ZIP_EPOCH` (as torch's checkpoints do), so a rerun that
+    computes the same arrays writes the same bytes. Object arrays are refused (never pickled).
+    """
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    with zipfile.ZipFile(path, mode="w", compression=method, allowZip64=True) as archive:
+        for key, value in arrays.items():
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=ZIP_EPOCH)
+            info.compress_type = method
+            info.external_attr = 0o644 << 16
+            with archive.open(info, "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)

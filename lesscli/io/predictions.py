@@ -20,7 +20,14 @@ scan_orientation   (S,) i64
 scan_steps         (S,) i64         number of input steps the prediction saw (prefix length)
 meta               () str           JSON: schema, version, dim, labelling rule (threshold,
                                     min_volume_mm3, smooth_mm), model, seed, set, history
+scan_index         (S,) i64         optional: which scan of the imaged set each prediction
+                                    images (the prefixes of ``--steps`` share one), rising
+touch_count        (S,) i64         optional, with ``touch_xy_mm``: touches stored per prediction
+touch_xy_mm        (sum, 2) f32     x, y (mm) of the pad's centre at the steps it saw in contact
 =================  ===============  ==================================================
+
+Files written before the optional keys existed tell a scan's prefixes by their order (consecutive
+predictions of one insert and orientation with rising steps: :func:`scan_numbers`).
 """
 
 from __future__ import annotations
@@ -34,7 +41,7 @@ from lesscli.errors import DataError
 from lesscli.io import checks
 from lesscli.io.atomic import atomic_path
 from lesscli.io.labels import INCLUSION, N_CLASSES, PILLAR, LabelVolume, check_codes
-from lesscli.io.npfiles import read_npz
+from lesscli.io.npfiles import read_npz, write_npz
 
 SCHEMA, VERSION = "less.pred", 1
 EPS_LOG = 1e-12  # floor inside log(p) for the entropy of float16-rounded probabilities
@@ -140,6 +147,8 @@ class ScanPrediction:
     steps: int = -1
     label: np.ndarray | None = None
     entropy: np.ndarray | None = None
+    scan: int = -1                        # the scan of the imaged set (-1: not recorded)
+    touch_xy_mm: np.ndarray | None = None  # (T, 2) pad centres at the steps seen in contact; None: not recorded
 
     def __post_init__(self) -> None:
         if self.label is None:
@@ -153,11 +162,44 @@ class ScanPrediction:
     def label_volume(self) -> LabelVolume:
         return LabelVolume(self.label, self.origin_mm, self.spacing_mm, self.insert)
 
+    def confidence(self) -> np.ndarray:
+        """(D, H, W) float32 in [0, 1]: how far the most likely class stands above a uniform guess,
+        (p_max - 1/C) / (1 - 1/C); 0 where nothing is known (every class equally likely), 1 where one
+        class is certain."""
+        p = np.asarray(self.probs, dtype=np.float32)
+        c = p.shape[0]
+        return np.clip((p.max(axis=0) - 1.0 / c) / (1.0 - 1.0 / c), 0.0, 1.0)
+
 
 @dataclass
 class PredictionSet:
     scans: list[ScanPrediction]
     meta: dict = field(default_factory=dict)
+
+
+def scan_numbers(preds: list[ScanPrediction]) -> list[int]:
+    """The scan (0, 1, ...) each prediction images: the recorded ``scan`` where every prediction has one,
+    else by order (consecutive predictions of one insert and orientation with rising steps are prefixes
+    of one scan, as ``image predict --steps`` writes them)."""
+    if preds and all(p.scan >= 0 for p in preds):
+        order = {s: k for k, s in enumerate(dict.fromkeys(p.scan for p in preds))}
+        return [order[p.scan] for p in preds]
+    out: list[int] = []
+    for i, p in enumerate(preds):
+        prev = preds[i - 1] if i else None
+        same = prev is not None and (prev.insert, prev.orientation) == (p.insert, p.orientation) and p.steps > prev.steps
+        out.append(out[-1] if same else (out[-1] + 1 if out else 0))
+    return out
+
+
+def whole_scans(preds: list[ScanPrediction]) -> list[int]:
+    """Indices of the prediction of each scan's whole sequence (the one with the most steps; the last
+    of its prefixes), in scan order."""
+    best: dict[int, int] = {}
+    for i, s in enumerate(scan_numbers(preds)):
+        if s not in best or preds[i].steps >= preds[best[s]].steps:
+            best[s] = i
+    return [best[s] for s in sorted(best)]
 
 
 def _flat(arrays: list[np.ndarray], dtype) -> np.ndarray:
@@ -182,9 +224,15 @@ def save_predictions(path: str, preds: PredictionSet) -> None:
         "scan_steps": np.array([p.steps for p in scans], np.int64),
         "meta": np.array(json.dumps(meta)),
     }
+    if scans and all(p.scan >= 0 for p in scans):
+        arrays["scan_index"] = np.array([p.scan for p in scans], np.int64)
+    if scans and all(p.touch_xy_mm is not None for p in scans):
+        touches = [np.asarray(p.touch_xy_mm, np.float32).reshape(-1, 2) for p in scans]
+        arrays["touch_count"] = np.array([len(t) for t in touches], np.int64)
+        arrays["touch_xy_mm"] = np.concatenate(touches).astype(np.float32)
     _checked_arrays(arrays, path)   # a writer never stores what its reader would refuse
     with atomic_path(path, ".npz") as tmp:
-        np.savez_compressed(tmp, **arrays)
+        write_npz(tmp, arrays)
 
 
 WHAT = f"{SCHEMA}/{VERSION} prediction file"
@@ -239,6 +287,32 @@ def _checked_arrays(arrays: dict, name: str) -> dict:
     checks.finite(out["entropy_data"].reshape(-1, 1), "entropy_data", name, "value")
     if out["entropy_data"].size and out["entropy_data"].min() < 0:
         raise DataError(f"{name}: 'entropy_data' must be non-negative (nats)")
+    out.update(_checked_optional(arrays, name, n))
+    return out
+
+
+def _checked_optional(arrays: dict, name: str, n: int) -> dict:
+    """The optional keys (module docstring), when there: ``scan_index`` and ``touch_count`` / ``touch_xy_mm``."""
+    out = {}
+    if "scan_index" in arrays:
+        index = checks.numbers(arrays["scan_index"], "scan_index", name, integer=True)
+        checks.shape(index, "scan_index", name, (n,), f"({n},): one entry per prediction")
+        if n and (index.min() < 0 or (np.diff(index) < 0).any()):
+            raise DataError(f"{name}: 'scan_index' must count scans from 0 upwards, in order")
+        out["scan_index"] = index
+    if ("touch_count" in arrays) != ("touch_xy_mm" in arrays):
+        have, lack = ("touch_count", "touch_xy_mm") if "touch_count" in arrays else ("touch_xy_mm", "touch_count")
+        raise DataError(f"{name}: '{have}' without '{lack}'; the touches need both")
+    if "touch_count" in arrays:
+        count = checks.numbers(arrays["touch_count"], "touch_count", name, integer=True)
+        checks.shape(count, "touch_count", name, (n,), f"({n},): one entry per prediction")
+        if n and count.min() < 0:
+            raise DataError(f"{name}: 'touch_count' must be >= 0 (touches per prediction), found {int(count.min())}")
+        xy = checks.numbers(arrays["touch_xy_mm"], "touch_xy_mm", name)
+        checks.shape(xy, "touch_xy_mm", name, (int(count.sum()), 2), f"({int(count.sum())}, 2): 'touch_count' "
+                     "says how many x, y pairs")
+        checks.finite(xy, "touch_xy_mm", name, "touch")
+        out["touch_count"], out["touch_xy_mm"] = count, xy
     return out
 
 
@@ -255,6 +329,7 @@ def from_arrays(arrays: dict, name: str) -> PredictionSet:
     vox = shapes[:, 1:].prod(axis=1)
     probs_off, vox_off = np.concatenate([[0], np.cumsum(shapes.prod(axis=1))]), np.concatenate([[0], np.cumsum(vox)])
     truth_off = np.concatenate([[0], np.cumsum(np.where(a["has_truth"] > 0, vox, 0))])
+    touch_off = np.concatenate([[0], np.cumsum(a["touch_count"])]) if "touch_count" in a else None
     scans = []
     for i, shp in enumerate(shapes):
         sl = slice(vox_off[i], vox_off[i + 1])
@@ -265,5 +340,8 @@ def from_arrays(arrays: dict, name: str) -> PredictionSet:
             origin_mm=a["origin_mm"][i], spacing_mm=a["spacing_mm"][i], truth=truth,
             insert=str(a["scan_insert"][i]), orientation=int(a["scan_orientation"][i]),
             steps=int(a["scan_steps"][i]), label=a["label_data"][sl].reshape(shp[1:]).astype(np.uint8),
-            entropy=a["entropy_data"][sl].reshape(shp[1:]).astype(np.float16)))
+            entropy=a["entropy_data"][sl].reshape(shp[1:]).astype(np.float16),
+            scan=int(a["scan_index"][i]) if "scan_index" in a else -1,
+            touch_xy_mm=a["touch_xy_mm"][touch_off[i]:touch_off[i + 1]].astype(np.float32)
+            if touch_off is not None else None))
     return PredictionSet(scans, meta)

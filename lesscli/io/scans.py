@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import shlex
 import sys
@@ -44,7 +45,7 @@ from lesscli.errors import DataError
 from lesscli.io import checks
 from lesscli.io.atomic import atomic_path
 from lesscli.io.labels import LabelVolume, check_codes
-from lesscli.io.npfiles import read_npz
+from lesscli.io.npfiles import read_npz, write_npz
 
 SCHEMA, VERSION = "less.scans", 1
 TRAJ_ATTRS = {"target_force_n": np.float32, "yaw_rad": np.float32, "dx_mm": np.float32,
@@ -61,10 +62,24 @@ def default_meta(sensor: dict, force_units: str = "N", sample_rate_hz: float = 1
     return meta
 
 
+def recorded_time() -> str:
+    """The time a history entry records: now, or ``SOURCE_DATE_EPOCH`` (seconds since 1970, UTC; the
+    reproducible-builds convention) when set, so that reruns can write the same bytes."""
+    text = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
+    if text:
+        try:
+            return time.strftime("%Y-%m-%dT%H:%M:%S+0000", time.gmtime(int(text)))
+        except (ValueError, OverflowError, OSError):
+            logging.getLogger("less").warning("SOURCE_DATE_EPOCH=%r is not a whole number of seconds; "
+                                              "the history records the time now", text)
+    return time.strftime("%Y-%m-%dT%H:%M:%S%z")
+
+
 def append_history(meta: dict, seed: int | None = None, argv: list[str] | None = None, **info) -> dict:
-    """Return a copy of ``meta`` with one more ``history`` entry (command line, version, seed, time)."""
+    """Return a copy of ``meta`` with one more ``history`` entry (command line, version, seed, time:
+    :func:`recorded_time`)."""
     entry = {"command": shlex.join(["less", *(sys.argv[1:] if argv is None else argv)]),
-             "version": __version__, "seed": seed, "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"), **info}
+             "version": __version__, "seed": seed, "time": recorded_time(), **info}
     return {**meta, "history": [*meta.get("history", []), entry]}
 
 
@@ -327,7 +342,7 @@ def save_scans(path: str, scans: ScanSet, compress: bool = True) -> None:
     arrays = to_arrays(scans)
     validate(arrays, path)
     with atomic_path(path, ".npz") as tmp:
-        (np.savez_compressed if compress else np.savez)(tmp, **arrays)
+        write_npz(tmp, arrays, compress)
 
 
 def concat(parts: list[ScanSet], names: list[str] | None = None) -> ScanSet:

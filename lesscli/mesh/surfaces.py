@@ -3,7 +3,8 @@
 Each class mask is padded by one empty voxel (so every surface closes), meshed by marching cubes at
 level 0.5 with the voxel spacing, moved to the phantom frame (x, y, z mm, z up), cleaned and smoothed
 with trimesh (Taubin smoothing keeps the volume), optionally decimated and repaired with pymeshlab,
-and oriented so the normals point outward (positive signed volume).
+and oriented so the normals point outward (positive signed volume). A GLB is written in glTF's own
+frame (metres, +Y up); STL and PLY, which carry no unit, in the phantom frame's millimetres.
 """
 
 from __future__ import annotations
@@ -106,8 +107,14 @@ def mesh_format(path: str) -> str:
     return MESH_FORMATS[ext]
 
 
+# glTF's frame: metres, +Y up. Phantom frame (mm, +Z up) -> glTF: x -> x, z -> y, y -> -z, times 1e-3
+# (a proper rotation, so the normals stay outward). STL and PLY carry no unit: they stay in mm, z up.
+GLTF_FROM_PHANTOM = np.array([[1e-3, 0, 0, 0], [0, 0, 1e-3, 0], [0, -1e-3, 0, 0], [0, 0, 0, 1]])
+
+
 def export_meshes(meshes: list[ClassMesh], path: str, fmt: str) -> None:
-    """Write meshes to ``path``: GLB as a scene with one named node per class, STL/PLY as one mesh."""
+    """Write meshes to ``path`` (the caller makes it atomic): GLB as a scene with one named node per class, in glTF's metres
+    with +Y up (:data:`GLTF_FROM_PHANTOM`: a 60 mm phantom opens 0.06 m wide); STL/PLY as one mesh in mm."""
     import trimesh
 
     if not meshes:
@@ -115,7 +122,7 @@ def export_meshes(meshes: list[ClassMesh], path: str, fmt: str) -> None:
     if fmt == "glb":
         scene = trimesh.Scene()
         for m in meshes:
-            scene.add_geometry(m.mesh, node_name=m.name, geom_name=m.name)
+            scene.add_geometry(m.mesh.copy().apply_transform(GLTF_FROM_PHANTOM), node_name=m.name, geom_name=m.name)
         data = scene.export(file_type="glb")
     else:
         data = trimesh.util.concatenate([m.mesh for m in meshes]).export(file_type=fmt)

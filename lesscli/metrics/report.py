@@ -18,6 +18,7 @@ from lesscli.metrics.baseline import AverageBaseline, average_baseline
 from lesscli.metrics.score import (
     BASELINE_MODEL,
     META_KEYS,
+    count_prefixes,
     count_unscored,
     score_baseline_set,
     score_label_pair,
@@ -76,9 +77,13 @@ def score_files(paths: Sequence[str], cls: str = "inclusion", threshold: float |
         rows = score_prediction_set(preds, path, cls, threshold, points, extra_keys)
         if not rows:
             raise DataError(f"{path}: no scan has a stored truth; metrics need true labels")
-        skipped = count_unscored(preds)
+        skipped, prefixes = count_unscored(preds), count_prefixes(preds)
+        scans = len(preds.scans) - prefixes
+        if prefixes:
+            report.warnings.append(f"{path}: {len(preds.scans)} images of {scans} scans (prefixes from image predict "
+                                   "--steps/--every); each scan is scored once, on its whole sequence")
         if skipped:
-            report.warnings.append(f"{path}: {skipped} of {len(preds.scans)} scans have no truth and were skipped")
+            report.warnings.append(f"{path}: {skipped} of {scans} scans have no truth and were skipped")
         report.scans.extend(rows)
         fingerprint = truth_fingerprint(preds)
         if baseline is not None and fingerprint not in seen_truths:

@@ -14,7 +14,7 @@ import numpy as np
 
 from lesscli.errors import DataError
 from lesscli.io.labels import LabelVolume
-from lesscli.io.predictions import PredictionSet, ScanPrediction, labels_from_probs
+from lesscli.io.predictions import PredictionSet, ScanPrediction, labels_from_probs, whole_scans
 from lesscli.metrics.baseline import AverageBaseline, score_baseline
 from lesscli.metrics.volume import score_labels
 
@@ -46,7 +46,9 @@ def scan_labels(scan: ScanPrediction, threshold: float | None = None) -> np.ndar
 def score_prediction_set(preds: PredictionSet, name: str = "", cls: str = "inclusion",
                          threshold: float | None = None, points: str = "centres",
                          extra_keys: tuple[str, ...] = ()) -> list[dict]:
-    """One row per scan with truth.
+    """One row per scan with truth, scored on its whole sequence: a file of ``image predict --steps``
+    holds several prefixes of each scan, and only the last (the whole scan) is scored (``scan`` is the
+    scan's number, not the prediction's).
 
     Args:
         preds: a loaded ``less.pred/1`` set.
@@ -58,7 +60,7 @@ def score_prediction_set(preds: PredictionSet, name: str = "", cls: str = "inclu
     """
     ident = _identity(preds, name, cls, threshold, extra_keys)
     rows = []
-    for i, scan in enumerate(preds.scans):
+    for i, scan in enumerate(whole_predictions(preds)):
         if scan.truth is None:
             continue
         labels = scan_labels(scan, threshold)
@@ -70,15 +72,25 @@ def score_prediction_set(preds: PredictionSet, name: str = "", cls: str = "inclu
     return rows
 
 
+def whole_predictions(preds: PredictionSet) -> list[ScanPrediction]:
+    """The prediction of each scan's whole sequence, in scan order (prefixes left out; io.predictions.whole_scans)."""
+    return [preds.scans[i] for i in whole_scans(preds.scans)]
+
+
+def count_prefixes(preds: PredictionSet) -> int:
+    """Predictions of prefixes (``image predict --steps`` / ``--every``) that are not a whole scan."""
+    return len(preds.scans) - len(whole_scans(preds.scans))
+
+
 def count_unscored(preds: PredictionSet) -> int:
     """Scans without a stored truth."""
-    return sum(scan.truth is None for scan in preds.scans)
+    return sum(scan.truth is None for scan in whole_predictions(preds))
 
 
 def truth_fingerprint(preds: PredictionSet) -> str:
     """Hash of all truths and geometries: prediction files of the same test set share it."""
     h = hashlib.sha1()
-    for scan in preds.scans:
+    for scan in whole_predictions(preds):
         if scan.truth is not None:
             for arr in (np.asarray(scan.truth.shape, np.int64), scan.origin_mm, scan.spacing_mm, scan.truth):
                 h.update(np.ascontiguousarray(arr).tobytes())
@@ -92,7 +104,7 @@ def score_baseline_set(preds: PredictionSet, baseline: AverageBaseline, name: st
              "dim": preds.meta.get("dim"), "cls": cls, "threshold": None, "baseline_from": source}
     return [{**ident, **_scan_ident(i, scan),
              **score_baseline(baseline, scan.truth, scan.origin_mm, scan.spacing_mm, cls, points)}
-            for i, scan in enumerate(preds.scans) if scan.truth is not None]
+            for i, scan in enumerate(whole_predictions(preds)) if scan.truth is not None]
 
 
 def check_same_grid(pred: LabelVolume, truth: LabelVolume, pred_name: str, truth_name: str) -> None:

@@ -22,14 +22,11 @@ import torch
 from torch import Tensor, nn
 
 from lesscli.models.encoding import POSE_DIM, PoseEncoding
+from lesscli.models.force_decoder import ForceDecoder
+from lesscli.models.layers import mlp
 from lesscli.models.particles import Gathered, gather_receptive_field, particle_grid
 from lesscli.models.recurrence import ragged_gru, ragged_gru_from_gates
 from lesscli.types import Batch
-
-
-def mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:
-    """Two-layer perceptron with a GELU (smooth, so finite-difference checks behave)."""
-    return nn.Sequential(nn.Linear(d_in, d_hidden), nn.GELU(), nn.Linear(d_hidden, d_out))
 
 
 @dataclass
@@ -158,8 +155,6 @@ class ParticleEncoder(nn.Module):
 
     def force_decoder(self) -> nn.Module:
         """The SSL force decoder that pairs with this encoder (a fresh one)."""
-        from lesscli.models.force_decoder import ForceDecoder
-
         return ForceDecoder(self.force_dim, self.dim, self.settings["n_freq"])
 
     @property

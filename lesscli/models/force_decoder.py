@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from torch import Tensor, nn
 
-from lesscli.models.encoders import mlp
 from lesscli.models.encoding import PoseEncoding
+from lesscli.models.layers import mlp
 
 
 class ForceDecoder(nn.Module):

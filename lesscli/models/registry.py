@@ -1,11 +1,12 @@
-"""Registries of model parts by name, with did-you-mean errors."""
+"""Registries of model parts by name, with did-you-mean errors, and the builders that turn a part's
+settings back into a module. No files here (models never touch them): a checkpoint is opened by
+:func:`lesscli.train.representation.load_representation` or :mod:`lesscli.infer.predict`."""
 
 from __future__ import annotations
 
 import torch
 
-from lesscli.errors import DataError, LessError, did_you_mean
-from lesscli.io.checkpoint import encoder_state, load_checkpoint
+from lesscli.errors import LessError, did_you_mean
 from lesscli.models.encoders import GlobalEncoder, ParticleEncoder
 from lesscli.models.force_decoder import ForceDecoder
 from lesscli.models.global_taxel import GlobalTaxelEncoder
@@ -48,25 +49,3 @@ def build_encoder(config: dict):
     if "grid_center_mm" in kwargs:
         kwargs["grid_center_mm"] = tuple(kwargs["grid_center_mm"])
     return cls(**kwargs)
-
-
-def load_representation(path: str, map_location: str | torch.device = "cpu"):
-    """Rebuild the encoder stored in a checkpoint.
-
-    Returns:
-        (encoder, checkpoint): the encoder in eval mode with its weights loaded, and the checkpoint
-        dict (``checkpoint["norm_stats"]`` normalises new data exactly as in training).
-    """
-    ckpt = load_checkpoint(path, map_location)
-    enc_cfg = ckpt.get("config", {}).get("encoder")
-    if not isinstance(enc_cfg, dict) or "name" not in enc_cfg:
-        raise DataError(f"{path}: checkpoint config has no 'encoder' section; not a representation")
-    encoder = build_encoder(enc_cfg)
-    state = encoder_state(ckpt["model_state"])
-    try:
-        encoder.load_state_dict(state)
-    except RuntimeError as exc:
-        raise DataError(f"{path}: encoder weights do not match its config ({str(exc).splitlines()[0]})")
-    encoder.to(map_location)
-    encoder.eval()
-    return encoder, ckpt

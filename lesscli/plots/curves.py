@@ -20,7 +20,7 @@ import numpy as np
 from lesscli.errors import DataError
 from lesscli.io.records import read_jsonl
 from lesscli.plots.render import agg_figure
-from lesscli.plots.sweeps import save_png
+from lesscli.plots.sweeps import save_figure
 
 PANEL_IN = (5.0, 3.6)
 
@@ -71,7 +71,8 @@ def summary(run: Run) -> dict:
 
 
 def curves_figure(runs: Sequence[Run], path: str, title: str = "") -> None:
-    """Write the PNG of the runs' curves (see the module docstring) to ``path`` atomically."""
+    """Write the figure of the runs' curves (see the module docstring) to ``path`` atomically: PNG, or PDF /
+    SVG by the path's extension."""
     panels = [("loss", lambda r: [(r.series("train_loss"), "-", "train"), (r.series("val_loss"), "--", "val")])]
     if any(len(r.ratio()[0]) for r in runs):
         panels.append(("force error / mean baseline (val)", lambda r: [(r.ratio(), "--", "val")]))
@@ -98,7 +99,7 @@ def curves_figure(runs: Sequence[Run], path: str, title: str = "") -> None:
         ax.legend(fontsize="x-small")
     if title:
         fig.suptitle(title)
-    save_png(fig, path)
+    save_figure(fig, path)
 
 
 def plot_logs(paths: Sequence[str], output: str, labels: Sequence[str] = ()) -> list[dict]:

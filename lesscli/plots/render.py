@@ -3,7 +3,10 @@ truth | model A | model B ... for several imagers of the same scans.
 
 Images are drawn in phantom-frame millimetres (x right, y up). 3D volumes show a top view (the
 highest class code along depth, i.e. inclusion over pillar over insert; entropy averaged over
-depth) and slices through the inclusion and below it (where the pillar is). Figures are drawn with matplotlib's Agg
+depth) and slices through the inclusion and below it (where the pillar is). A prediction's colours
+fade towards white where it is uncertain (:meth:`ScanPrediction.confidence`: a near-uniform guess,
+such as an untrained model's, is almost white), and black dots mark where the pad touched (the
+pad's centre at the steps in contact, stored with the prediction). Figures are drawn with matplotlib's Agg
 canvas created inside each function (no global backend state).
 """
 
@@ -14,7 +17,7 @@ import math
 import numpy as np
 
 from lesscli.io.labels import CLASS_NAMES, INCLUSION
-from lesscli.io.predictions import ScanPrediction
+from lesscli.io.predictions import ScanPrediction, scan_numbers
 from lesscli.plots.palette import CLASS_RGBA
 
 PANEL_IN = 3.0          # panel side, inches
@@ -66,11 +69,43 @@ def _entropy(pred: ScanPrediction, sel) -> np.ndarray:
     return ent.mean(axis=0) if isinstance(sel, slice) else ent[sel]
 
 
-def _draw_labels(ax, codes: np.ndarray, ext: list[float]):
-    from matplotlib.colors import ListedColormap
+def _draw_labels(ax, codes: np.ndarray, ext: list[float], confidence: np.ndarray | None = None):
+    """Label codes in the class colours; with ``confidence`` (same shape, 0..1) each pixel's colour is
+    blended towards white by how uncertain it is, so a near-uniform guess shows faintly, not as a
+    confident image."""
+    rgb = CLASS_RGBA[np.asarray(codes, np.int64)][..., :3]
+    if confidence is not None:
+        rgb = 1.0 - np.clip(confidence, 0.0, 1.0)[..., None] * (1.0 - rgb)
+    ax.imshow(rgb, origin="lower", extent=ext, interpolation="nearest")
 
-    ax.imshow(codes, cmap=ListedColormap(CLASS_RGBA), vmin=-0.5, vmax=len(CLASS_RGBA) - 0.5, origin="lower",
-              extent=ext, interpolation="nearest")
+
+def _shown_confidence(pred: ScanPrediction, sel) -> np.ndarray:
+    """The confidence (ScanPrediction.confidence) of the voxel each pixel of the view shows: in a top
+    view the topmost voxel of the class drawn there (the highest code along depth)."""
+    conf = pred.confidence()
+    if not isinstance(sel, slice):
+        return conf[sel]
+    top = pred.label.max(axis=0)
+    k = np.argmax(pred.label == top[None], axis=0)
+    return np.take_along_axis(conf, k[None], axis=0)[0]
+
+
+TOUCH_STYLE = {"s": 9, "c": "black", "marker": ".", "linewidths": 0, "alpha": 0.7}
+
+
+def _draw_touches(ax, pred: ScanPrediction, ext: list[float]) -> None:
+    """Where the pad touched (its centre at the steps in contact), as small dots over the image."""
+    xy = pred.touch_xy_mm
+    if xy is None or not len(xy):
+        return
+    ax.scatter(xy[:, 0], xy[:, 1], label="pad touched", **TOUCH_STYLE)
+    ax.set_xlim(ext[0], ext[1])
+    ax.set_ylim(ext[2], ext[3])
+
+
+def _draw_prediction(ax, pred: ScanPrediction, sel, ext: list[float]) -> None:
+    _draw_labels(ax, _codes(pred.label, sel), ext, _shown_confidence(pred, sel))
+    _draw_touches(ax, pred, ext)
 
 
 def _draw_entropy(ax, ent: np.ndarray, ext: list[float], n_classes: int):
@@ -78,11 +113,20 @@ def _draw_entropy(ax, ent: np.ndarray, ext: list[float], n_classes: int):
                      interpolation="nearest")
 
 
-def _legend(fig) -> None:
+def _legend(fig, touches: bool = False) -> None:
+    from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
     handles = [Patch(facecolor=CLASS_RGBA[c], edgecolor="black", label=name) for c, name in enumerate(CLASS_NAMES)]
+    handles.append(Patch(facecolor=tuple(1 - 0.25 * (1 - CLASS_RGBA[INCLUSION][:3])), edgecolor="black",
+                         label="faint: uncertain"))
+    if touches:
+        handles.append(Line2D([], [], ls="", marker=".", color="black", label="pad touched"))
     fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), frameon=False)
+
+
+def _touched(*preds: ScanPrediction) -> bool:
+    return any(p.touch_xy_mm is not None and len(p.touch_xy_mm) for p in preds)
 
 
 def _label_axes(ax, row: int, col: int, rows: int) -> None:
@@ -109,13 +153,14 @@ def scan_figure(pred: ScanPrediction, path: str, title: str = "") -> str:
             _draw_labels(axes[r, 0], _codes(pred.truth, sel), ext)
         else:
             _blank(axes[r, 0], "no truth")
-        _draw_labels(axes[r, 1], _codes(pred.label, sel), ext)
+        _draw_prediction(axes[r, 1], pred, sel, ext)
         image = _draw_entropy(axes[r, 2], _entropy(pred, sel), ext, n_classes)
+        _draw_touches(axes[r, 2], pred, ext)
         for c, head in enumerate(("truth", "prediction", "uncertainty")):
             axes[r, c].set_title(f"{head}{' - ' + name if name else ''}", fontsize=9)
             _label_axes(axes[r, c], r, c, len(rows))
     fig.colorbar(image, ax=axes[:, 2].tolist(), label="entropy (nats)")
-    _legend(fig)
+    _legend(fig, _touched(pred))
     fig.suptitle(title)
     fig.savefig(path, format="png")
     return path
@@ -135,15 +180,16 @@ def strip_figure(preds: list[ScanPrediction], path: str, title: str = "") -> str
         axes[1, 0].set_axis_off()
     image = None
     for j, p in enumerate(preds, start=int(has_truth)):
-        _draw_labels(axes[0, j], _codes(p.label, top), ext)
+        _draw_prediction(axes[0, j], p, top, ext)
         image = _draw_entropy(axes[1, j], _entropy(p, top), ext, n_classes)
+        _draw_touches(axes[1, j], p, ext)
         axes[0, j].set_title(f"{p.steps} steps", fontsize=9)
         axes[1, j].set_title(f"uncertainty, mean {float(p.entropy.mean()):.2f} nats", fontsize=8)
     for r in range(2):
         for c in range(int(has_truth and r == 1), cols):
             _label_axes(axes[r, c], r, c, 2)
     fig.colorbar(image, ax=axes[1, :].tolist(), label="entropy (nats)")
-    _legend(fig)
+    _legend(fig, _touched(*preds))
     fig.suptitle(title)
     fig.savefig(path, format="png")
     return path
@@ -165,23 +211,21 @@ def compare_figure(preds: list[ScanPrediction], names: list[str], path: str, tit
         else:
             _blank(axes[r, 0], "no truth")
         for c, pred in enumerate(preds, start=1):
-            _draw_labels(axes[r, c], _codes(pred.label, sel), ext)
+            _draw_prediction(axes[r, c], pred, sel, ext)
         for c, head in enumerate(("truth", *names)):
             axes[r, c].set_title(f"{head}{' - ' + name if name else ''}", fontsize=9)
             _label_axes(axes[r, c], r, c, len(rows))
-    _legend(fig)
+    _legend(fig, _touched(*preds))
     fig.suptitle(title)
     fig.savefig(path, format="png")
     return path
 
 
 def group_scans(preds: list[ScanPrediction]) -> list[list[int]]:
-    """Indices of consecutive predictions of one scan (same insert and orientation, rising steps)."""
+    """Indices of the predictions of each scan (its prefixes in order; :func:`scan_numbers`)."""
     groups: list[list[int]] = []
-    for i, p in enumerate(preds):
-        last = preds[groups[-1][-1]] if groups else None
-        if last is not None and (last.insert, last.orientation) == (p.insert, p.orientation) and p.steps > last.steps:
-            groups[-1].append(i)
-        else:
-            groups.append([i])
+    for i, s in enumerate(scan_numbers(preds)):
+        if s == len(groups):
+            groups.append([])
+        groups[s].append(i)
     return groups

@@ -1,7 +1,8 @@
 """Figures of sweeps: a metric against pose noise (one line per angle level), accuracy against time
 (the trade-off's settings, the contact tiers of ``bench sim``) and F1 against touches (``bench guide``).
 
-Each function builds its own Agg canvas (no global backend state) and writes the PNG atomically.
+Each function builds its own Agg canvas (no global backend state) and writes the figure atomically, as a
+PNG, or a PDF or SVG where the path's extension says so (:func:`save_figure`).
 """
 
 from __future__ import annotations
@@ -18,40 +19,78 @@ LADDER_DPI = 120
 LADDER_STYLE = {"winkler": ("o", "tab:orange"), "green": ("s", "tab:blue"), "fem": ("^", "tab:green")}
 
 
-def save_png(fig, path: str, dpi: float | None = None) -> None:
-    """Write ``fig`` to ``path`` as a PNG atomically (at the figure's own dpi unless ``dpi`` is given)."""
-    with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi)
+FIGURE_FORMATS = ("png", "pdf", "svg")
+
+
+def figure_format(path: str) -> str:
+    """The format a figure path asks for by its extension (png, pdf or svg); png for ``-`` and for any
+    other name."""
+    ext = path.rsplit(".", 1)[-1].lower() if "." in path.rsplit("/", 1)[-1] else ""
+    return ext if ext in FIGURE_FORMATS else "png"
+
+
+def save_figure(fig, path: str, dpi: float | None = None) -> None:
+    """Write ``fig`` to ``path`` atomically in the format its extension names (:func:`figure_format`: a
+    vector PDF or SVG for ``.pdf`` / ``.svg``, else a PNG at the figure's own dpi unless ``dpi`` is given)."""
+    import matplotlib
+
+    fmt = figure_format(path)
+    metadata = {"pdf": {"CreationDate": None}, "svg": {"Date": None}}.get(fmt)     # no clock time inside
+    with atomic_path(path, "." + fmt) as tmp, matplotlib.rc_context({"svg.hashsalt": "less"}):  # nor random ids
+        fig.savefig(tmp, format=fmt, dpi=dpi, **({"metadata": metadata} if metadata else {}))
+
 
 
 def _num(value) -> float:
     return float("nan") if value is None else float(value)
 
 
+NOISE_MARKERS = "osD^v<>pP*Xh"
+NOISE_STYLES = ("-", "--", "-.", ":")
+DODGE_SHARE = 0.012             # lines of the angle levels shifted apart along x by this share of the axis
+
+
 def noise_figure(rows: Sequence[Mapping], path: str, metric: str = "f1", title: str = "") -> None:
     """Metric vs position-noise sigma, one line per angle sigma, error bars = std over repeats.
 
+    F1 is drawn in percent on the full 0-100 % axis, so a change of a few points looks like one and not
+    like a collapse; each angle level has its own marker and line style and is shifted a little along x,
+    so lines that coincide (robust cells) stay visible side by side.
+
     Args:
         rows: sweep rows with ``pos_mm``, ``ang_rad``, ``<metric>`` and ``<metric>_std``.
-        path: output PNG.
+        path: output figure (PNG, PDF or SVG by its extension).
         metric: the plotted key (F1 values in [0, 1] are drawn in percent).
         title: figure title.
     """
     fig = agg_figure(FIGSIZE_IN)
     ax = fig.add_subplot(1, 1, 1)
-    scale = 100.0 if metric.startswith("f1") else 1.0
-    for ang in sorted({float(r["ang_rad"]) for r in rows}):
+    is_f1 = metric.startswith("f1")
+    scale = 100.0 if is_f1 else 1.0
+    angles = sorted({float(r["ang_rad"]) for r in rows})
+    xs = [float(r["pos_mm"]) for r in rows]
+    span = (max(xs) - min(xs)) if xs else 0.0
+    dodge = DODGE_SHARE * (span or 1.0)
+    top = 0.0
+    for i, ang in enumerate(angles):
         line = sorted((r for r in rows if float(r["ang_rad"]) == ang), key=lambda r: float(r["pos_mm"]))
-        x = np.array([float(r["pos_mm"]) for r in line])
+        x = np.array([float(r["pos_mm"]) for r in line]) + (i - (len(angles) - 1) / 2) * dodge
         y = np.array([_num(r.get(metric)) for r in line]) * scale
         err = np.nan_to_num(np.array([_num(r.get(f"{metric}_std")) for r in line]), nan=0.0) * scale
-        ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=f"{ang:g} rad")
+        ax.errorbar(x, y, yerr=err, marker=NOISE_MARKERS[i % len(NOISE_MARKERS)], capsize=3, alpha=0.85,
+                    ls=NOISE_STYLES[i % len(NOISE_STYLES)], markerfacecolor="none", label=f"{ang:g} rad")
+        finite = y[np.isfinite(y)]
+        top = max(top, float((finite + err[np.isfinite(y)]).max()) if finite.size else 0.0)
+    if is_f1:
+        ax.set_ylim(0.0, 100.0)
+    else:
+        ax.set_ylim(0.0, top * 1.1 if top > 0 else 1.0)           # errors from zero, not zoomed in
     ax.set_xlabel("position noise sigma (x, y, z), mm")
     ax.set_ylabel(f"{metric} (%)" if scale != 1.0 else metric)
     ax.legend(title="angle noise sigma", fontsize="small")
     ax.grid(alpha=0.3)
     ax.set_title(title or "Pose-noise robustness (phantom frame, i.i.d. Gaussian)")
-    save_png(fig, path)
+    save_figure(fig, path)
 
 
 def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
@@ -100,7 +139,7 @@ def pareto_figure(rows: Sequence[Mapping], path: str, time_key: str = "train_s",
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize="small")
     fig.suptitle(title or "Accuracy against time")
-    save_png(fig, path)
+    save_figure(fig, path)
 
 
 def line_figure(rows: Sequence[Mapping], path: str, x_key: str, y_keys: Sequence[str], xlabel: str,
@@ -122,7 +161,7 @@ def line_figure(rows: Sequence[Mapping], path: str, x_key: str, y_keys: Sequence
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small")
     ax.set_title(title)
-    save_png(fig, path)
+    save_figure(fig, path)
 
 
 def touches_figure(path: str, means: Mapping[str, Sequence[tuple[int, float]]], title: str) -> None:
@@ -141,7 +180,7 @@ def touches_figure(path: str, means: Mapping[str, Sequence[tuple[int, float]]], 
     ax.set_ylabel("inclusion F1 (mean over phantoms and seeds)")
     ax.set_title(title)
     ax.legend()
-    save_png(fig, path)
+    save_figure(fig, path)
 
 
 def ladder_figure(rows: Sequence[Mapping], path: str) -> None:
@@ -164,4 +203,4 @@ def ladder_figure(rows: Sequence[Mapping], path: str) -> None:
     ax.legend(uniq.values(), uniq.keys())
     ax.set(xscale="log", yscale="log", xlabel="time per step (ms)", ylabel="relative error",
            title="contact tiers: accuracy vs time")
-    save_png(fig, path, dpi=LADDER_DPI)
+    save_figure(fig, path, dpi=LADDER_DPI)

@@ -7,11 +7,12 @@ is byte-identical whether it is computed alone, in a shard, or by any worker of 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import multiprocessing
+import signal
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -118,12 +119,42 @@ def simulate(scene: Scene, jobs: int = 1, shard: tuple[int, int] = (0, 1),
         stages = compile_pipeline(scene)
         parts = [simulate_scan(scene, job, stages) for job in wrap(todo, total=len(todo))]
     else:
-        methods = multiprocessing.get_all_start_methods()
-        ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-            list(pool.map(_prepare_worker, [(scene, p) for p in contact_phantoms(scene, todo)]))
-            parts = list(wrap(pool.map(_worker, [(scene, job) for job in todo]), total=len(todo)))
+        with worker_pool(jobs) as pool:
+            pool.map(_prepare_worker, [(scene, p) for p in contact_phantoms(scene, todo)])
+            parts = list(wrap(pool.imap(_worker, [(scene, job) for job in todo]), total=len(todo)))
     return assemble(scene, parts, shard)
+
+
+def _ignore_interrupt() -> None:
+    """Worker start: Ctrl-C (SIGINT, sent to the whole process group) is the parent's to handle; the
+    workers are stopped by it, so they neither print a traceback nor die half-way through a reply."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+@contextlib.contextmanager
+def worker_pool(jobs: int):
+    """A pool of ``jobs`` worker processes (forked where the platform can) that ignore Ctrl-C. On any
+    exception in the block, Ctrl-C included, the workers are terminated at once, not waited for, so
+    an interrupted run ends promptly (exit 130) instead of hanging on a half-finished pool."""
+    methods = multiprocessing.get_all_start_methods()
+    ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
+    blocked = hasattr(signal, "pthread_sigmask")
+    if blocked:            # a Ctrl-C while the workers start waits until they ignore it, then reaches us
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        pool = ctx.Pool(jobs, initializer=_ignore_interrupt if blocked else None)
+    finally:
+        if blocked:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    try:
+        yield pool
+    except BaseException:
+        pool.terminate()
+        pool.join()
+        raise
+    pool.close()
+    pool.join()
 
 
 def scene_meta(scene: Scene, parts: list[ScanPart], shard: tuple[int, int]) -> dict:

@@ -78,13 +78,24 @@ _RULES = [("model.dim", lambda v: v >= 1, ">= 1"), ("model.spacing_mm", lambda v
           ("model.map_cells", lambda v: v >= 1, ">= 1"), ("model.map_pitch_mm", lambda v: v > 0, "> 0")]
 
 
+class SettingError(LessError):
+    """A setting out of range or unknown: ``key`` (``section.field``) holds ``value``, which must be ``need``.
+
+    The command line tells where the value came from (an option or ``--set``: a usage error; a
+    ``--config`` file: a data error naming the file)."""
+
+    def __init__(self, key: str, value, need: str) -> None:
+        super().__init__(f"setting {key} = {value!r} is invalid: must be {need}")
+        self.key, self.value, self.need = key, value, need
+
+
 def check_rules(cfg, rules) -> None:
-    """Raise LessError naming the first setting of ``cfg`` that breaks ``rules`` ((key, ok, need) tuples)."""
+    """Raise SettingError naming the first setting of ``cfg`` that breaks ``rules`` ((key, ok, need) tuples)."""
     for key, ok, need in rules:
         section, name = key.split(".")
         value = getattr(getattr(cfg, section), name)
         if not ok(value):
-            raise LessError(f"setting {key} = {value!r} is invalid: must be {need}")
+            raise SettingError(key, value, need)
 
 
 def check_sections(cfg, sections: tuple[str, ...]):
@@ -94,8 +105,15 @@ def check_sections(cfg, sections: tuple[str, ...]):
 
 
 def check_pretrain_config(cfg: PretrainConfig) -> PretrainConfig:
-    """Raise LessError naming the first out-of-range setting."""
+    """Raise SettingError naming the first out-of-range setting or an unknown encoder."""
+    from lesscli.errors import closest
+    from lesscli.models.registry import ENCODERS
+
     check_rules(cfg, _RULES)
+    if cfg.model.name not in ENCODERS:
+        hint = closest(cfg.model.name, ENCODERS)
+        raise SettingError("model.name", cfg.model.name, f"one of {', '.join(sorted(ENCODERS))}"
+                           + (f" (did you mean '{hint}'?)" if hint else ""))
     return cfg
 
 

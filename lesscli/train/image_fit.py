@@ -26,10 +26,11 @@ from lesscli.io.predictions import Labelling
 from lesscli.io.scans import ScanSet
 from lesscli.models.imager import DECODERS, DEFAULT_DECODER, Imager, grid_to_dict
 from lesscli.models.imaging_loss import ALPHA_POWER, DICE_PER, GAMMA, LAMBDA, imaging_loss
-from lesscli.models.registry import build_decoder, load_representation, lookup
+from lesscli.models.registry import build_decoder, lookup
 from lesscli.train import distributed
-from lesscli.train.config import LoopConfig, check_rules, to_dict
+from lesscli.train.config import LoopConfig, SettingError, check_rules, to_dict
 from lesscli.train.loop import FitResult, data_identity, fit
+from lesscli.train.representation import load_representation
 from lesscli.train.state_cache import CachedImager, cache_states, collate_states
 from lesscli.train.watch import Watch
 
@@ -84,7 +85,8 @@ def check_config(cfg: ImageFitConfig) -> ImageFitConfig:
     """Raise LessError naming the first out-of-range setting."""
     check_rules(cfg, _RULES)
     if cfg.image.decoder and cfg.image.decoder not in DECODERS:
-        lookup(DECODERS, cfg.image.decoder, "decoder")
+        raise SettingError("image.decoder", cfg.image.decoder, f"one of {', '.join(sorted(DECODERS))} "
+                           "(or unset: the encoder's own)")
     return cfg
 
 

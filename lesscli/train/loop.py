@@ -12,7 +12,8 @@ Files (rank 0 only): ``output`` holds the best model so far (by validation loss,
 score such as the imaging F1 with ties broken by the loss; by training loss when there is no
 validation set) and is rewritten with the full history at the end;
 ``<stem>.last.pt`` holds the latest epoch with optimizer and schedule state for ``resume=True``
-(random streams are keyed by seed, epoch and rank, so a resumed run draws as an uninterrupted one); ``<stem>.log.jsonl`` gets one JSON line per epoch. Parameters with
+(random streams are keyed by seed, epoch and rank, so a resumed run draws as an uninterrupted one); ``<stem>.log.jsonl`` gets one JSON line per epoch
+(with its wall-clock ``seconds``, which the checkpoints leave out: see :func:`timeless`). Parameters with
 ``requires_grad=False`` (a frozen representation) are not optimised.
 """
 
@@ -40,12 +41,19 @@ LossFn = Callable[[nn.Module, object, torch.Generator], torch.Tensor]
 # val_fn(model, loader, device) -> (mean loss, score or None): one pass over the validation set
 ValFn = Callable[[nn.Module, object, torch.device], tuple[float, float | None]]
 EVAL_SEED = 20_251_120          # validation draws use a fixed stream so epochs are comparable
+CLOCK_KEYS = ("seconds",)       # epoch-record keys measured by the clock: in the log, never in a checkpoint
 RESUME_FREE = {"epochs", "device", "num_workers"}   # settings a resumed run may change
 
 
 def _stream_seed(seed: int, epoch: int, stream: int) -> int:
     """A 63-bit seed for one (run seed, epoch, stream) triple."""
     return int.from_bytes(hashlib.blake2b(f"{seed}/{epoch}/{stream}".encode(), digest_size=8).digest(), "big") >> 1
+
+
+def timeless(history: list[dict]) -> list[dict]:
+    """``history`` without the wall-clock figures (:data:`CLOCK_KEYS`), as checkpoints store it: a rerun
+    that computes the same weights writes the same checkpoint bytes (the log keeps the timings)."""
+    return [{k: v for k, v in h.items() if k not in CLOCK_KEYS} for h in history]
 
 
 def _strip(config):
@@ -257,20 +265,20 @@ class _Trainer:
             return
         if improved:
             save_checkpoint(self.output, self.result.best_state, info["config"], info["norm_stats"],
-                            [*info.get("history", []), *self.result.history], info.get("extra"))
+                            [*info.get("history", []), *timeless(self.result.history)], info.get("extra"))
             self.saved_any = True
         extra = {"optimizer": self.opt.state_dict(), "scheduler": self.sched.state_dict(), "epoch": epoch,
                  "step": self.step, "best_epoch": self.result.best_epoch, "best_loss": self.result.best_loss,
                  "best_score": self.result.best_score, "data": info.get("data")}
         save_checkpoint(self.last_path, self.raw.state_dict(), info["config"], info["norm_stats"],
-                        self.result.history, extra)
+                        timeless(self.result.history), extra)
 
     def finish(self) -> None:
         """Rewrite the best checkpoint with the whole history (rank 0)."""
         info = self.ckpt_info
         if self.env.is_main and self.result.best_state is not None:
             save_checkpoint(self.output, self.result.best_state, info["config"], info["norm_stats"],
-                            [*info.get("history", []), *self.result.history],
+                            [*info.get("history", []), *timeless(self.result.history)],
                             {**(info.get("extra") or {}), "best_epoch": self.result.best_epoch + 1,
                              "best_loss": self.result.best_loss})
         distributed.barrier(self.env)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import glob
 import json
+import math
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -68,20 +69,30 @@ def read_timestamps(path: str, names: list[str]) -> np.ndarray:
             if not parts or parts[0].startswith("#"):
                 continue
             try:
-                if len(parts) == 1:
-                    plain.append(float(parts[0]))
-                else:
-                    by_name[parts[0]] = float(parts[1])
+                value = float(parts[0] if len(parts) == 1 else parts[1])
             except ValueError:
                 raise DataError(f"{path}: line {number} is not 'TIME' or 'NAME TIME' in seconds") from None
+            if not math.isfinite(value):
+                raise DataError(f"{path}: line {number}: the time is {parts[-1]!r}; times must be finite seconds")
+            if len(parts) == 1:
+                plain.append(value)
+            else:
+                by_name[parts[0]] = value
     if by_name:
         missing = [n for n in names if n not in by_name]
         if missing:
             raise DataError(f"{path}: no time for image '{missing[0]}' ({len(missing)} images without a time)")
-        return np.array([by_name[n] for n in names])
-    if len(plain) != len(names):
+        times = np.array([by_name[n] for n in names])
+    elif len(plain) != len(names):
         raise DataError(f"{path}: {len(plain)} times for {len(names)} images")
-    return np.array(plain)
+    else:
+        times = np.array(plain)
+    back = np.flatnonzero(np.diff(times) <= 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise DataError(f"{path}: image '{names[i]}' has time {times[i]:g} s, not after '{names[i - 1]}' "
+                        f"({times[i - 1]:g} s); times must rise in the images' name order")
+    return times
 
 
 def _image_frames(folder: str, fps: float | None) -> Iterator[Frame]:

@@ -8,6 +8,7 @@ import pytest
 from matplotlib.figure import Figure
 from matplotlib.image import imread
 
+from lesscli.errors import OutputError
 from lesscli.plots.sweeps import ladder_figure, touches_figure
 
 MEANS = {"guided": [(3, 0.1), (6, 0.5)], "raster": [(3, 0.2), (6, 0.4)]}
@@ -47,6 +48,6 @@ def test_a_failed_figure_leaves_no_file(tmp_path, monkeypatch, draw):
         raise OSError("disk full")
 
     monkeypatch.setattr(Figure, "savefig", half_written)
-    with pytest.raises(OSError, match="disk full"):
-        draw(str(tmp_path / "out.png"))
+    with pytest.raises(OutputError, match=r"out.png: cannot write it \(disk full\); nothing was written"):
+        draw(str(tmp_path / "out.png"))                         # one line naming the figure, not a bare OSError
     assert os.listdir(tmp_path) == []

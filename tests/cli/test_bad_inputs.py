@@ -313,6 +313,18 @@ PRED_CASES = {
     "scan_orientation one short": _put("scan_orientation", lambda s: s[:1]),
     "scan_steps fractional": _put("scan_steps", lambda s: s + 0.5),
     "scan_steps one short": _put("scan_steps", lambda s: s[:1]),
+    # the optional keys: which scan each image is, where the pad touched
+    "scan_index decreasing": lambda a: a.__setitem__("scan_index", np.array([1, 0])),
+    "scan_index negative": lambda a: a.__setitem__("scan_index", np.array([-1, 0])),
+    "scan_index one short": lambda a: a.__setitem__("scan_index", np.array([0])),
+    "scan_index fractional": lambda a: a.__setitem__("scan_index", np.array([0.5, 1.0])),
+    "touch_count negative": lambda a: a.update(touch_count=np.array([-1, 1]), touch_xy_mm=np.zeros((0, 2))),
+    "touch_count one short": lambda a: a.update(touch_count=np.array([1]), touch_xy_mm=np.zeros((1, 2))),
+    "touch_count without touch_xy_mm": lambda a: a.__setitem__("touch_count", np.array([0, 0])),
+    "touch_xy_mm without touch_count": lambda a: a.__setitem__("touch_xy_mm", np.zeros((0, 2))),
+    "touch_xy_mm NaN": lambda a: a.update(touch_count=np.array([1, 1]), touch_xy_mm=np.array([[0, np.nan], [1, 1]])),
+    "touch_xy_mm fewer than counted": lambda a: a.update(touch_count=np.array([2, 1]), touch_xy_mm=np.zeros((2, 2))),
+    "touch_xy_mm 3 columns": lambda a: a.update(touch_count=np.array([1, 0]), touch_xy_mm=np.zeros((1, 3))),
 }
 
 
@@ -411,6 +423,8 @@ CKPT_CASES = {
     "norm_stats without std": lambda p: torch.save(_ckpt(norm_stats={"force_mean": [0.0]}), p),
     "not an imager": lambda p: torch.save(_ckpt(), p),
     "a representation": lambda p: make_representation(str(p), random_scanset(), dim=8),
+    "weights NaN": lambda p: torch.save(_ckpt(model_state={"w": torch.tensor([0.0, float("nan")])}), p),
+    "weights inf": lambda p: torch.save(_ckpt(model_state={"w": torch.tensor([float("-inf")])}), p),
 }
 
 
@@ -436,6 +450,9 @@ IMAGER_CASES = {
     "config encoder.dim a string": lambda c: c["config"]["encoder"].__setitem__("dim", "a"),
     "config decoder a list": lambda c: c["config"].__setitem__("decoder", [1]),
     "weights of another shape": lambda c: c["model_state"].__setitem__(next(iter(c["model_state"])), torch.zeros(1)),
+    "weights NaN (a diverged run)": lambda c: c["model_state"].__setitem__(
+        next(k for k, v in c["model_state"].items() if v.is_floating_point()),
+        torch.full_like(next(v for v in c["model_state"].values() if v.is_floating_point()), float("nan"))),
 }
 
 
@@ -446,7 +463,19 @@ def test_bad_imager_checkpoint(capsys, in_tmp, models, case, command):
     _imager_with(models, IMAGER_CASES[case])(in_tmp / "model.pt")
     args = {"image predict": ["image", "predict", "model.pt", "data.npz", "-o", "pred.npz"],
             "stream": ["stream", "model.pt", "data.npz"], "guide": ["guide", "model.pt", "data.npz"]}[command]
-    fails_clearly(capsys, in_tmp, args, "model.pt")
+    line = fails_clearly(capsys, in_tmp, args, "model.pt")
+    assert "pred.npz" not in line and "data.npz" not in line         # the checkpoint is to blame, not its output
+
+
+def test_a_live_pose_of_true_and_false_is_named_through_a_pipe(run_less, models):
+    good = {"t": 0.0, "pose": [0.0] * 6, "force": GOOD_FORCE}
+    lines = [good, {**good, "t": 0.1, "pose": [True, 0, 0, 0, 0, 0]}, {**good, "t": 0.2}]
+    text = "".join(json.dumps(line) + "\n" for line in lines).encode()
+    proc = run_less("stream", models / "imager.pt", "-", "--on-error", "stop", input=text)
+    err = proc.stderr.decode().strip().splitlines()           # the latency summary of the one good sample, then:
+    assert proc.returncode == 1 and err[-1] == ("less: error: -: line 2: 'pose' holds true/false; it must be a list "
+                                                "of numbers; stopping (--on-error stop)"), err
+    assert sum("error" in line for line in err) == 1 and proc.stdout.decode().count("\n") <= 1
 
 
 @pytest.mark.parametrize("command", ["image predict", "stream", "guide", "noise-sweep"])
@@ -574,6 +603,9 @@ LIVE_CASES = {
     "t true": (json.dumps({"t": True, "pose": [0] * 6, "force": GOOD_FORCE}), "'t' must be"),
     "t back in time": (json.dumps({"t": 0.5, "pose": [0] * 6, "force": GOOD_FORCE}), "goes back in time"),
     "not UTF-8": (b'{"pose": "\xff\xfe"}', "not UTF-8"),
+    "pose true": (json.dumps({"pose": [True, 0, 0, 0, 0, 0], "force": GOOD_FORCE}), "'pose' holds true/false"),
+    "pose all false": (json.dumps({"pose": [False] * 6, "force": GOOD_FORCE}), "'pose' holds true/false"),
+    "force true": (json.dumps({"pose": [0] * 6, "force": [[0, 0, True]] + GOOD_FORCE[1:]}), "'force' holds true/false"),
 }
 
 
@@ -660,6 +692,31 @@ def test_pose_track_with_no_readable_frame_fails(capsys, in_tmp):
     line = fails_clearly(capsys, in_tmp, ["pose", "track", "frames", "--camera", "c.json", "--fps", "30",
                                           "-o", "p.jsonl"], "frames")
     assert "none of the 3 frames could be read" in line
+
+
+CAMERA = {"fx": 900, "fy": 900, "cx": 320, "cy": 240, "width": 640, "height": 480, "dist": [0, 0, 0, 0, 0]}
+TIMESTAMP_CASES = {"a NaN time": "0.0\nnan\n0.2\n", "an infinite time": "0.0\n0.1\ninf\n",
+                   "a NaN time by name": "f0.png 0.0\nf1.png NaN\nf2.png 0.2\n",
+                   "times going back": "0.0\n0.2\n0.1\n", "a repeated time": "0.0\n0.1\n0.1\n"}
+
+
+@pytest.mark.parametrize("case", sorted(TIMESTAMP_CASES))
+def test_pose_track_refuses_timestamps_that_are_not_rising_finite_seconds(capsys, in_tmp, case):
+    (in_tmp / "frames").mkdir()
+    for i in range(3):
+        (in_tmp / "frames" / f"f{i}.png").write_bytes(b"not a png")
+    (in_tmp / "frames" / "timestamps.txt").write_text(TIMESTAMP_CASES[case])
+    (in_tmp / "c.json").write_text(json.dumps(CAMERA))
+    fails_clearly(capsys, in_tmp, ["pose", "track", "frames", "--camera", "c.json", "-o", "p.jsonl"], "timestamps.txt")
+
+
+@pytest.mark.parametrize("rate", ["nan", "inf", "0", "-30"])
+def test_pose_track_refuses_a_frame_rate_that_is_not_a_positive_number(capsys, in_tmp, rate):
+    (in_tmp / "frames").mkdir()
+    (in_tmp / "c.json").write_text(json.dumps(CAMERA))
+    with pytest.raises(SystemExit) as exc:
+        main(["pose", "track", "frames", "--camera", "c.json", "-o", "p.jsonl", "--fps", rate])
+    assert exc.value.code == 2 and "'--fps'" in capsys.readouterr().err and not (in_tmp / "p.jsonl").exists()
 
 
 def test_resume_on_other_data_is_refused(capsys, in_tmp):

@@ -215,3 +215,46 @@ def test_show_picks_the_tables_metrics_in_order(run_less, tmp_path):
     assert typo.returncode == 2 and b"did you mean 'com_error_mm_3d'" in typo.stderr and not typo.stdout
     as_json = run_less("metrics", paths[0], "--show", "f1_3d", "--format", "jsonl")
     assert as_json.returncode == 2 and b"keeps every metric" in as_json.stderr
+
+
+def _prefix_file(path, record_scans: bool):
+    """Two scans imaged at 3 prefixes each (image predict --steps 3): early prefixes far off (shifted 6
+    voxels), the whole scan 1 voxel off; ``record_scans`` stores which scan each image is."""
+    images = []
+    for s in range(2):
+        truth = _truth((-2.0, 1.0 * s, -1.0))
+        for steps, shift in ((4, 6), (8, 6), (12, 1)):
+            images.append(ScanPrediction(probs=_onehot(np.roll(truth.data, shift, axis=2)), origin_mm=truth.origin_mm,
+                                         spacing_mm=truth.spacing_mm, truth=truth.data, insert=f"St1{s}C5",
+                                         orientation=0, steps=steps, scan=s if record_scans else -1))
+    save_predictions(str(path), PredictionSet(images, {"dim": 3, "model": "less"}))
+    return path
+
+
+@pytest.mark.parametrize("record_scans", [True, False], ids=["recorded", "told by order"])
+def test_a_steps_file_is_scored_on_whole_scans_not_on_each_prefix(run_less, tmp_path, record_scans):
+    _prefix_file(tmp_path / "steps.npz", record_scans)
+    whole = write_preds(tmp_path / "whole.npz", [1, 1])
+    proc = run_less("metrics", "steps.npz", "--format", "jsonl")
+    assert proc.returncode == 0, proc.stderr.decode()
+    rows = jsonl(proc)
+    scans = [r for r in rows if r["row"] == "scan"]
+    assert [(r["scan"], r["steps"]) for r in scans] == [(0, 12), (1, 12)]
+    summary = next(r for r in rows if r["row"] == "file")
+    expected = next(r for r in jsonl(run_less("metrics", whole.name, "--format", "jsonl")) if r["row"] == "file")
+    assert summary["f1_3d_n"] == 2 and summary["f1_micro_3d"] == pytest.approx(expected["f1_micro_3d"])
+    assert "steps.npz: 6 images of 2 scans (prefixes from image predict --steps/--every); each scan is scored " \
+           "once, on its whole sequence" in proc.stderr.decode()
+
+
+def test_image_predict_steps_then_metrics_counts_the_scans(run_less, tmp_path):
+    from imaging_factory import save_tiny_imager
+
+    save_tiny_imager(str(tmp_path / "im.pt"))
+    save_scans(str(tmp_path / "s.npz"), random_scanset(n_scans=2, traj_per_scan=2, max_len=8, seed=3))
+    assert run_less("image", "predict", "im.pt", "s.npz", "-o", "p.npz", "--steps", "3").returncode == 0
+    proc = run_less("metrics", "p.npz", "--format", "jsonl")
+    assert proc.returncode == 0, proc.stderr.decode()
+    assert [r["scan"] for r in jsonl(proc) if r["row"] == "scan"] == [0, 1]
+    info = json.loads(run_less("info", "p.npz", "--format", "jsonl").stdout)
+    assert (info["scans"], info["images"]) == (2, 6)

@@ -49,7 +49,7 @@ def test_simulate_overrides_and_errors(run_less, tmp_path):
     assert missing.returncode == 1 and b"nope.toml: no such scene file" in missing.stderr
 
 
-def test_jobs_default_to_the_free_cores_at_most_one_a_scan(tmp_path, monkeypatch):
+def test_jobs_default_to_the_cores_at_most_one_a_scan_and_follow_the_load_only_when_asked(tmp_path, monkeypatch):
     from click.testing import CliRunner
 
     from lesscli import threads
@@ -57,17 +57,21 @@ def test_jobs_default_to_the_free_cores_at_most_one_a_scan(tmp_path, monkeypatch
 
     (tmp_path / "tiny.toml").write_text(TINY_SCENE)
     monkeypatch.setattr(threads, "usable_cores", lambda: 3)
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     runs = {}
-    for load, orientations in ((0.0, "[0]"), (0.0, "[0, 4]"), (2.2, "[0]")):
+    for load, orientations, jobs in ((0.0, "[0]", []), (0.0, "[0, 4]", []), (2.2, "[0]", []),
+                                     (2.2, "[0]", ["--jobs", "auto"]), (2.2, "[0, 4]", ["--jobs", "auto"])):
         monkeypatch.setattr(threads, "other_load", lambda starting=0.0, load=load: load + starting)
         res = CliRunner().invoke(cli, ["simulate", str(tmp_path / "tiny.toml"), "-o", str(tmp_path / "x.npz"),
                                        "--set", f"phantoms.orientations={orientations}", "--set", "motion.n_traj=1",
-                                       "--format", "jsonl"])
+                                       "--format", "jsonl", *jobs])
         assert res.exit_code == 0, res.output
-        record = json.loads(res.output.strip().splitlines()[-1])
-        runs[load, orientations] = (record["scans"], record["jobs"], record["threads"])
-    # three free cores: a worker each, but never more workers than scans; one free core (load 2.2): one worker
-    assert runs == {(0.0, "[0]"): (2, 2, 1), (0.0, "[0, 4]"): (4, 3, 1), (2.2, "[0]"): (2, 1, 1)}
+        record = json.loads(res.stdout.strip().splitlines()[-1])
+        runs[load, orientations, bool(jobs)] = (record["scans"], record["jobs"], record["threads"])
+    # three cores: a worker each, but never more workers than scans, whatever the load; --jobs auto: one
+    # free core (load 2.2), one worker
+    assert runs == {(0.0, "[0]", False): (2, 2, 1), (0.0, "[0, 4]", False): (4, 3, 1),
+                    (2.2, "[0]", False): (2, 2, 1), (2.2, "[0]", True): (2, 1, 1), (2.2, "[0, 4]", True): (4, 1, 1)}
 
 
 def test_thread_limit_reaches_the_blas_that_scipy_loads_later():

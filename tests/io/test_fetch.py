@@ -26,6 +26,7 @@ class Archive(http.server.BaseHTTPRequestHandler):
     files: typing.ClassVar[dict] = {}
     served: typing.ClassVar[dict] = {}
     cut: typing.ClassVar[set] = set()
+    whole: typing.ClassVar[set] = set()     # files whose range requests get the whole file (200) anyway
     log: typing.ClassVar[list] = []
 
     def log_message(self, *args):          # keep the test output clean
@@ -40,6 +41,7 @@ class Archive(http.server.BaseHTTPRequestHandler):
             return self._send(404, b"not found", "text/plain")
         data = self.served.get(name, self.files[name])
         start = int(self.headers["Range"].removeprefix("bytes=").rstrip("-")) if self.headers.get("Range") else 0
+        start = 0 if name in self.whole else start
         if start:
             self.send_response(206)
             self.send_header("Content-Range", f"bytes {start}-{len(data) - 1}/{len(data)}")
@@ -80,7 +82,7 @@ def archive(tmp_path):
     Archive.records = {GOOD: {"id": int(GOOD), "files": [_entry(base, "dataset_poke.zip", zipped)]},
                        CORRUPT: {"id": int(CORRUPT), "files": [_entry(base, "bad.zip", zipped)]},
                        DEAD: {"id": int(DEAD), "files": [_entry(base, "gone.zip", b"x")]}}
-    Archive.cut, Archive.log = {"dataset_poke.zip"}, []
+    Archive.cut, Archive.whole, Archive.log = {"dataset_poke.zip"}, set(), []
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
     yield base, zipped
@@ -97,7 +99,9 @@ def test_fetch_resumes_a_broken_transfer_and_the_archive_imports(archive, run_le
     assert row["status"] == "resumed" and row["bytes"] == len(zipped) and row["record"] == GOOD
     gets = [rng for path, rng in Archive.log if path == "/files/dataset_poke.zip"]
     assert gets == [None, f"bytes={len(zipped) // 2}-"]            # whole file, then the rest only
-    assert "100%" in proc.stderr.decode()                            # the byte progress bar (-v on a pipe)
+    err = proc.stderr.decode()                                       # the byte progress in a log (a pipe):
+    assert "dataset_poke.zip: 523.6 KiB/523.6 KiB (100 %)" in err      # plain lines, no cursor codes
+    assert "\r" not in err and "\x1b" not in err
     again = run_less("fetch", GOOD, "-o", tmp_path / "data", "--base-url", base, check=True)
     assert json.loads(again.stdout)["status"] == "present" and len(gets) == 2 == len(
         [p for p, _ in Archive.log if p == "/files/dataset_poke.zip"])
@@ -118,10 +122,31 @@ def test_fetch_continues_a_part_left_by_an_earlier_run(archive, run_less, tmp_pa
 
 def test_corrupt_file_is_refused_with_one_line_and_nothing_left(archive, run_less, tmp_path):
     base, _ = archive
-    proc = run_less("fetch", CORRUPT, "-o", tmp_path / "data", "--base-url", base)
+    proc = run_less("-q", "fetch", CORRUPT, "-o", tmp_path / "data", "--base-url", base)
     err = proc.stderr.decode().strip().splitlines()
     assert proc.returncode == 1 and len(err) == 1 and "bad.zip: checksum mismatch" in err[0]
+    # sent whole in one transfer: fetching again would give the same bytes, and the line says so
+    assert "one whole transfer" in err[0] and "run again" not in err[0]
     assert list((tmp_path / "data").iterdir()) == []
+
+
+def test_a_mismatch_of_a_joined_download_says_a_fresh_fetch_may_help(archive, run_less, tmp_path):
+    base, _ = archive
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "bad.zip.part").write_bytes(b"stale bytes of another version")
+    proc = run_less("fetch", CORRUPT, "-o", tmp_path / "data", "--base-url", base)
+    err = [line for line in proc.stderr.decode().strip().splitlines() if "%)" not in line]   # not progress
+    assert proc.returncode == 1 and len(err) == 1 and "joined from 2 transfers" in err[0] and "fresh" in err[0]
+    assert list((tmp_path / "data").iterdir()) == []
+
+
+def test_a_server_that_resends_the_whole_file_is_downloaded_not_resumed(archive, run_less, tmp_path):
+    base, zipped = archive
+    Archive.whole = {"dataset_poke.zip"}              # the first transfer breaks off; the retry gets 200
+    proc = run_less("fetch", GOOD, "-o", tmp_path / "data", "--base-url", base, check=True)
+    assert json.loads(proc.stdout)["status"] == "downloaded"
+    assert (tmp_path / "data" / "dataset_poke.zip").read_bytes() == zipped
+    assert [r for p, r in Archive.log if p.startswith("/files/")] == [None, f"bytes={len(zipped) // 2}-"]
 
 
 def test_dead_link_and_unknown_record_are_one_line_errors(archive, run_less, tmp_path):

@@ -48,7 +48,13 @@ def test_cli_glb_from_nifti_has_a_node_per_class(tmp_path, run_less, sphere):
     scene = trimesh.load(str(tmp_path / "s.glb"))
     assert sorted(scene.graph.nodes_geometry) == ["inclusion", "insert"]
     inc = scene.geometry["inclusion"]
-    assert inc.volume == pytest.approx(rows[1]["volume_mm3"], rel=1e-4)
+    # glTF means metres with +Y up: the 12 mm sphere is 0.012 m across, its centre (x, y, z) = (-3, 2, -11) mm
+    # at (x, z, -y) = (-0.003, -0.011, -0.002) m, and its normals still point outward (positive volume)
+    assert inc.volume == pytest.approx(rows[1]["volume_mm3"] * 1e-9, rel=1e-4) and inc.volume > 0
+    assert inc.extents == pytest.approx([2 * RADIUS_MM * 1e-3] * 3, rel=0.1)
+    assert inc.centroid == pytest.approx([-0.003, -0.011, -0.002], abs=1e-4)
+    stl = run_less("mesh", "s.nii.gz", "-o", "s.stl", "--classes", "inclusion", "--smooth", "4")
+    assert stl.returncode == 0 and trimesh.load(str(tmp_path / "s.stl")).extents == pytest.approx([12.0] * 3, rel=0.1)
 
 
 @pytest.mark.parametrize("ext", ["stl", "ply"])

@@ -281,9 +281,10 @@ def test_info_describes_a_dicom_series_and_a_nifti_scan(run_less, tmp_path, scan
     for source, options in (("export", ("--series", "1")), ("scan.nii.gz", ())):
         proc = run_less("info", source, *options, "--format", "jsonl", check=True)
         records[source] = json.loads(proc.stdout)
-    for record in records.values():
-        assert record["kind"] == "image volume" and record["shape"] == list(stored.shape)
-        np.testing.assert_allclose(record["spacing_mm"], spacing, atol=1e-5)
+    for record in records.values():      # the grid z, y, x, as a label volume's; the file's axes run x, y, z
+        assert record["kind"] == "image volume" and record["shape"] == list(stored.shape[::-1])
+        assert (record["axes"], record["file_axes"]) == ("z, y, x", "x, y, z")
+        np.testing.assert_allclose(record["spacing_mm"], spacing[::-1], atol=1e-5)
         assert record["intensity"]["min"] == pytest.approx(recovered.min(), abs=1e-3)
         assert record["intensity"]["max"] == pytest.approx(recovered.max(), abs=1e-3)
         assert record["intensity"]["median"] == pytest.approx(np.median(recovered), abs=1e-3)

@@ -87,7 +87,8 @@ def test_3d_fit_predict_steps_threshold_nifti_render_mesh(tmp_path, run_less, se
     (summary,) = _ok(run_less("image", "predict", "img3.pt", "test.npz", "-o", "pred3.npz", "--steps", "2",
                               "--threshold", "0.8", "--nifti", "nii", "--device", "cpu", "--format", "jsonl",
                               env=ONE_THREAD))
-    assert summary["predictions"] == 6 and summary["nifti_files"] == 12
+    # per image: labels, entropy and 4 class probability maps; and the two colour tables
+    assert summary["predictions"] == 6 and summary["nifti_files"] == 6 * 6 + 2
     preds = load_predictions(str(tmp_path / "pred3.npz"))
     assert preds.meta["threshold"] == 0.8
     steps = [p.steps for p in preds.scans]
@@ -137,8 +138,9 @@ def test_resume_finetune_and_errors(tmp_path, run_less, sets):
     assert proc.returncode == 2 and b"--select" in proc.stderr
     proc = run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "d.pt", "--set", "loss.alpha_power=5",
                     *common)
-    assert proc.returncode == 1 and b"loss.alpha_power" in proc.stderr and not (tmp_path / "d.pt").exists()
-    assert len(proc.stderr.decode().strip().splitlines()) == 1
+    assert proc.returncode == 2 and b"loss.alpha_power" in proc.stderr and not (tmp_path / "d.pt").exists()
+    assert proc.stderr.decode().strip().splitlines()[-1] == ("Error: Invalid value for '--set': 5.0: "
+                                                             "loss.alpha_power must be in [0, 2]")   # a usage error
 
 
 @pytest.mark.parametrize("key,value,ok", [

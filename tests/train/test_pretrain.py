@@ -14,11 +14,11 @@ from lesscli.data.batching import ScanDataset, batches, collate, compute_norm_st
 from lesscli.errors import LessError, TrainingError
 from lesscli.io.checkpoint import load_checkpoint, save_checkpoint
 from lesscli.io.scans import save_scans
-from lesscli.models.registry import load_representation
 from lesscli.train import loop as loop_mod
 from lesscli.train import pretrain as pretrain_mod
 from lesscli.train.config import LoopConfig, PretrainConfig, load_config
 from lesscli.train.pretrain import build_model, pretrain
+from lesscli.train.representation import load_representation
 
 torch.set_num_threads(1)
 
@@ -222,10 +222,10 @@ def test_cli_pretrain_writes_checkpoint_log_and_summary(run_less, tmp_path):
     assert len((tmp_path / "rep.log.jsonl").read_text().splitlines()) == 2
 
 
-@pytest.mark.parametrize("args,match", [(["--model", "globl"], "did you mean 'global'"),
-                                        (["--set", "epochs=0"], "train.epochs"),
-                                        (["--val", "missing.npz"], "missing.npz")])
-def test_cli_pretrain_errors_exit_1_without_output(tmp_path, monkeypatch, capsys, args, match):
+@pytest.mark.parametrize("args,match,code", [(["--model", "globl"], "did you mean 'global'", 2),   # option values:
+                                             (["--set", "epochs=0"], "train.epochs", 2),            # usage errors
+                                             (["--val", "missing.npz"], "missing.npz", 1)])         # data: exit 1
+def test_cli_pretrain_errors_leave_no_output(tmp_path, monkeypatch, capsys, args, match, code):
     from lesscli.cli.main import main
 
     monkeypatch.chdir(tmp_path)
@@ -233,5 +233,8 @@ def test_cli_pretrain_errors_exit_1_without_output(tmp_path, monkeypatch, capsys
     with pytest.raises(SystemExit) as exit_info:
         main(["pretrain", "tr.npz", "-o", "rep.pt", "--device", "cpu", *args])
     err = capsys.readouterr().err
-    assert exit_info.value.code == 1 and match in err and len(err.strip().splitlines()) == 1
+    assert exit_info.value.code == code and match in err and "Traceback" not in err
+    last = err.strip().splitlines()[-1]                          # the one error line (after usage, hint)
+    assert last.startswith("less: error: " if code == 1 else "Error: Invalid value for ")
+    assert code == 2 or len(err.strip().splitlines()) == 1
     assert not (tmp_path / "rep.pt").exists()

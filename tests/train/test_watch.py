@@ -46,8 +46,8 @@ def test_two_pretrain_seeds_watched_in_tensorboard_and_plotted(run_less, tmp_pat
         proc = run_less("-v", "pretrain", "tr.npz", "--val", "va.npz", "-o", f"rep_s{seed}.pt", "--epochs", "3",
                         "--seed", seed, "--tensorboard", f"tb/s{seed}", *TINY, check=True, env=ONE_THREAD)
         err = proc.stderr.decode()
-        assert "train: 100%" in err and "3/3" in err and "best_val_loss=" in err        # the epoch bar
-        assert "epoch 3/3" in err                                                        # -v: batch bars too
+        assert "less: train: epoch 3/3, " in err and "best_val_loss=" in err            # the epoch line (a log)
+        assert "less: epoch 3/3: 2/2 steps (100 %)" in err                               # -v: batches too
         log = [json.loads(line) for line in (tmp_path / f"rep_s{seed}.log.jsonl").read_text().splitlines()]
         summary = json.loads(proc.stdout)
         assert all(r["val_baseline_mse"] == pytest.approx(summary["val_baseline_mse"]) for r in log)
