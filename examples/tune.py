@@ -46,7 +46,8 @@ def less(cmd: list[str], args: argparse.Namespace) -> dict:
             "--format", "jsonl"]
     proc = subprocess.run(full, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
-        raise SystemExit(f"tune: {' '.join(full)} failed:\n{proc.stderr.strip().splitlines()[-1:]}")
+        last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise SystemExit(f"tune: {' '.join(full)} failed: {last}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
