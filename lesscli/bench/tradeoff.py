@@ -14,6 +14,7 @@ run; a change of F1 counts as an effect only beyond twice the seeds' spread.
 from __future__ import annotations
 
 import copy
+import hashlib
 import json
 import os
 import time
@@ -109,24 +110,24 @@ class Knob:
     help: str
 
 
-KNOBS: dict[str, Knob] = {
-    "receptive_field": Knob("receptive_field_mm", LOCAL, "particle receptive field beta, mm"),
-    "spacing": Knob("spacing_mm", LOCAL, "particle spacing, mm"),
-    "map_cells": Knob("map_cells", TAXEL, "stiffness-map cells per side"),
-    "map_pitch": Knob("map_pitch_mm", TAXEL, "stiffness-map pitch, mm"),
-    "contrast": Knob("map_contrast", TAXEL, "stiffness-map contrast rule (step, plane)"),
-    "dim": Knob("dim", LEARNED, "GRU state width d_z"),
-    "ssl_epochs": Knob("ssl_epochs", LEARNED, "self-supervised epochs"),
-    "scans": Knob("scans", MODELS, "share of the training inserts used"),
-    "pokes": Knob("pokes", MODELS, "pokes per training scan"),
-    "subsample": Knob("every", MODELS, "subsampling 1:N, training and prediction"),
-    "width": Knob("width", LEARNED, "image decoder width"),
-    "smoothing": Knob("sigma_mm", (CLASSICAL,), "force-map smoothing width, mm (0: calibrated)"),
-    "grid": Knob("grid_mm", (CLASSICAL,), "force-map cell, mm"),
+KNOBS: dict[str, Knob] = {          # in the order a run measures them: prediction first, the dearest last
     "turns": Knob("turns", LEARNED, "turns averaged at prediction"),
     "predict_subsample": Knob("predict_every", MODELS, "subsampling 1:N at prediction only"),
     "threads": Knob("threads", MODELS, "prediction threads"),
     "precision": Knob("precision", LEARNED, "prediction arithmetic: float32, bfloat16, int8 (dynamic)"),
+    "smoothing": Knob("sigma_mm", (CLASSICAL,), "force-map smoothing width, mm (0: calibrated)"),
+    "grid": Knob("grid_mm", (CLASSICAL,), "force-map cell, mm"),
+    "subsample": Knob("every", MODELS, "subsampling 1:N, training and prediction"),
+    "scans": Knob("scans", MODELS, "share of the training inserts used"),
+    "pokes": Knob("pokes", MODELS, "pokes per training scan"),
+    "ssl_epochs": Knob("ssl_epochs", LEARNED, "self-supervised epochs"),
+    "width": Knob("width", LEARNED, "image decoder width"),
+    "dim": Knob("dim", LEARNED, "GRU state width d_z"),
+    "spacing": Knob("spacing_mm", LOCAL, "particle spacing, mm"),
+    "receptive_field": Knob("receptive_field_mm", LOCAL, "particle receptive field beta, mm"),
+    "map_cells": Knob("map_cells", TAXEL, "stiffness-map cells per side"),
+    "map_pitch": Knob("map_pitch_mm", TAXEL, "stiffness-map pitch, mm"),
+    "contrast": Knob("map_contrast", TAXEL, "stiffness-map contrast rule (step, plane)"),
 }
 
 
@@ -178,18 +179,18 @@ class TradeoffPlan:
         return replace(base, image_epochs=self.image_epochs) if self.image_epochs else base
 
 
-# --quick: the base, the cheap training knobs and every prediction knob, 2 seeds (about 15 min on 2 cores)
+# --quick: the base and every prediction knob over 2 seeds (about 15 min on 2 cores; the classical imager's
+# calibration knobs too, with --model forcemap)
 QUICK = TradeoffPlan(
-    values={"ssl_epochs": (2,), "scans": (0.5,), "width": (8,), "subsample": (100,), "pokes": (15,),
-            "smoothing": (2.0,), "grid": (1.0,), "turns": (4,), "predict_subsample": (100,), "threads": (1,),
-            "precision": ("bfloat16", "int8")},
+    values={"turns": (4,), "predict_subsample": (100,), "threads": (1,), "precision": ("bfloat16", "int8"),
+            "smoothing": (2.0,), "grid": (1.0,)},
     seeds=2)
-# the full plan: every knob, 3 seeds (under 90 min on 2 cores for less-taxel)
+# the full plan: every knob, 3 seeds (a rerun with the same --work-dir resumes where one stopped)
 FULL = TradeoffPlan(
-    values={"receptive_field": (5.0, 15.0), "spacing": (10.0,), "map_cells": (5,), "map_pitch": (1.5,),
-            "contrast": ("plane",), "dim": (8, 32), "ssl_epochs": (2, 16), "scans": (0.5,), "pokes": (15,),
-            "subsample": (25, 100), "width": (8, 32), "smoothing": (1.5, 3.0), "grid": (0.25, 1.0),
-            "turns": (2, 4), "predict_subsample": (100,), "threads": (1,), "precision": ("bfloat16", "int8")},
+    values={"turns": (2, 4), "predict_subsample": (100,), "threads": (1,), "precision": ("bfloat16", "int8"),
+            "smoothing": (1.5, 3.0), "grid": (0.25, 1.0), "subsample": (100,), "scans": (0.5,), "pokes": (15,),
+            "ssl_epochs": (2,), "width": (8,), "dim": (32,), "spacing": (10.0,), "receptive_field": (15.0,),
+            "map_cells": (5,), "map_pitch": (3.5,), "contrast": ("plane",)},
     seeds=3)
 
 
@@ -241,12 +242,26 @@ def _scene(plan: TradeoffPlan, sets: list[str]):
     return load_scene(resolve("quick"), [f"motion.n_traj={plan.n_traj}", *sets])
 
 
-def make_data(plan: TradeoffPlan) -> BenchData:
-    """Simulate the demo's data with the plan's sizes (the scene's own seed: the same data every run)."""
+DATA_PARTS = ("train", "val", "single", "multiple")
+
+
+def make_data(plan: TradeoffPlan, workdir: str | None = None) -> BenchData:
+    """Simulate the demo's data with the plan's sizes (the scene's own seed: the same data every run);
+    with ``workdir``, kept there and read back by a rerun of the same sizes."""
     from lesscli.data.ops import split
+    from lesscli.errors import DataError
+    from lesscli.io.scans import load_scans, save_scans
     from lesscli.sim.simulate import simulate
     from lesscli.threads import usable_cores
 
+    sizes = {"family": plan.family, "heldout": list(plan.heldout), "multiple": plan.multiple, "n_traj": plan.n_traj}
+    index = os.path.join(workdir, "data.json") if workdir else None
+    if index and os.path.exists(index):
+        with open(index) as f:
+            kept = json.load(f)
+        if kept["sizes"] != sizes:
+            raise DataError(f"{workdir}: holds a run on other data ({kept['sizes']}); use another --work-dir")
+        return BenchData(*(load_scans(os.path.join(workdir, f"data-{p}.npz")) for p in DATA_PARTS), kept["sim_s"])
     jobs = usable_cores()
     t0 = time.perf_counter()
     family = simulate(_scene(plan, [f"phantoms.random.count={plan.family}"]), jobs=jobs)
@@ -255,7 +270,13 @@ def make_data(plan: TradeoffPlan) -> BenchData:
     multiple = simulate(_scene(plan, ["phantoms.set=multiple", f"phantoms.limit={plan.multiple}"]), jobs=jobs)
     sim_s = time.perf_counter() - t0
     parts = split(family, "insert", 0.15, 0.0, np.random.default_rng(0), "tradeoff family")   # as the demo
-    return BenchData(parts["train"], parts["test"], single, multiple, sim_s)
+    data = BenchData(parts["train"], parts["test"], single, multiple, sim_s)
+    if index:
+        for p in DATA_PARTS:
+            save_scans(os.path.join(workdir, f"data-{p}.npz"), getattr(data, p))
+        with open(index, "w") as f:
+            json.dump({"sizes": sizes, "sim_s": sim_s}, f)
+    return data
 
 
 def training_scans(data: BenchData, s: Setting) -> tuple[object, object]:
@@ -307,30 +328,57 @@ def _fit(s: Setting, seed: int, train, val, rep: str, run: TradeoffRun, path: st
     fit_imager(train, val, rep, cfg, path, env=distributed.DistEnv(device=distributed.resolve_device(run.device)))
 
 
+class Store:
+    """The finished stages of a run, one JSON line each in its work folder (``stages.jsonl``): a rerun
+    with the same ``--work-dir`` takes them from there instead of training and measuring again."""
+
+    def __init__(self, workdir: str) -> None:
+        self.path = os.path.join(workdir, "stages.jsonl")
+        self.done: dict[str, dict] = {}
+        if os.path.exists(self.path):
+            with open(self.path) as f:
+                for line in f:
+                    if line.strip():
+                        item = json.loads(line)
+                        self.done[item["key"]] = item["value"]
+
+    @staticmethod
+    def key(kind: str, s: Setting, seed: int) -> str:
+        return json.dumps([kind, asdict(s), seed], sort_keys=True)
+
+    def get(self, key: str, files: tuple[str, ...] = ()) -> dict | None:
+        """The stage's record, if it finished and the files it names are still there."""
+        value = self.done.get(key)
+        ok = value is not None and all(os.path.exists(value[f]) for f in files)
+        return value if ok else None
+
+    def put(self, key: str, value: dict) -> dict:
+        self.done[key] = value
+        with open(self.path, "a") as f:
+            f.write(json.dumps({"key": key, "value": value}) + "\n")
+        return value
+
+    def file(self, kind: str, key: str) -> str:
+        return os.path.join(os.path.dirname(self.path), f"{kind}-{hashlib.sha1(key.encode()).hexdigest()[:12]}.pt")
+
+
 class Trainer:
     """Trains settings once per seed, sharing a representation between settings that differ only in
     their decoder; each result carries the full training time of its setting (shared stages included)."""
 
-    def __init__(self, data: BenchData, run: TradeoffRun) -> None:
-        self.data, self.run = data, run
-        self.reps: dict[tuple[Setting, int], dict] = {}
-        self.models: dict[tuple[Setting, int], dict] = {}
-
-    def _path(self, kind: str, n: int, seed: int) -> str:
-        return os.path.join(self.run.workdir, f"{kind}{n:03d}_seed{seed}.pt")
+    def __init__(self, data: BenchData, run: TradeoffRun, store: Store) -> None:
+        self.data, self.run, self.store = data, run, store
 
     def model(self, s: Setting, seed: int) -> dict:
         """``{"path", "pretrain_s", "fit_s", "peak_train_mb"}`` of the trained model of ``s``."""
-        key = (trained(s), seed)
-        if key not in self.models:
-            self.models[key] = self._train(trained(s), seed)
-        return self.models[key]
+        key = Store.key("model", trained(s), seed)
+        return self.store.get(key, ("path",)) or self.store.put(key, self._train(trained(s), seed, key))
 
-    def _train(self, s: Setting, seed: int) -> dict:
+    def _train(self, s: Setting, seed: int, key: str) -> dict:
         from lesscli.train.forcemap_fit import fit_forcemap
 
         train, val = training_scans(self.data, s)
-        path = self._path("imager", len(self.models), seed)
+        path = self.store.file("imager", key)
         if s.model == CLASSICAL:
             sigmas = (s.sigma_mm,) if s.sigma_mm else None
             with peak_memory() as mem:
@@ -338,14 +386,14 @@ class Trainer:
                 fit_forcemap(train, path, 3, None, "tradeoff training",
                              **({"sigmas_mm": sigmas} if sigmas else {}), grid_mm=s.grid_mm)
             return {"path": path, "pretrain_s": 0.0, "fit_s": time.perf_counter() - t0, "peak_train_mb": mem.mb}
-        rkey = (represented(s), seed)
-        if rkey not in self.reps:
-            rep = self._path("rep", len(self.reps), seed)
+        rkey = Store.key("representation", represented(s), seed)
+        rep = self.store.get(rkey, ("path",))
+        if rep is None:
+            rep_path = self.store.file("rep", rkey)
             with peak_memory() as mem:
                 t0 = time.perf_counter()
-                _pretrain(s, seed, train, val, self.run, rep)
-            self.reps[rkey] = {"path": rep, "pretrain_s": time.perf_counter() - t0, "peak_mb": mem.mb}
-        rep = self.reps[rkey]
+                _pretrain(s, seed, train, val, self.run, rep_path)
+            rep = self.store.put(rkey, {"path": rep_path, "pretrain_s": time.perf_counter() - t0, "peak_mb": mem.mb})
         with peak_memory() as mem:
             t0 = time.perf_counter()
             _fit(s, seed, train, val, rep["path"], self.run, path)
@@ -543,19 +591,18 @@ def run_tradeoff(plan: TradeoffPlan, model: str, knobs: list[str], run: Tradeoff
         setting cannot run here (e.g. a precision this torch lacks).
     """
     os.makedirs(run.workdir, exist_ok=True)
-    data = data or make_data(plan)
-    trainer = Trainer(data, run)
+    data = data or make_data(plan, run.workdir)
+    store = Store(run.workdir)
+    trainer = Trainer(data, run, store)
     seeds = [run.seed] if model == CLASSICAL else [run.seed + k for k in range(plan.seeds)]
     rows = []
     for knob, value, s in run.progress(settings_of(plan, model, knobs), desc="settings", unit="setting"):
         per_seed, note = [], None
         for seed in seeds:
             trained_model = trainer.model(s, seed)
-            try:
-                scores = evaluate(trained_model, s, data, run)
-            except (ValueError, RuntimeError, NotImplementedError) as exc:
-                note = f"not supported here: {str(exc).splitlines()[0][:160]}"
-                scores = {}
+            key = Store.key("scores", s, seed)
+            scores = store.get(key) or store.put(key, _scores_or_note(trained_model, s, data, run))
+            note = scores.get("note") or note
             per_seed.append({**trained_model, "train_s": trained_model["pretrain_s"] + trained_model["fit_s"],
                              **scores})
         row = {"model": model, "knob": knob, "value": value, **aggregate(per_seed), "sim_s": data.sim_s,
@@ -566,6 +613,14 @@ def run_tradeoff(plan: TradeoffPlan, model: str, knobs: list[str], run: Tradeoff
     compare_to_base(rows)
     rows.extend(reference_rows(model, data, run, trainer))
     return rows
+
+
+def _scores_or_note(model: dict, s: Setting, data: BenchData, run: TradeoffRun) -> dict:
+    """:func:`evaluate`, or a ``note`` saying why this setting cannot run here (e.g. a precision)."""
+    try:
+        return evaluate(model, s, data, run)
+    except (ValueError, RuntimeError, NotImplementedError) as exc:
+        return {"note": f"not supported here: {str(exc).splitlines()[0][:160]}"}
 
 
 def reference_rows(model: str, data: BenchData, run: TradeoffRun, trainer: Trainer) -> list[dict]:

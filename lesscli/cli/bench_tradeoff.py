@@ -53,8 +53,8 @@ def _check_knobs(knobs: tuple[str, ...], model: str) -> None:
 @click.command("tradeoff")
 @click.option("--model", type=click.Choice(MODEL_NAMES), default="less-taxel", show_default=True,
               help="The imager whose knobs are measured (forcemap: the classical imager).")
-@click.option("--quick", is_flag=True, help="The base, the cheap training knobs and every prediction knob, 2 seeds "
-                                            "(about 15 min on 2 cores).")
+@click.option("--quick", is_flag=True, help="The base and every prediction knob, 2 seeds (about 15 min on 2 cores); "
+                                            "without it every knob, 3 seeds.")
 @click.option("--knob", "knobs", multiple=True, metavar="NAME",
               help="Vary only these knobs (repeatable; default: every knob of the plan that applies to the model).")
 @click.option("--values", "values", multiple=True, metavar="KNOB=V1,V2",
@@ -73,7 +73,8 @@ def _check_knobs(knobs: tuple[str, ...], model: str) -> None:
 @click.option("--image-epochs", type=click.IntRange(min=1), default=None,
               help="Imaging epochs of every setting (default: the demo's 40).")
 @click.option("--work-dir", type=click.Path(), default=None,
-              help="Keep the checkpoints here (default: a temporary folder).")
+              help="Keep the data, checkpoints and finished stages here; a rerun with the same folder resumes "
+                   "(default: a temporary folder).")
 @click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
               help="Figure: F1 on single and multiple against training time and against prediction latency, "
                    "with each Pareto front and the classical and average references.")
@@ -106,7 +107,8 @@ def cli(model, quick, knobs, values, seeds, family, heldout, multiple, n_traj, e
     from lesscli.bench.tradeoff import HELDOUT, KNOBS, TradeoffRun, knobs_for, make_plan, run_tradeoff
     from lesscli.cli.common import progress
     from lesscli.io.records import emit_records
-    from lesscli.threads import apply_threads
+    from lesscli.threads import apply_threads, deterministic_kernels
+    from lesscli.train.distributed import resolve_device
 
     _check_knobs(knobs, model)
     if knob_plot and (len(set(knobs)) != 1 or knobs[0] in ("contrast", "precision")):
@@ -116,6 +118,7 @@ def cli(model, quick, knobs, values, seeds, family, heldout, multiple, n_traj, e
                      heldout=HELDOUT[:heldout] if heldout else None)
     chosen = list(knobs) or [k for k in knobs_for(model) if k in plan.values]
     apply_threads("throughput", override=threads)
+    deterministic_kernels(resolve_device(device))           # the same bytes on a rerun, as training
     with tempfile.TemporaryDirectory(prefix="less-tradeoff-") as tmp:
         run = TradeoffRun(workdir=work_dir or tmp, device=device, seed=seed, progress=progress)
         rows = run_tradeoff(plan, model, chosen, run)

@@ -47,12 +47,13 @@ def test_pareto_front_keeps_the_undominated_points_sorted_by_time():
 
 
 def test_settings_vary_one_knob_around_the_models_own_base():
-    found = settings_of(FULL, "less-taxel", ["receptive_field", "width"])
+    plan = tradeoff.make_plan(False, {"receptive_field": (5.0, 15.0), "dim": (16, 32, 64)})
+    found = settings_of(plan, "less-taxel", ["receptive_field", "width"])
     assert [(k, v) for k, v, _ in found] == [("base", ""), ("receptive_field", 5.0), ("receptive_field", 15.0),
-                                              ("width", 8), ("width", 32)]
+                                              ("width", 8)]
     assert found[0][2] == BASES["less-taxel"] and found[1][2] == Setting(receptive_field_mm=5.0)
-    less = settings_of(FULL, "less", ["dim"])          # the base's own value is not repeated as a knob row
-    assert BASES["less"].dim == 64 and [v for _, v, _ in less] == ["", 8, 32]
+    less = settings_of(plan, "less", ["dim"])          # the base's own value is not repeated as a knob row
+    assert BASES["less"].dim == 64 and [v for _, v, _ in less] == ["", 16, 32]
 
 
 def test_every_knob_applies_somewhere_and_both_plans_name_only_known_knobs(run_less):
@@ -61,8 +62,8 @@ def test_every_knob_applies_somewhere_and_both_plans_name_only_known_knobs(run_l
         assert set(plan.values) <= set(KNOBS)
     assert set(FULL.values) == set(KNOBS)              # the full plan tries every knob
     assert "receptive_field" in knobs_for("less-taxel") and "receptive_field" not in knobs_for("global")
-    assert knobs_for("forcemap") == ["scans", "pokes", "subsample", "smoothing", "grid", "predict_subsample",
-                                     "threads"]
+    assert knobs_for("forcemap") == ["predict_subsample", "threads", "smoothing", "grid", "subsample", "scans",
+                                     "pokes"]
     helptext = run_less("bench", "tradeoff", "--help").stdout.decode()
     assert all(knob in helptext for knob in KNOBS)
 
@@ -108,15 +109,23 @@ def test_compare_to_base_gives_ratios_deltas_and_effects_per_model():
 
 
 def _fake_stages(monkeypatch, calls):
-    monkeypatch.setattr(tradeoff, "make_data", lambda plan: tradeoff.BenchData(None, None, None, None, 1.0))
+    monkeypatch.setattr(tradeoff, "make_data", lambda plan, workdir: tradeoff.BenchData(None, None, None, None, 1.0))
     monkeypatch.setattr(tradeoff, "training_scans", lambda data, s: (s, s))
-    monkeypatch.setattr(tradeoff, "_pretrain", lambda s, seed, *a: calls.append(("pretrain", s.dim, seed)))
-    monkeypatch.setattr(tradeoff, "_fit", lambda s, seed, *a: calls.append(("fit", s.width, seed)))
-    monkeypatch.setattr("lesscli.train.forcemap_fit.fit_forcemap", lambda *a, **k: calls.append(("forcemap",)))
+    seed_of = {}
+
+    def stage(kind, s, seed, *args):
+        calls.append((kind, s.dim if kind == "pretrain" else s.width, seed))
+        seed_of[args[-1]] = seed
+        open(args[-1], "w").close()                       # the checkpoint a stage leaves
+
+    monkeypatch.setattr(tradeoff, "_pretrain", lambda *a: stage("pretrain", *a))
+    monkeypatch.setattr(tradeoff, "_fit", lambda *a: stage("fit", *a))
+    monkeypatch.setattr("lesscli.train.forcemap_fit.fit_forcemap",
+                        lambda scans, path, *a, **k: calls.append(("forcemap",)) or open(path, "w").close())
 
     def fake_eval(model, s, data, run):
         calls.append(("eval", s.turns, s.precision))
-        seed = int(model["path"].rsplit("seed", 1)[1][:-3])
+        seed = seed_of.get(model["path"], 0)
         if s.precision == "int8":
             raise ValueError("int8 dynamic quantisation runs on the CPU only")
         return {"f1_single": 0.5 + s.width / 1000 + seed / 100, "f1_multiple": 0.4, "latency_ms": 2.0 * s.turns}
@@ -236,7 +245,8 @@ TINY = ("--family", "6", "--heldout", "2", "--multiple", "1", "--n-traj", "4", "
 
 
 def test_bench_tradeoff_tiny_run_end_to_end(tmp_path, run_less):
-    proc = run_less("bench", "tradeoff", "--quick", "--knob", "width", "--knob", "precision", *TINY,
+    proc = run_less("bench", "tradeoff", "--quick", "--knob", "width", "--values", "width=8", "--knob", "precision",
+                    *TINY, "--work-dir", "w",
                     "--plot", "tradeoff.png", "--format", "jsonl", env=ONE_THREAD)
     assert proc.returncode == 0, proc.stderr.decode(errors="replace")
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
@@ -252,6 +262,17 @@ def test_bench_tradeoff_tiny_run_end_to_end(tmp_path, run_less):
     assert rows[0]["train_s_ratio"] == 1.0 and rows[2]["train_s_ratio"] == pytest.approx(1.0)   # the same model
     assert rows[-1]["model"] == "average" and 0.0 <= rows[-1]["f1_single"] <= 1.0
     _png_is_not_blank(tmp_path / "tradeoff.png")
+    stages = (tmp_path / "w" / "stages.jsonl").read_text().splitlines()
+    again = run_less("bench", "tradeoff", "--quick", "--knob", "precision", *TINY, "--work-dir", "w",
+                     "--format", "jsonl", env=ONE_THREAD)                     # resumes: nothing trained again
+    assert again.returncode == 0, again.stderr.decode(errors="replace")
+    resumed = [json.loads(line) for line in again.stdout.decode().splitlines()]
+    assert resumed[0]["f1_single_seeds"] == rows[0]["f1_single_seeds"]
+    assert resumed[0]["train_s"] == pytest.approx(rows[0]["train_s"])
+    assert (tmp_path / "w" / "stages.jsonl").read_text().splitlines() == stages
+    other = run_less("bench", "tradeoff", "--quick", "--knob", "precision", *TINY[:-2], "--n-traj", "5",
+                     "--work-dir", "w")
+    assert other.returncode == 1 and b"holds a run on other data" in other.stderr
 
 
 def test_bench_tradeoff_of_the_classical_imager(tmp_path, run_less):
