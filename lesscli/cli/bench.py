@@ -20,7 +20,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "stream": ("bench_stream", "Per-update latency of streaming imaging vs full recomputation at 100/1000/5000 steps."),
     "guide": ("bench_guide", "Closed loop: F1 vs touches for guided, raster and random touch order."),
     "train": ("bench_train", "Seconds per training step and inference forward, LESS vs GLOBAL, default and paper sizes."),
-    "tradeoff": ("bench_tradeoff", "Accuracy vs time: tier, receptive field, spacing, d_z, subsampling, epochs."),
+    "tradeoff": ("bench_tradeoff", "Accuracy vs time: each knob of an imager around the demo's, over seeds."),
     "mri": ("bench_mri", "Seconds to label a 256^3 synthetic MRI volume on one core vs plain thresholding."),
     "sim": ("bench_sim", "Contact tiers: error vs closed forms / finest FEM against time per step, scan time."),
     "pose": ("bench_pose", "AprilTag sensor-pose error and time per frame: refinements vs the plain pipeline."),

@@ -4,7 +4,7 @@ Per poke, the deepest step (most negative pad z) gives each taxel a stiffness sa
 force over its own indentation depth (``-z`` of the taxel centre in the scan's surface frame, fitted
 from its contact onsets by :mod:`lesscli.data.surface`; N/mm; taxels shallower than
 ``EPS_DEPTH_MM`` are skipped, so grazing or absent contact adds nothing), placed at the taxel's x-y
-in the phantom frame. Smoothing is normalised convolution onto a ``GRID_MM`` grid
+in the phantom frame. Smoothing is normalised convolution onto a grid of ``GRID_MM`` cells
 (Gaussian-weighted average sum(w v) / sum(w)); cells with little weight are not covered, and
 covered cells softer than ``CONTACT_FRAC`` of the median are off the insert. Over the remaining
 contact area a quadratic trend in x-y is fitted to the samples by least squares (the free edge of
@@ -72,6 +72,7 @@ class StiffnessMap:
     residual: np.ndarray
     contact: np.ndarray
     spread: float
+    cell_mm: float = GRID_MM
 
 
 @dataclass
@@ -92,6 +93,7 @@ class Calibration:
     depth_per_diameter: float
     prior_z_mm: list
     prior: list
+    grid_mm: float = GRID_MM     # force-map cell (older checkpoints: the default)
 
 
 def taxel_layout(meta: dict, name: str) -> np.ndarray:
@@ -146,7 +148,7 @@ def _smooth(cells: np.ndarray, values: np.ndarray, shape: tuple, sig: float) -> 
     return np.where(covered, num / np.where(covered, den, 1.0), 0.0), covered
 
 
-def stiffness_map(touches: Touches, sigma_mm: float) -> StiffnessMap | None:
+def stiffness_map(touches: Touches, sigma_mm: float, cell_mm: float = GRID_MM) -> StiffnessMap | None:
     """Smoothed stiffness, its contact area and the detrended map; None without samples.
 
     The quadratic trend is fitted to the samples inside the contact area; each taxel is flat-fielded
@@ -158,24 +160,24 @@ def stiffness_map(touches: Touches, sigma_mm: float) -> StiffnessMap | None:
     v = touches.stiffness_n_per_mm
     if not len(v):
         return None
-    sig = sigma_mm / GRID_MM
+    sig = sigma_mm / cell_mm
     lo = touches.xy_mm.min(axis=0) - 3 * sigma_mm
-    cells = np.round((touches.xy_mm - lo) / GRID_MM).astype(int)      # (n, 2) x, y cell index
+    cells = np.round((touches.xy_mm - lo) / cell_mm).astype(int)      # (n, 2) x, y cell index
     shape = tuple(cells[:, ::-1].max(axis=0) + int(np.ceil(3 * sig)) + 1)
     value, covered = _smooth(cells, v, shape, sig)
     level = float(np.median(value[covered]))
     contact = covered & (value >= CONTACT_FRAC * level)
     inside = contact[cells[:, 1], cells[:, 0]]
     if level <= 0 or inside.sum() < 6:
-        return StiffnessMap(lo, np.zeros(shape), np.zeros(shape, bool), 1.0)
-    x, y = ((touches.xy_mm - touches.xy_mm.mean(axis=0)) / (GRID_MM * max(shape))).T
+        return StiffnessMap(lo, np.zeros(shape), np.zeros(shape, bool), 1.0, cell_mm)
+    x, y = ((touches.xy_mm - touches.xy_mm.mean(axis=0)) / (cell_mm * max(shape))).T
     basis = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=-1)
     trend = _quadratic_fit(basis, v, inside)
     v = v / taxel_gains(v / np.where(trend > 0, trend, np.inf), touches.taxel, inside & (trend > 0))
     residual = np.where(contact, _smooth(cells, v - _quadratic_fit(basis, v, inside), shape, sig)[0], 0.0)
     r = residual[contact]
     spread = max(robust_sigma(r), SPREAD_FLOOR * level)
-    return StiffnessMap(lo, residual, contact, spread)
+    return StiffnessMap(lo, residual, contact, spread, cell_mm)
 
 
 def detect(fmap: StiffnessMap | None, threshold: float) -> np.ndarray:
@@ -187,8 +189,8 @@ def detect(fmap: StiffnessMap | None, threshold: float) -> np.ndarray:
     if not k:
         return np.zeros((0, 3))
     yx = np.array(ndimage.center_of_mass(excess, regions, range(1, k + 1))).reshape(-1, 2)
-    side = np.sqrt(np.bincount(regions.ravel(), minlength=k + 1)[1:]) * GRID_MM
-    return np.column_stack([fmap.origin_xy_mm + yx[:, ::-1] * GRID_MM, side])
+    side = np.sqrt(np.bincount(regions.ravel(), minlength=k + 1)[1:]) * fmap.cell_mm
+    return np.column_stack([fmap.origin_xy_mm + yx[:, ::-1] * fmap.cell_mm, side])
 
 
 def spheres(regions: np.ndarray, cal: Calibration) -> np.ndarray:
@@ -211,8 +213,8 @@ def touched_xy(fmap: StiffnessMap | None, shape, origin_mm, spacing_mm) -> np.nd
     """(H, W) bool: voxel columns whose x-y lies in the map's contact area."""
     if fmap is None:
         return np.zeros(tuple(shape[1:]), bool)
-    y = (origin_mm[1] + spacing_mm[1] * np.arange(shape[1]) - fmap.origin_xy_mm[1]) / GRID_MM
-    x = (origin_mm[2] + spacing_mm[2] * np.arange(shape[2]) - fmap.origin_xy_mm[0]) / GRID_MM
+    y = (origin_mm[1] + spacing_mm[1] * np.arange(shape[1]) - fmap.origin_xy_mm[1]) / fmap.cell_mm
+    x = (origin_mm[2] + spacing_mm[2] * np.arange(shape[2]) - fmap.origin_xy_mm[0]) / fmap.cell_mm
     (h, w), iy, ix = fmap.contact.shape, np.round(y).astype(int), np.round(x).astype(int)
     inside = ((iy >= 0) & (iy < h))[:, None] & ((ix >= 0) & (ix < w))[None, :]
     return fmap.contact[np.clip(iy, 0, h - 1)][:, np.clip(ix, 0, w - 1)] & inside
@@ -221,7 +223,7 @@ def touched_xy(fmap: StiffnessMap | None, shape, origin_mm, spacing_mm) -> np.nd
 def scan_probs(cal: Calibration, touches: Touches, shape, origin_mm, spacing_mm) -> np.ndarray:
     """Class probabilities (4, D, H, W) float32 of one scan on a label grid (see the module docstring)."""
     origin_mm, spacing_mm = np.asarray(origin_mm, np.float64), np.asarray(spacing_mm, np.float64)
-    fmap = stiffness_map(touches, cal.sigma_mm)
+    fmap = stiffness_map(touches, cal.sigma_mm, cal.grid_mm)
     sd = signed_distance_mm(spheres(detect(fmap, cal.threshold), cal), shape, origin_mm, spacing_mm)
     q = 1.0 / (1.0 + np.exp(np.clip(sd / (EDGE_VOXELS * spacing_mm[1:].mean()), -50, 50)))
     z = origin_mm[0] + spacing_mm[0] * np.arange(shape[0])
@@ -281,7 +283,8 @@ def _size_rules(regions: list[np.ndarray], truths: list, mean_mm: float) -> list
 
 
 def calibrate(touches: list[Touches], labels: list[LabelVolume], targets: list[LabelVolume],
-              name: str = "scan set") -> tuple[Calibration, float]:
+              name: str = "scan set", sigmas_mm: tuple[float, ...] = SIGMAS_MM,
+              grid_mm: float = GRID_MM) -> tuple[Calibration, float]:
     """Fit a :class:`Calibration` on training scans (see the module docstring).
 
     Args:
@@ -289,6 +292,8 @@ def calibrate(touches: list[Touches], labels: list[LabelVolume], targets: list[L
         labels: per scan, its 3D label volume (inclusion diameters and depths).
         targets: per scan, the volume scored (3D: the label; 2D: its slice as a depth-1 volume).
         name: the scan set's name for errors.
+        sigmas_mm: the smoothing widths tried (one: the width fixed).
+        grid_mm: the force map's cell.
 
     Returns:
         The calibration and its training micro inclusion F1.
@@ -300,10 +305,10 @@ def calibrate(touches: list[Touches], labels: list[LabelVolume], targets: list[L
         raise DataError(f"{name}: no training label volume holds an inclusion; nothing to calibrate on")
     slope, icept = np.polyfit(diam, depth, 1) if np.ptp(diam) > 0 else (0.0, float(depth.mean()))
     base = Calibration(0.0, 0.0, float(diam.mean()), 0.0, [float(diam.min()), float(diam.max())],
-                       float(icept), float(slope), [], [])
+                       float(icept), float(slope), [], [], float(grid_mm))
     best, best_f1 = base, -1.0
-    for sigma in SIGMAS_MM:
-        maps = [stiffness_map(t, sigma) for t in touches]
+    for sigma in sigmas_mm:
+        maps = [stiffness_map(t, sigma, grid_mm) for t in touches]
         for thr in THRESHOLDS:
             regions = [detect(m, thr) for m in maps]
             for a, b in _size_rules(regions, truths, base.diameter_mm):
@@ -311,20 +316,23 @@ def calibrate(touches: list[Touches], labels: list[LabelVolume], targets: list[L
                 f1 = _micro_f1(regions, cand, targets)
                 if f1 > best_f1:
                     best, best_f1 = cand, f1
-    best.prior_z_mm, best.prior = _class_prior([stiffness_map(t, best.sigma_mm) for t in touches], targets)
+    best.prior_z_mm, best.prior = _class_prior([stiffness_map(t, best.sigma_mm, grid_mm) for t in touches], targets)
     return best, best_f1
 
 
 def calibration_from_dict(data: dict, name: str) -> Calibration:
     """A Calibration from a checkpoint's ``config['forcemap']``; DataError naming ``name`` when malformed."""
     try:
-        cal = Calibration(**{k: data[k] for k in Calibration.__dataclass_fields__})
+        defaults = {"grid_mm": GRID_MM}                 # fields older checkpoints lack
+        cal = Calibration(**{k: data[k] if k in data or k not in defaults else defaults[k]
+                             for k in Calibration.__dataclass_fields__})
         prior = np.asarray(cal.prior, np.float64)
         scalars = np.asarray([cal.sigma_mm, cal.threshold, cal.diameter_mm, cal.diameter_per_mm, cal.depth_mm,
-                              cal.depth_per_diameter, *cal.diameter_range_mm, *cal.prior_z_mm], np.float64)
+                              cal.depth_per_diameter, cal.grid_mm, *cal.diameter_range_mm, *cal.prior_z_mm],
+                             np.float64)
     except (KeyError, TypeError, ValueError) as exc:
         raise DataError(f"{name}: malformed force-map calibration ({type(exc).__name__}: {exc})") from None
     if prior.shape != (2, len(cal.prior_z_mm), 3) or not cal.prior_z_mm or len(cal.diameter_range_mm) != 2 \
-            or not np.isfinite(scalars).all() or cal.sigma_mm <= 0:
+            or not np.isfinite(scalars).all() or cal.sigma_mm <= 0 or cal.grid_mm <= 0:
         raise DataError(f"{name}: malformed force-map calibration (prior shape, diameter range or values)")
     return cal

@@ -107,37 +107,55 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
     return sorted(front, key=lambda i: points[i][0])
 
 
-def pareto_figure(rows: Sequence[Mapping], path: str, time_key: str = "train_s",
+def _pareto_panel(ax, rows: Sequence[Mapping], time_key: str, score: str, refs: Sequence[Mapping] = ()) -> None:
+    """One panel: ``score`` (percent, error bars from ``<score>_std``) against ``time_key`` (log) per
+    setting, one marker per knob, the Pareto front as a line and each reference row's score as a
+    horizontal line."""
+    knobs = list(dict.fromkeys(str(r["knob"]) for r in rows))
+    pts = [(_num(r.get(time_key)), _num(r.get(score)) * 100.0) for r in rows]
+    for k, knob in enumerate(knobs):
+        sel = [i for i, r in enumerate(rows) if str(r["knob"]) == knob]
+        err = [_num(rows[i].get(f"{score}_std")) * 100.0 for i in sel]
+        ax.errorbar([pts[i][0] for i in sel], [pts[i][1] for i in sel],
+                    yerr=np.nan_to_num(np.asarray(err, float), nan=0.0), fmt=NOISE_MARKERS[k % len(NOISE_MARKERS)],
+                    capsize=2, label=knob, zorder=3)
+        for i in sel:
+            ax.annotate(str(rows[i]["value"]), pts[i], fontsize=7, xytext=(3, 3), textcoords="offset points")
+    front = pareto_front(pts)
+    if front:
+        ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], "k--", lw=1, label="Pareto front")
+    for j, ref in enumerate(refs):
+        ax.axhline(_num(ref.get(score)) * 100.0, color=f"C{(j + 7) % 10}", ls=":", lw=1.2,
+                   label=f"{ref['value']} (reference)")
+    ax.set_xscale("log")
+    ax.set_xlabel(f"{time_key} (log)")
+    ax.set_ylabel(f"{score} (%)")
+    ax.grid(alpha=0.3)
+
+
+def pareto_figure(rows: Sequence[Mapping], path: str, time_key: str | Sequence[str] = "train_s",
                   scores: Sequence[str] = ("f1_single", "f1_multiple"), title: str = "") -> None:
-    """Score vs time per setting (one marker per knob), the Pareto front of each score as a line.
+    """Score vs time per setting (one marker per knob), the Pareto front of each panel as a line.
 
     Args:
-        rows: one row per setting with ``knob``, ``value``, ``time_key`` and the score keys.
-        path: output PNG.
-        time_key: the x axis (seconds).
-        scores: the y keys, one panel each (F1 in [0, 1], drawn in percent).
+        rows: one row per setting with ``knob``, ``value``, the time keys and the score keys; rows whose
+            ``knob`` is ``"reference"`` are drawn as horizontal lines (e.g. the classical imager).
+        path: output figure.
+        time_key: the x axis, or several: one column of panels each.
+        scores: the y keys, one row of panels each (F1 in [0, 1], drawn in percent).
         title: figure title.
     """
-    fig = agg_figure((5.2 * len(scores), 4.4))
-    axes = fig.subplots(1, len(scores), squeeze=False)[0]
-    knobs = list(dict.fromkeys(str(r["knob"]) for r in rows))
-    markers = "osD^v<>pP*Xh"
-    for ax, score in zip(axes, scores):
-        pts = [(_num(r.get(time_key)), _num(r.get(score)) * 100.0) for r in rows]
-        for k, knob in enumerate(knobs):
-            sel = [i for i, r in enumerate(rows) if str(r["knob"]) == knob]
-            ax.scatter([pts[i][0] for i in sel], [pts[i][1] for i in sel], marker=markers[k % len(markers)],
-                       label=knob, zorder=3)
-            for i in sel:
-                ax.annotate(str(rows[i]["value"]), pts[i], fontsize=7, xytext=(3, 3), textcoords="offset points")
-        front = pareto_front(pts)
-        if front:
-            ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], "k--", lw=1, label="Pareto front")
-        ax.set_xscale("log")
-        ax.set_xlabel(f"{time_key} (s, log)")
-        ax.set_ylabel(f"{score} (%)")
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize="small")
+    time_keys = [time_key] if isinstance(time_key, str) else list(time_key)
+    refs = [r for r in rows if r.get("knob") == "reference"]
+    rows = [r for r in rows if r.get("knob") != "reference"]
+    pairs = [(t, sc) for sc in scores for t in time_keys]          # one time axis: the scores side by side
+    n_rows, n_cols = (len(scores), len(time_keys)) if len(time_keys) > 1 else (1, len(scores))
+    fig = agg_figure((5.2 * n_cols, 4.4 * n_rows))
+    axes = fig.subplots(n_rows, n_cols, squeeze=False).ravel()
+    panels = [(ax, t, sc) for ax, (t, sc) in zip(axes, pairs)]
+    for ax, t, sc in panels:
+        _pareto_panel(ax, rows, t, sc, refs)
+    panels[0][0].legend(fontsize="x-small")
     fig.suptitle(title or "Accuracy against time")
     save_figure(fig, path)
 

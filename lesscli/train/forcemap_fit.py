@@ -21,10 +21,12 @@ from lesscli.models.imager import grid_to_dict
 
 
 def fit_forcemap(scans: ScanSet, output: str, dim: int = 3, slice_index: int | None = None,
-                 name: str = "scan set", history: list | None = None) -> dict:
+                 name: str = "scan set", history: list | None = None,
+                 sigmas_mm: tuple[float, ...] = forcemap.SIGMAS_MM, grid_mm: float = forcemap.GRID_MM) -> dict:
     """Calibrate on ``scans`` (every scan needs a label volume), save to ``output``; returns a summary record.
 
-    ``dim`` and ``slice_index`` (None: through the inclusion centre) choose the targets as ``image fit`` does.
+    ``dim`` and ``slice_index`` (None: through the inclusion centre) choose the targets as ``image fit`` does;
+    ``sigmas_mm`` and ``grid_mm`` are the smoothing widths tried and the map's cell (``less bench tradeoff``).
     """
     t0 = time.perf_counter()
     slice_index = AUTO_SLICE if slice_index is None else int(slice_index)
@@ -38,7 +40,7 @@ def fit_forcemap(scans: ScanSet, output: str, dim: int = 3, slice_index: int | N
     taxel_xy = forcemap.taxel_layout(scans.meta, name)
     targets = [target_volume(v, dim, slice_index) for v in labels]
     touches = [forcemap.scan_touches(scans, s, taxel_xy) for s in range(scans.n_scans)]
-    cal, f1 = forcemap.calibrate(touches, labels, targets, name)
+    cal, f1 = forcemap.calibrate(touches, labels, targets, name, sigmas_mm, grid_mm)
     config = {"model": forcemap.MODEL, "forcemap": asdict(cal), "image": {"dim": dim, "slice": slice_index},
               "grid": grid_to_dict(grid_of(targets[0])), "data": signature(scans)}
     save_checkpoint(output, {}, config, {}, history or [], {"train_inclusion_f1": f1})

@@ -204,6 +204,27 @@ def test_average_baseline_predicts_the_training_mean():
     assert empty["com_error_mm_3d"] is None and empty["diameter_error_mm_2d"] is None
 
 
+def test_average_baseline_is_scored_as_the_mean_sphere_painted_on_the_truth_grid():
+    train = [_label_box((1, 1, 1), (3, 4, 4)), _label_box((1, 4, 4), (3, 9, 9))]
+    base = average_baseline(train)          # centre (1.5, 4, 4) mm, diameter 3 sqrt 2: radius^2 4.5
+    test = _label_box((0, 2, 2), (1, 4, 6))
+    row = score_baseline(base, test.data, test.origin_mm, test.spacing_mm)
+    inside = [(z, y, x) for z in range(4) for y in range(12) for x in range(12)
+              if (z - 1.5) ** 2 + (y - 4) ** 2 + (x - 4) ** 2 <= 4.5]
+    truth = {(0, y, x) for y in (2, 3) for x in (2, 3, 4, 5)}
+    tp = len(truth.intersection(inside))                    # (0, 3, 3), (0, 3, 4), (0, 3, 5)
+    # 9 voxels in each of slices 0 and 3 (dy^2 + dx^2 <= 2.25), 13 in slices 1 and 2 (<= 4.25)
+    assert (row["tp_3d"], row["fp_3d"], row["fn_3d"]) == (tp, len(inside) - tp, len(truth) - tp) == (3, 44 - 3, 5)
+    assert row["f1_3d"] == pytest.approx(2 * 3 / (2 * 3 + 41 + 5))
+    # 2D: the mean disc (centre (4, 4), the mean largest-slice diameter) on the truth's largest slice 0
+    d2 = base.diameter_mm_2d
+    disc = {(y, x) for y in range(12) for x in range(12) if (y - 4) ** 2 + (x - 4) ** 2 <= (d2 / 2) ** 2}
+    tp2 = len({(y, x) for _, y, x in truth} & disc)
+    assert (row["tp_2d"], row["fp_2d"], row["fn_2d"]) == (tp2, len(disc) - tp2, 8 - tp2)
+    empty = score_baseline(base, np.full((4, 12, 12), INSERT, np.uint8), np.zeros(3), np.ones(3))
+    assert (empty["tp_3d"], empty["fn_3d"], empty["f1_3d"]) == (0, 0, 0.0) and empty["f1_2d"] is None
+
+
 # ----------------------------------------------------------------------------------------- summaries
 
 def test_summarise_mean_std_and_valid_counts():
