@@ -6,52 +6,11 @@ voxels 0.4-1.2 mm, both contrasts, Rician noise 0.02-0.1, bias 0.1-0.4), labels 
 ``lesscli.mri.segment.segment`` and scores it against the truth: insert Dice per volume, inclusion and
 pillar Dice per inclusion (in the cell of voxels nearer to it than to the others). Prints the markdown
 table of min / median per parameter band (pillar Dice only where the pillar is at least 2 voxels wide);
-``--out`` keeps the rows as JSON lines (each case's ``base_error_mm``: how far past the true base surface,
-into the base, the one found lies; each inclusion's ``post_diameter_error_mm`` and
-``post_height_error_mm``, the post found under it against the truth, and ``post_offset_mm``, its foot's
-distance from the true axis). ``--partial-volume box`` draws the same volumes with each voxel's share of
-each tissue (the family's default is a ramp of the signed distance, which adds tissue around thin posts;
-tests/mri_family.py), sampled at ``--box-points`` points per axis (8); a flat surface then leaves the slice
-whose centres lie within half a sub-voxel step of it undecided (the scan is the same on either side), and
-the rows' ``dice_insert_decided`` and ``dice_pillar_decided`` leave out those at the insert's outer faces
-and at the base's surface under the filling (`Volume.undecided_slices`).
-
-``--floating`` draws the same volumes without posts: the footer counts those where a pillar voxel is
-drawn or an inclusion lacks its "no pillar found" warning (each case row has ``pillar_voxels_drawn``).
-
-``--lone-short`` draws each seed's volume with its first inclusion alone, on a post 1-2.5 mm tall: the
-posts whose radius is fitted to all their silicone, below the blurred ball (no other post to pool with);
-the footer gives their diameter error. `lesscli.mri.ball.CAP_SHUT_VOXELS` was chosen on seeds
-900-939 of it (box partial volume).
-
-``--near-skin`` draws each seed's volume with its highest sphere 0.5-2 mm under the skin (the family's
-stay 2 mm or more from it): the first inclusion's post made tall enough, and its sphere wide enough that the
-post need not pass 15 mm, for it to reach there in an insert of 28 mm or more; rows keep ``skin_gap_mm``.
-
-``--tilted`` tilts each seed's insert axis 0-10 degrees off the array's first axis about an in-plane axis at any
-azimuth, as a phantom laid in a coil by hand is (the family's are upright); rows keep ``tilt_deg``.
-
-``--known-diameter`` segments each volume with its posts' true diameter given, as a lab that knows its
-mould's would (``less mri-label --pillar-diameter-mm``): the posts are found, placed and ended from the
-scan as without it, and drawn that wide (the rows' ``post_diameter_error_mm`` stays the measured one's).
-
-``--margins 0.025,0.05,0.1`` segments nothing: it scores the truth itself, drawn again with each post
-wider and narrower by each radius (mm), with the base's surface that far up and down, and with each
-sphere that much wider and narrower about its centre, against the truth as drawn, and prints how many
-volumes that alone takes below the pillar target: how close to its knife edge the target puts each
-volume.
-
-``--rows a.jsonl,b.jsonl`` segments nothing either: it prints the band table and footer of rows written
-before with ``--out``, the files joined (docs/results/mri-label-family.md's table over the 700, from the runs of its halves).
+``--out`` keeps the rows as JSON lines. The other options draw variants of the family or score rows
+written before (``--help``); docs/results/mri-label-family.md gives the runs behind its tables.
 
     python examples/mri_family.py --seeds 1000-1059 --out results/mri_family.jsonl
     python examples/mri_family.py --seeds 1000-1059 --partial-volume box
-    python examples/mri_family.py --seeds 5081,3017 --partial-volume box --box-points 24
-    python examples/mri_family.py --seeds 0-99 --margins 0.025,0.05,0.1
-    python examples/mri_family.py --seeds 900-939 --partial-volume box --lone-short
-    python examples/mri_family.py --seeds 0-99 --partial-volume box --near-skin
-    python examples/mri_family.py --seeds 1000-1099 --partial-volume box --tilted
-    python examples/mri_family.py --seeds 1000-1059 --known-diameter
     python examples/mri_family.py --rows box-a.jsonl,box-b.jsonl
 """
 
@@ -294,23 +253,29 @@ def table(rows: list[dict]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="1000-1059", help="seeds as ranges, e.g. 0-39 or 1000-1059,2000")
-    parser.add_argument("--out", default=None, help="JSON lines of every case and inclusion")
+    parser.add_argument("--out", default=None, help="JSON lines of every case and inclusion (a case's base_error_mm: how far past the true "
+                             "base surface the one found lies; an inclusion's post_diameter_error_mm, "
+                             "post_height_error_mm and post_offset_mm, its foot's distance from the true axis)")
     parser.add_argument("--partial-volume", default="ramp", choices=PARTIAL_VOLUMES,
-                        help="the family's partial volume: ramp (default) or box")
+                        help="the family's partial volume: ramp (default; it adds tissue around thin posts) or box, each "
+                             "voxel's share of each tissue (rows' dice_insert_decided and dice_pillar_decided "
+                             "leave out the slices a flat surface leaves undecided)")
     parser.add_argument("--box-points", type=int, default=mri_family.BOX_POINTS,
                         help="sub-voxel points per axis of the box partial volume")
     parser.add_argument("--floating", action="store_true",
-                        help="draw the volumes without posts: no pillar may be drawn, one warning per inclusion")
+                        help="draw the volumes without posts: no pillar may be drawn, one warning per inclusion (rows "
+                             "keep pillar_voxels_drawn)")
     drawn = parser.add_mutually_exclusive_group()
     drawn.add_argument("--lone-short", action="store_true",
-                       help="draw each volume's first inclusion alone, on a post 1-2.5 mm tall")
+                       help="draw each volume's first inclusion alone, on a post 1-2.5 mm tall (radius fitted to all its "
+                            "silicone, no other post to pool with); the footer gives their diameter error")
     drawn.add_argument("--near-skin", action="store_true",
-                       help="draw each volume's highest sphere 0.5-2 mm under the skin")
+                       help="draw each volume's highest sphere 0.5-2 mm under the skin (rows keep skin_gap_mm)")
     parser.add_argument("--small-coarse", action="store_true",
                         help="draw small spheres at coarse voxels (the first 6-7 mm, voxels 0.9-1.2 mm, noise "
                              "0.05-0.1; seeded by seed // 100 and seed %% 100) instead of the family's draw")
     parser.add_argument("--tilted", action="store_true",
-                        help="tilt each volume's insert axis 0-10 degrees off the array's first axis")
+                        help="tilt each volume's insert axis 0-10 degrees off the array's first axis (rows keep tilt_deg)")
     parser.add_argument("--known-diameter", action="store_true",
                         help="segment with the posts' true diameter given (less mri-label --pillar-diameter-mm)")
     parser.add_argument("--margins", default=None,

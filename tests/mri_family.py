@@ -1,25 +1,11 @@
 """An MRI-like phantom family for testing `less mri-label`, written apart from `lesscli.mri.synth`.
 
 Own geometry (signed distances in mm, no `lesscli.phantom`) and own image model, so that the
-segmentation is tested on volumes it was not developed with:
-
-- an octagonal insert (``width_mm`` across flats, ``height_mm`` tall) with a silicone skin on top and
-  on the sides and a thicker silicone base, filled with hydrogel; 1-3 spherical inclusions, each on a
-  cylindrical pillar standing on the base (``pillar_height_mm`` from the base to the sphere's bottom);
-  ``inclusion_aspect`` other than 1 stretches each inclusion along the phantom's x into a spheroid
-  (diameter ``inclusion_mm`` across, ``aspect`` times that along x: an inclusion that is not a ball);
-- posed with the base down or up along array axis 0 and an arbitrary rotation about it, shifted, and
-  (``tilt_deg``) tilted off axis 0 by a few degrees about an in-plane axis at ``tilt_azimuth_deg``, as a
-  phantom laid in a coil by hand is;
-- partial volume (``partial_volume``): ``ramp``, a voxel's fill is a linear ramp of the signed
-  distance at its centre over its width measured along the surface normal (the box projected on the
-  normal; exact for a flat surface, but it adds tissue around a thin convex structure: a post's
-  cross-section grows by about (voxel / diameter)^2 / 3), or ``box``, the share of each voxel's box
-  inside each tissue (an 8 x 8 x 8 point average near the surfaces: what a voxel integrates, conserving
-  each tissue's amount); then a slight Gaussian blur;
-- a smooth multiplicative bias ``exp(b g)``: g is a linear ramp plus two broad Gaussian bumps scaled to
-  [-1, 1] (not a polynomial and not cosines);
-- Rician noise ``|s + n1 + i n2|`` with sigma relative to the brighter tissue.
+segmentation is tested on volumes it was not developed with: an octagonal hydrogel insert with a
+silicone skin and base, 1-3 inclusions (spheres, or spheroids with ``inclusion_aspect``) each on a
+cylindrical pillar standing on the base; posed base down or up along array axis 0, rotated, shifted
+and optionally tilted (:class:`Case`); partial volume, a slight blur, a smooth multiplicative bias and
+Rician noise (:func:`generate`).
 
 The truth classifies voxel centres: inclusion inside a sphere, pillar inside a cylinder and inside the
 hydrogel cavity (its foot in the base stays insert), insert inside the octagonal prism.
@@ -203,7 +189,16 @@ def _box_fills(body: np.ndarray, silicone: np.ndarray, grid: list[np.ndarray], s
 
 def generate(case: Case, image: bool = True) -> Volume:
     """Generate the scan and truth of ``case`` (deterministic in ``case.seed``); ``image`` False: the truth and
-    layout alone (``Volume.image`` None), as drawn with it."""
+    layout alone (``Volume.image`` None), as drawn with it.
+
+    Partial volume (``partial_volume``): ``ramp``, a voxel's fill is a linear ramp of the signed distance at
+    its centre over its width measured along the surface normal (exact for a flat surface, but it adds
+    tissue around a thin convex structure: a post's cross-section grows by about (voxel / diameter)^2 / 3),
+    or ``box``, the share of each voxel's box inside each tissue (an 8 x 8 x 8 point average near the
+    surfaces, conserving each tissue's amount); then a slight Gaussian blur. The bias is ``exp(b g)``, g a
+    linear ramp plus two broad Gaussian bumps scaled to [-1, 1] (not a polynomial and not cosines); the
+    noise is Rician, ``|s + n1 + i n2|``, with sigma relative to the brighter tissue.
+    """
     from scipy import ndimage
 
     rng = np.random.default_rng(case.seed)

@@ -82,15 +82,20 @@ FORMATS = [  # (title, module whose docstring defines the format)
 
 
 def _formats() -> str:
-    """The file formats, each from the module docstring of the code that reads and writes it."""
+    """The file formats, each from the module docstring (and ``KEYS`` table) of the code that reads and
+    writes it."""
     import ast
 
     lines = [HEADER, "", "# File formats", "",
-             "Each format as the module that reads and writes it defines it (its docstring); `less info FILE`",
-             "describes any such file.", ""]
+             "Each format as the module that reads and writes it defines it (its docstring and table of keys);",
+             "`less info FILE` describes any such file.", ""]
     for title, path in FORMATS:
-        doc = ast.get_docstring(ast.parse((ROOT / path).read_text()))
-        lines += [f"## {title}", "", f"From `{path}`:", "", "```text", doc.rstrip(), "```", ""]
+        tree = ast.parse((ROOT / path).read_text())
+        lines += [f"## {title}", "", f"From `{path}`:", "", "```text", ast.get_docstring(tree).rstrip()]
+        keys = [n.value.value for n in tree.body if isinstance(n, ast.Assign) and len(n.targets) == 1
+                and getattr(n.targets[0], "id", None) == "KEYS"]
+        lines += ["", keys[0].rstrip()] if keys else []     # the module's table of keys, where it has one
+        lines += ["```", ""]
     return "\n".join(lines)
 
 

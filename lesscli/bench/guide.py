@@ -1,22 +1,14 @@
 """``less bench guide``: closed-loop palpation with the simulator; F1 against the number of touches.
 
-Each test phantom (held out from training) is poked by the simulator on a dense pool of candidate
-touches (pokes on a jittered 3 mm grid, subsampled 1:50 like the training data); a strategy decides
-which pool touch comes next:
-
-* ``guided``: ``lesscli.infer.guide`` on the current streamed image (the pool touch nearest to each
-  suggestion; ``--batch`` suggestions per round), covering the class entropy;
-* ``guided-inclusion``: the same, covering the inclusion-vs-rest entropy (``--score inclusion``);
-* ``raster``: a row-by-row grid whose spacing fits the touch budget into the phantom (the paper's
-  robot scan), each point mapped to its nearest pool touch;
-* ``random``: pool touches in random order.
-
-All strategies start from the same ``--start`` random touches. The image is updated incrementally
-(``lesscli.infer.stream``) and scored (inclusion F1 on the 2D slice or the volume, ``lesscli.metrics``)
-every ``--eval-every`` touches. The summary row gives the raster strategy's final F1, the number of
-touches from which the guided strategy stays at or above it (and when it first reaches it), and the
-mean F1 over the curve per strategy. Without ``--model`` a small 2D model is trained first
-on simulated poke data of other inserts (minutes; cached in ``--work-dir``).
+Each held-out test phantom is poked by the simulator on a dense pool of candidate touches (a jittered
+3 mm grid, subsampled 1:50 like the training data), and a strategy decides which pool touch comes next
+(:meth:`Loop._plan`): ``guided`` (``lesscli.infer.guide`` on the streamed image, covering the class
+entropy), ``guided-inclusion`` (the inclusion-vs-rest entropy), ``raster`` (the paper's row-by-row robot
+scan, fitted to the touch budget) or ``random``. All start from the same ``--start`` random touches; the
+image is updated incrementally (``lesscli.infer.stream``) and its inclusion F1 scored every
+``--eval-every`` touches. The summary row (:func:`summary_row`) tells how many touches each strategy
+needs to match the raster scan's final F1. Without ``--model`` a small 2D model is trained first on
+simulated poke data of other inserts (minutes; cached in ``--work-dir``).
 """
 
 from __future__ import annotations
@@ -164,7 +156,8 @@ class Loop:
         return curve
 
     def _plan(self, strategy: str, stream, left: int, batch: int, rng) -> list:
-        """The next target x, y positions (mm) of a strategy."""
+        """The next target x, y positions (mm) of a strategy: the guide's ``batch`` suggestions, the rest
+        of a raster fitted to the ``left`` touches, or the pool in random order."""
         import numpy as np
 
         from lesscli.infer.guide import UNCERTAINTY, GuideOptions, octagon_mask, suggest_touches
@@ -245,7 +238,8 @@ def run_guide(model_path: str, bench: GuideBench) -> tuple[list[dict], dict[str,
 
 
 def summary_row(means: dict[str, list[tuple]], bench: GuideBench, model_path: str) -> dict:
-    """Touches each strategy needs to reach the raster strategy's final F1, and the mean F1 per strategy.
+    """Touches each strategy needs to reach the raster strategy's final F1 (to stay at or above it, and to
+    reach it first), and the mean F1 over the curve per strategy.
 
     Where raster ends no higher than the shared start (the model images nothing on these phantoms), every
     strategy "reaches" it at the start: the touch counts and the saving are None and ``note`` says why.

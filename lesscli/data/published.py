@@ -2,26 +2,13 @@
 
 One HDF5 file per scan, ``<root>/<trial>/<phantom>_<insert>_<orientation>.hdf5``; 3D labels in
 ``<root>/mri_images_3D/<insert_lower>_<n>.npy``. Each trajectory goes through
-:func:`lesscli.data.preprocess.preprocess`; each file becomes one scan.
-
-Frames. Poses are recentred on each file's reference pose and kept in that right-handed frame
-(x, y in the surface plane, z up, mm). The published label canvas has its x axis flipped with
-respect to the recorded positions (``x_canvas = -x_pose``). We mirror the *label* along x (column
-axis) instead of negating pose x: the poses, Euler angles and the sensor's own axes then stay a
-rigid motion of the robot's right-handed frame, consistent with the simulator; negating x would
-mirror the world and require flipping shear forces, pitch, yaw and the taxel layout too. Since the
-label for orientation k is rotated by -45 deg x k on the canvas, after the mirror it is rotated by
-+45 deg x k about z in the pose frame, the sense the simulator uses for ``Phantom.rotated(k)``.
-
-Depth. Label slice spacing is 0.9 mm and the top surface sits at z = 0 (origin convention of
-``lesscli.io.labels``); which end of the published volume is the top is not documented, so it is an
-option (``top_slice``: "last", the default, keeps the stored order with the last slice at z = 0;
-"first" flips the stack).
-
-Units. Positions metres -> mm; forces stay raw sensor counts (``meta.units.force = "counts"``),
-baseline-removed, or become newtons with a stated calibration (``counts_per_newton``, kept in
-``meta.sensor.counts_per_n``). Trajectory attributes: ``force`` is the target force (N), ``angle`` the yaw in
-degrees (stored as ``yaw_rad``), ``dx``/``dy`` grid offsets in metres (stored as mm).
+:func:`lesscli.data.preprocess.preprocess`; each file becomes one scan. Poses stay in each file's
+recentred right-handed frame (x, y in the surface plane, z up, mm). The published label canvas has x
+flipped against the recorded positions, so the *label* is mirrored (:func:`label_volume`): negating pose
+x instead would mirror the world and need shear forces, pitch, yaw and the taxel layout flipped too.
+Which end of the published volume is the top is not documented, so it is an option (``top_slice``).
+Forces stay raw sensor counts, baseline-removed, or become newtons with a stated calibration
+(``counts_per_newton``, kept in ``meta.sensor.counts_per_n``).
 """
 
 from __future__ import annotations
@@ -136,7 +123,8 @@ def _attr_str(attrs, key: str) -> str:
 
 
 def traj_attributes(attrs) -> dict:
-    """Group attributes -> TRAJ_ATTRS values (target force N, yaw rad, dx/dy mm, primitive)."""
+    """Group attributes -> TRAJ_ATTRS values: ``force`` the target force (N), ``angle`` the yaw (degrees ->
+    rad), ``dx``/``dy`` grid offsets (m -> mm), ``primitive``."""
     return {"target_force_n": _attr_float(attrs, "force"), "yaw_rad": _attr_float(attrs, "angle", np.pi / 180),
             "dx_mm": _attr_float(attrs, "dx", pp.M_TO_MM), "dy_mm": _attr_float(attrs, "dy", pp.M_TO_MM),
             "primitive": _attr_str(attrs, "primitive")}
@@ -199,7 +187,10 @@ def label_volume(raw: np.ndarray, insert: str, orientation: int, name: str, top_
     """A published (D, H, W) label -> a LabelVolume in the pose frame for ``orientation``.
 
     Raw codes are mapped to 0..3, rotated by -45 deg x orientation on the canvas, mirrored along x
-    (canvas x = -pose x) and placed on the grid centred at x = y = 0 with the top slice at z = 0.
+    (canvas x = -pose x; after the mirror the label is turned by +45 deg x orientation about z in the pose
+    frame, the sense of the simulator's ``Phantom.rotated(k)``) and placed on the grid centred at x = y = 0
+    with the top slice at z = 0, 0.9 mm apart (``top_slice``: "last" keeps the stored order with the last
+    slice at z = 0, "first" flips the stack).
     """
     if raw.ndim != 3:
         raise DataError(f"{name}: label has shape {raw.shape}, expected (D, H, W)")

@@ -1,34 +1,14 @@
 """Incremental (streaming) imaging: one (pose, force) sample at a time, same result as batch prediction.
 
-:class:`StreamingImager` keeps, per particle, the GRU hidden state and the number of in-field steps
-it has seen. A new sample
-
-1. is normalised exactly like :class:`lesscli.data.batching.ScanDataset` (float64 ``(f - mean) / std``
-   then float32) and its pose cast to float32;
-2. is tested against every particle's receptive field with the encoder's own rule
-   (:func:`lesscli.models.particles.in_field`: pad x-y strictly inside the disc);
-3. advances only those particles: their x-y is centred on the particle, encoded by the force-location
-   encoder, and one step of the shared GRU cell (as batch evaluation steps it) runs from their stored
-   hidden state;
-4. re-decodes only their patches (the decoder's evaluation path, see
-   :mod:`lesscli.models.patch_decoder`), adds each new patch to and subtracts its old one from the
-   summed logit canvas (one slice per particle: the patch's part on the image grid), so only the
-   pixels under those patches change. With the decoder's ``stitch="mean"`` a coverage count of the
-   seen patches per pixel is kept too, and the image is the sum divided by it. With the decoder's
-   neighbour context (``context=k``) the particles whose context reads an advanced one are re-decoded
-   too (up to k^2 times as many patches per update).
-
-**Step cap.** The batch encoder keeps each particle's *earliest* ``max_steps_per_particle`` in-field
-steps and drops later ones. The stream does the same: a particle whose count has reached the cap ignores
-every later sample (its state, patch and pixels stay as they are), so the equivalence with batch
-prediction holds for every prefix, with or without a cap.
-
-**Numerics.** The canvas is float64 (float32 patches enter it exactly), so thousands of add-and-subtract
-updates do not drift; :meth:`StreamingImager.logits` returns float32. Batch prediction
-sums float32 patches once; the two agree to float32 rounding (~1e-6 for logits of order 10).
-
-Decoders without per-particle patches (the GLOBAL baseline) fall back to decoding the whole image
-after each advancing sample; the result is still exact, just not local.
+:class:`StreamingImager` keeps, per particle, the GRU hidden state and the number of in-field steps it
+has seen. A new sample is normalised as in training, tested against every receptive field with the
+encoder's own rule, and advances only the particles it reaches (one step of the shared GRU cell, as batch
+evaluation steps it); only their patches are re-decoded and swapped on the summed logit canvas
+(:class:`PatchCanvas`), so only the pixels under them change. A particle whose count reached
+``max_steps_per_particle`` ignores later samples, as the batch encoder keeps the earliest steps, so the
+equivalence holds for every prefix. The canvas is float64, so thousands of add-and-subtract updates do
+not drift; stream and batch agree to float32 rounding. Decoders without per-particle patches (the GLOBAL
+baseline) decode the whole image after each advancing sample (:class:`WholeImage`).
 """
 
 from __future__ import annotations
@@ -70,7 +50,10 @@ class PatchCanvas:
     """Summed per-particle logit patches on the image grid, updated one particle set at a time.
 
     Each particle's patch is placed by :func:`place_patches`' rule; only its part on the grid is added
-    (a patch wholly off the grid adds nothing), so the canvas is the image itself.
+    (a patch wholly off the grid adds nothing), so the canvas is the image itself. With the decoder's
+    ``stitch="mean"`` a count of the seen patches per pixel is kept too and the image is the sum divided by
+    it; with its neighbour context (``context=k``) the particles whose context reads an advanced one are
+    re-decoded too (up to k^2 times as many patches per update).
 
     Args:
         decoder: the imaging model's PatchDecoder.

@@ -2,8 +2,26 @@
 
 Every prediction is a volume (C, D, H, W); a 2D prediction is a volume of depth 1 whose geometry
 places it at its slice (``meta['dim'] == 2``). Volumes may differ in shape between scans (e.g.
-the ``large`` set), so arrays are stored flat with a shape table, like label volumes.
+the ``large`` set), so arrays are stored flat with a shape table, like label volumes (the keys:
+:data:`KEYS`). Files written before the optional keys existed tell a scan's prefixes by their order
+(consecutive predictions of one insert and orientation with rising steps: :func:`scan_numbers`).
+"""
 
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lesscli.errors import DataError
+from lesscli.io import checks
+from lesscli.io.atomic import atomic_path
+from lesscli.io.labels import INCLUSION, N_CLASSES, PILLAR, LabelVolume, check_codes
+from lesscli.io.npfiles import read_npz, write_npz
+
+# The format's keys, as docs/reference/formats.md prints them (tools/gen_reference.py).
+KEYS = """\
 =================  ===============  ==================================================
 key                shape            meaning
 =================  ===============  ==================================================
@@ -25,23 +43,7 @@ scan_index         (S,) i64         optional: which scan of the imaged set each 
 touch_count        (S,) i64         optional, with ``touch_xy_mm``: touches stored per prediction
 touch_xy_mm        (sum, 2) f32     x, y (mm) of the pad's centre at the steps it saw in contact
 =================  ===============  ==================================================
-
-Files written before the optional keys existed tell a scan's prefixes by their order (consecutive
-predictions of one insert and orientation with rising steps: :func:`scan_numbers`).
 """
-
-from __future__ import annotations
-
-import json
-from dataclasses import dataclass, field
-
-import numpy as np
-
-from lesscli.errors import DataError
-from lesscli.io import checks
-from lesscli.io.atomic import atomic_path
-from lesscli.io.labels import INCLUSION, N_CLASSES, PILLAR, LabelVolume, check_codes
-from lesscli.io.npfiles import read_npz, write_npz
 
 SCHEMA, VERSION = "less.pred", 1
 EPS_LOG = 1e-12  # floor inside log(p) for the entropy of float16-rounded probabilities

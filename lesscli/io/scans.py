@@ -1,30 +1,8 @@
 """The scan-set format ``less.scans/1``: one reader, one writer, one validator.
 
 A scan set is a ``.npz`` (loaded with ``allow_pickle=False``) holding ragged trajectories as flat
-arrays plus offsets:
-
-=====================  ===========  =========================================================
-key                    shape        meaning
-=====================  ===========  =========================================================
-pose                   (N, 6) f32   x, y, z mm, roll, pitch, yaw rad of the pad, phantom frame
-force                  (N, T, 3) f32 per-taxel force (newtons, or sensor counts: meta units)
-time_s                 (N,) f64     time since the trajectory's first step, s
-traj_offsets           (R+1,) i64   steps of trajectory r are [offsets[r], offsets[r+1])
-traj_scan              (R,) i64     scan index of each trajectory (non-decreasing)
-traj_<attr>            (R,)         per-trajectory attributes (TRAJ_ATTRS), NaN/'' = unknown
-scan_insert            (S,) str     insert name (e.g. St12C13)
-scan_orientation       (S,) i64     insert rotation, multiples of 45 degrees (0..7)
-scan_label             (S,) i64     index into the label volumes, -1 when none
-label_data             (sum,) u8    label volumes, flattened and concatenated
-label_shape            (L, 3) i64   (D, H, W) of each volume
-label_origin_mm        (L, 3) f64   z, y, x of voxel [0,0,0] (see lesscli.io.labels)
-label_spacing_mm       (L, 3) f64   dz, dy, dx
-label_name             (L,) str
-meta                   () str       JSON: schema, version, units, sensor, sample_rate_hz, history
-=====================  ===========  =========================================================
-
-A scan's trajectories are contiguous, so scan s covers one contiguous range of steps: the model
-sees a scan as its trajectories concatenated in time.
+arrays plus offsets (the keys: :data:`KEYS`). A scan's trajectories are contiguous, so scan s covers
+one contiguous range of steps: the model sees a scan as its trajectories concatenated in time.
 """
 
 from __future__ import annotations
@@ -46,6 +24,29 @@ from lesscli.io import checks
 from lesscli.io.atomic import atomic_path
 from lesscli.io.labels import LabelVolume, check_codes
 from lesscli.io.npfiles import read_npz, write_npz
+
+# The format's keys, as docs/reference/formats.md prints them (tools/gen_reference.py).
+KEYS = """\
+=====================  ===========  =========================================================
+key                    shape        meaning
+=====================  ===========  =========================================================
+pose                   (N, 6) f32   x, y, z mm, roll, pitch, yaw rad of the pad, phantom frame
+force                  (N, T, 3) f32 per-taxel force (newtons, or sensor counts: meta units)
+time_s                 (N,) f64     time since the trajectory's first step, s
+traj_offsets           (R+1,) i64   steps of trajectory r are [offsets[r], offsets[r+1])
+traj_scan              (R,) i64     scan index of each trajectory (non-decreasing)
+traj_<attr>            (R,)         per-trajectory attributes (TRAJ_ATTRS), NaN/'' = unknown
+scan_insert            (S,) str     insert name (e.g. St12C13)
+scan_orientation       (S,) i64     insert rotation, multiples of 45 degrees (0..7)
+scan_label             (S,) i64     index into the label volumes, -1 when none
+label_data             (sum,) u8    label volumes, flattened and concatenated
+label_shape            (L, 3) i64   (D, H, W) of each volume
+label_origin_mm        (L, 3) f64   z, y, x of voxel [0,0,0] (see lesscli.io.labels)
+label_spacing_mm       (L, 3) f64   dz, dy, dx
+label_name             (L,) str
+meta                   () str       JSON: schema, version, units, sensor, sample_rate_hz, history
+=====================  ===========  =========================================================
+"""
 
 SCHEMA, VERSION = "less.scans", 1
 TRAJ_ATTRS = {"target_force_n": np.float32, "yaw_rad": np.float32, "dx_mm": np.float32,

@@ -8,9 +8,7 @@ probabilities, maximum entropy, so untouched regions stay honestly uncertain.
 
 ``context=k`` (odd) adds a k x k convolution over the particle grid, so each patch also reads its
 neighbours' states (still local); ``context=0`` is the paper's decoder. On a grid of another spacing
-(``large``) patches are resampled to the same physical size. The transposed convolutions run in their
-sub-pixel form (:mod:`lesscli.models.subpixel`), decoding seen particles only; values and gradients are
-the plain modules' to float32 rounding. Measurements: docs/results/accuracy-time.md.
+(``large``) patches are resampled to the same physical size.
 """
 
 from __future__ import annotations

@@ -2,13 +2,10 @@
 
 - A thin shell along the insert's outer surface is set aside first: there, partial-volume voxels
   between the filling and the air can mimic the darker tissue.
-- Inclusions: the opening of the remaining silicone by a ball thicker than the thickest pillar and
-  skin (radius ``max(pillar, skin) / 2`` plus a quarter voxel): compact bodies survive, thin ones
-  vanish; the rim (one largest voxel) that the opening shaves off a noisy sphere is given back. A
-  second, smaller ball finds inclusions too thin, voxel for voxel, for the first one; of what it
-  keeps apart from those, only round bodies holding the first ball's volume are inclusions.
-- Pillars: traced from each inclusion towards the base along the insert axis
-  (:mod:`lesscli.mri.pillar`); an inclusion without one gets a warning.
+- Inclusions: the opening of the remaining silicone by a ball thicker than the thickest pillar and skin:
+  compact bodies survive, thin ones vanish. A second, smaller ball finds inclusions too thin, voxel for
+  voxel, for the first; of what it keeps apart from those, only round bodies are inclusions.
+- Pillars: traced from each inclusion towards the base along the insert axis (:mod:`lesscli.mri.pillar`).
 - Each inclusion's surface is drawn again from its local contrast or as its fitted ball, and takes back
   the pillar's voxels inside its sphere (:mod:`lesscli.mri.surface`).
 - Everything else (the skin, partial-volume speckle) stays insert.
@@ -238,7 +235,9 @@ def _bodies(sil: np.ndarray, ins: np.ndarray, deep: np.ndarray, radius_mm: float
             spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The inclusions' bodies in the silicone ``sil`` of the insert ``ins`` (both padded crops), from its
     voxels ``deep`` inside the insert: what an opening by a ball of ``radius_mm`` keeps in the filling, and
-    the round pieces of one by a smaller ball off the axis of every body found so.
+    the round pieces of one by a smaller ball off the axis of every body found so. The split passes a
+    radius of ``max(pillar, skin) / 2`` plus a quarter voxel, and the rim (one largest voxel) that the
+    opening shaves off a noisy sphere is given back.
 
     Returns:
         (bodies, the pieces the smaller ball kept that read elongated (:func:`_round`), the insert axis).
@@ -275,7 +274,8 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
                    inclusion_shape: str = "auto",
                    pillar_diameter_mm: float | None = None,
                    smoothing: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[str], list[dict]]:
-    """Pillar and inclusion masks from the silicone mask of an insert.
+    """Pillar and inclusion masks from the silicone mask of an insert; an inclusion without a pillar gets
+    a warning.
 
     Args:
         silicone: bool mask (any 3D shape) of silicone voxels inside the insert.

@@ -1,35 +1,16 @@
 """Pillars: the thin silicone post between each inclusion and the base, traced along the insert axis.
 
-Nothing here assumes a pillar's diameter, intensity or which end of the insert the base is at. For each
-inclusion, the insert's voxels near the line through its centre along the insert axis are cut into slabs
-one plane of voxel centres thick, on both sides of the inclusion (``fraction``: 0 hydrogel, 1 silicone).
-Per slab:
+Nothing here assumes a pillar's diameter, intensity or which end of the insert the base is at. Around
+the line through each inclusion's centre the insert is cut into slabs one voxel thick; in each, the
+core's silicone in excess of a surrounding ring, divided by the inclusion's contrast, is the post's
+cross-section. A sum is unchanged by partial volume and blur, so no threshold is involved and a post 1-2
+voxels wide is measured like a wide one. The post drawn is a blurred cylinder fitted to the slabs; the
+rules are in :func:`find_pillars`, and how each was found in docs/results/mri-label-rounds.md.
 
-- a ring around the core gives the local background (its level a median clipped of far voxels, so a
-  nearby wall's skin does not raise it); the trace ends where the ring turns silicone or leaves the
-  insert, at the base's surface, fitted to the ring levels around the crossing (a thin base has no level
-  of its own);
-- the core's silicone in excess of the ring level, summed and divided by the inclusion's contrast, is
-  the pillar's cross-section (mm^2): a sum is unchanged by partial volume and blur, so no threshold is
-  involved and a post 1-2 voxels wide is measured like a wide one. The inclusion's fitted blurred ball
-  is taken out of every voxel first, as its blur spreads silicone along the pillar's line;
-- the weighted centroid of the excess locates the pillar in the slab.
-
-The base is on the side where the inclusions together show more excess silicone. An inclusion has a
-pillar there when the median cross-section exceeds a disc of ``MIN_RADIUS_MM`` and ``NOISE_Z`` standard
-errors of the slab-to-slab scatter pooled over the scan's traces, in a wide core or a narrow one (less
-noise for a thin post). The pillar drawn is a blurred cylinder fitted to a second trace around the line
-through the slab centroids, held on its inclusion's axis (as the phantoms are cast) unless its own line
-fits significantly better; a post measured thinner than ``MIN_RADIUS_MM`` in the end is no post. Short
-posts have few slabs: under ``MIN_LINE_SLABS`` the post stands under the inclusion's fitted centre, and
-under ``MIN_OWN_SLABS`` its radius is fitted to its whole silicone with the ball, or pooled over the
-scan's other posts (the posts of one insert are cast alike). How each rule was found, with its numbers:
-docs/results/mri-label-rounds.md.
-
-This module walks the steps (:func:`find_pillars`) and draws the posts, with :mod:`lesscli.mri.column`
-(a column, its slabs and rings), :mod:`lesscli.mri.trace` (a trace and the base's surface it meets),
-:mod:`lesscli.mri.section` (a post's cross-section, the base's side), :mod:`lesscli.mri.cylinder` (the
-blurred cylinder's fit and its F tests) and :mod:`lesscli.mri.ball` (the inclusion's blurred ball).
+The steps use :mod:`lesscli.mri.column` (a column, its slabs and rings), :mod:`lesscli.mri.trace` (a
+trace and the base's surface it meets), :mod:`lesscli.mri.section` (a post's cross-section, the base's
+side), :mod:`lesscli.mri.cylinder` (the blurred cylinder's fit and its F tests) and
+:mod:`lesscli.mri.ball` (the inclusion's blurred ball).
 """
 
 from __future__ import annotations
@@ -98,6 +79,20 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
                  smoothing: np.ndarray | None = None
                  ) -> tuple[np.ndarray, list[int], BaseSurface | None, list[Post], np.ndarray]:
     """The pillar under each inclusion, traced towards the base.
+
+    Per slab on both sides of each inclusion (its fitted blurred ball taken out of every voxel first, as
+    its blur spreads silicone along the pillar's line): a ring around the core gives the local background
+    (a median clipped of far voxels, so a nearby wall's skin does not raise it); the trace ends where the
+    ring turns silicone or leaves the insert, at the base's surface fitted to the ring levels around the
+    crossing; the weighted centroid of the excess locates the post in the slab.
+
+    The base is on the side where the inclusions together show more excess silicone. An inclusion has a
+    pillar there when the median cross-section exceeds a disc of ``MIN_RADIUS_MM`` and ``NOISE_Z``
+    standard errors of the slab-to-slab scatter pooled over the scan's traces, in a wide core or a narrow
+    one. The cylinder is held on its inclusion's axis (as the phantoms are cast) unless its own line fits
+    significantly better; a post measured thinner than ``MIN_RADIUS_MM`` is no post. Under
+    ``MIN_LINE_SLABS`` slabs the post stands under the inclusion's centre, and under ``MIN_OWN_SLABS`` its
+    radius is fitted to its whole silicone with the ball, or pooled over the scan's other posts.
 
     Args:
         fraction: 3D float silicone fraction (0 hydrogel, 1 silicone; bias-corrected, any smoothing).

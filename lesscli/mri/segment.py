@@ -1,21 +1,11 @@
 """MRI volume -> labels (0 background, 1 insert, 2 pillar, 3 inclusion), in 3D and physical units.
 
-Pipeline (:func:`segment`):
-
-1. validate (3D, finite, not constant) and normalise intensities to the 99.5th percentile;
-2. Gaussian smoothing (sigma in mm) against noise;
-3. bias-field correction: a smooth multiplicative field ``exp(poly(x, y, z))`` fitted to the log
-   intensities of the two tissue classes inside the object (:mod:`lesscli.mri.bias`);
-4. three-class thresholding: class levels (air, dark tissue, bright tissue) from multi-Otsu, then
-   thresholds half-way between adjacent levels (the 50 % partial-volume surfaces);
-5. topology: a component that crosses the scan from face to face along two or more axes (a
-   container, a bath) is background, and so is everything below the air threshold; the insert is
-   the largest remaining object of at least MIN_INSERT_MM3 (else: no insert), holes filled;
-6. which tissue is silicone: the minority tissue of the insert (the filling is hydrogel), so either
-   contrast works;
-7. silicone morphology (:mod:`lesscli.mri.morphology`): inclusions = opening with a ball thicker
-   than any pillar or skin; pillars traced from each inclusion to the base in the silicone fraction
-   image (:mod:`lesscli.mri.pillar`); the rest of the silicone (skin, base) stays insert.
+The pipeline (:func:`segment`) normalises and smooths the intensities, corrects the bias field
+(:mod:`lesscli.mri.bias`), thresholds three classes (air, dark and bright tissue) half-way between their
+multi-Otsu levels (the 50 % partial-volume surfaces), takes the largest object that does not cross the
+scan from face to face (a container or bath is background) as the insert, calls its minority tissue
+silicone (the filling is hydrogel, so either contrast works), and splits the silicone into inclusions,
+pillars and skin (:mod:`lesscli.mri.morphology`).
 """
 
 from __future__ import annotations
@@ -256,6 +246,18 @@ def _check_contrast(corrected: np.ndarray, insert: np.ndarray, where: str) -> No
 def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams(),
             where: str = "scan") -> Segmentation:
     """Label an MRI volume of an insert.
+
+    1. validate (3D, finite, not constant) and normalise intensities to the 99.5th percentile;
+    2. Gaussian smoothing (sigma in mm) against noise;
+    3. bias-field correction: a smooth multiplicative field ``exp(poly(x, y, z))`` fitted to the log
+       intensities of the two tissue classes inside the object (:mod:`lesscli.mri.bias`);
+    4. three-class thresholding: class levels (air, dark tissue, bright tissue) from multi-Otsu, then
+       thresholds half-way between adjacent levels;
+    5. topology: a component that crosses the scan from face to face along two or more axes is
+       background, and so is everything below the air threshold; the insert is the largest remaining
+       object of at least MIN_INSERT_MM3 (else: no insert), holes filled;
+    6. silicone: the minority tissue of the insert;
+    7. silicone morphology (:func:`lesscli.mri.morphology.split_silicone`).
 
     Args:
         image: 3D array of intensities, any axis order; ``spacing_mm`` follows the same axes.

@@ -1,38 +1,18 @@
 """Scene files (TOML): phantoms, sensor, contact tier, motion and the enabled effects.
 
-Example::
+Example (every key with its default: docs/reference/settings.md; more in ``lesscli/scenes/``)::
 
     name = "poke"
-    seed = 0
     [phantoms]
     set = "single"            # single | multiple | large | random | a .toml/.json phantom file
-    limit = 4                 # first N inserts (or names = ["St12C13"])
-    orientations = [0, 4]     # default: all 8
-    [phantoms.random]         # only with set = "random": the randomised training family
-    count = 48                # (lesscli.phantom.randomised; ranges [low, high], a number v means [v, v])
-    [sensor]
-    layout = "xela"           # or taxel_xy_mm = [[x, y], ...] and pad_size_mm = [w, h]; noise_n, max_force_n
     [contact]
     tier = "green"            # winkler | green | fem
-    params = { }              # passed to the tier
-    [motion]
-    kind = "poke"             # poke | primitive | handheld, plus that generator's parameters
-    n_traj = 100
     [effects.noise]           # one table per enabled effect; absent = off
     white_n = 0.01
 
-``set = "random"`` draws single-inclusion inserts named ``R<index>s<seed>`` from the ranges of
-``[phantoms.random]`` (defaults): ``count`` (32), ``seed`` (the scene's ``seed``), ``empty_share``
-(0.15, probability of an insert without inclusion), ``diameter_mm`` ([6, 16]), ``gap_below_skin_mm``
-([0.5, 6], sphere top under the skin), ``edge_margin_mm`` (1.0, sphere to the octagon's flats and the
-base), ``filling_kpa`` ([10, 40]), ``inclusion_kpa`` ([150, 600]), ``skin_kpa`` ([70, 130]) and
-``width_mm`` (60). The same file always gives the same family; ``--set phantoms.random.seed=3`` (or
-another scene seed) gives another. ``names``, ``limit`` and ``orientations`` apply as for the catalogues;
-``[phantoms.random]`` is ignored for other sets (so ``--set phantoms.set=single`` works on a random scene).
-
-Unknown keys are errors that name the closest valid key. Options (``--seed``), then ``--set a.b=value``
-overrides, apply to the document before validation (lesscli.io.overrides: values parse as TOML, bare
-words as strings).
+``set = "random"`` draws the training family of ``[phantoms.random]``'s ranges (:class:`RandomRanges`;
+ignored for other sets). Unknown keys are errors that name the closest valid key. Options (``--seed``),
+then ``--set a.b=value`` overrides, apply to the document before validation (lesscli.io.overrides).
 """
 
 from __future__ import annotations

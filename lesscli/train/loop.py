@@ -8,13 +8,9 @@ Usage (any model whose loss is computed through its ``forward``)::
     result = fit(model, loss_fn, train_set, val_set, cfg, collate_fn=collate, output="rep.pt",
                  config=resolved_config_dict, norm_stats=stats, env=distributed.setup(cfg.device))
 
-Files (rank 0 only): ``output`` holds the best model so far (by validation loss, or by a validation
-score such as the imaging F1 with ties broken by the loss; by training loss when there is no
-validation set) and is rewritten with the full history at the end;
-``<stem>.last.pt`` holds the latest epoch with optimizer and schedule state for ``resume=True``
-(random streams are keyed by seed, epoch and rank, so a resumed run draws as an uninterrupted one); ``<stem>.log.jsonl`` gets one JSON line per epoch
-(with its wall-clock ``seconds``, which the checkpoints leave out: see :func:`timeless`). Parameters with
-``requires_grad=False`` (a frozen representation) are not optimised.
+Files (rank 0 only): ``output`` holds the best model so far and is rewritten with the full history at
+the end; ``<stem>.last.pt`` holds the latest epoch with optimizer and schedule state for ``resume=True``;
+``<stem>.log.jsonl`` gets one JSON line per epoch (see :func:`fit`).
 """
 
 from __future__ import annotations
@@ -289,6 +285,12 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
         history: list | None = None, extra: dict | None = None, watch: Watch | None = None,
         val_fn: ValFn | None = None, record_extra: dict | None = None, data: dict | None = None) -> FitResult:
     """Train ``model`` by minimising ``loss_fn`` and keep the best checkpoint.
+
+    The best is by validation loss, or by a validation score such as the imaging F1 with ties broken by
+    the loss; by training loss when there is no validation set. Random streams are keyed by seed, epoch
+    and rank, so a resumed run draws as an uninterrupted one. The log's lines carry each epoch's
+    wall-clock ``seconds``, which the checkpoints leave out (:func:`timeless`). Parameters with
+    ``requires_grad=False`` (a frozen representation) are not optimised.
 
     Args:
         model: the module to train (moved to ``env.device``; wrapped in DDP when distributed).
