@@ -142,7 +142,9 @@ def predict_cmd(model, data, output, threshold, min_volume_mm3, smooth_mm, steps
 
     t0 = time.perf_counter()
     n_threads = apply_threads("throughput", override=threads)     # whole scans in batches
-    opts = PredictOptions(threshold, steps, every, grow, batch_size, slice_index, min_volume_mm3, smooth_mm, int(turns))
+    opts = PredictOptions(threshold=threshold, steps=steps, every=every, grow=grow, batch_size=batch_size,
+                          slice_index=slice_index, min_volume_mm3=min_volume_mm3, smooth_mm=smooth_mm,
+                          turns=int(turns))
     dev = resolve_device(device)
     deterministic_kernels(dev)
     preds, ckpt, scans = predict_file(model, data, opts, dev, progress=progress)

@@ -38,7 +38,7 @@ TURNS = (1, 2, 4)                # predictions averaged over the scan turned by 
 GRID_CENTRE_TOL = 1e-3           # a label grid centred on the insert's axis to this share of a pixel
 
 
-@dataclass
+@dataclass(kw_only=True)
 class PredictOptions:
     """How to predict.
 

@@ -14,7 +14,6 @@ baseline) decode the whole image after each advancing sample (:class:`WholeImage
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -22,6 +21,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from lesscli.errors import DataError
+from lesscli.models.encoders import ParticleStates
 from lesscli.models.encoding import POSE_DIM
 from lesscli.models.global_decoder import GlobalDecoder
 from lesscli.models.particles import in_field
@@ -35,15 +35,6 @@ from lesscli.models.patch_decoder import (
 
 # a pixel counts as uncertain above this share of the maximum entropy ln(C)
 UNCERTAIN_SHARE = 0.5
-
-
-@dataclass
-class _States:
-    """Duck-typed ParticleStates for the decoders: z (B, P, d_z), xy_mm (P, 2), seen (B, P)."""
-
-    z: Tensor
-    xy_mm: Tensor
-    seen: Tensor
 
 
 class PatchCanvas:
@@ -137,7 +128,7 @@ class WholeImage:
         self._logits = None
 
     def update(self, particles: Tensor, z: Tensor, hidden: Tensor, seen: Tensor) -> None:
-        self._logits = self.decoder(_States(hidden[None], self.xy_mm, seen[None]), self.grid)[0]
+        self._logits = self.decoder(ParticleStates(z=hidden[None], xy_mm=self.xy_mm, seen=seen[None]), self.grid)[0]
 
     def logits(self) -> Tensor:
         return self._logits

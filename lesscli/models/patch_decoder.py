@@ -14,6 +14,7 @@ neighbours' states (still local); ``context=0`` is the paper's decoder. On a gri
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
@@ -240,28 +241,46 @@ class _Placed(torch.autograd.Function):
     def forward(ctx, patches: Tensor, keep: Tensor | None, corners: list, padded: tuple[int, int]) -> Tensor:
         b, _, c, d, ph, pw = patches.shape
         out = patches.new_zeros(b, c, d, *padded)
-        scale = _keep_scales(keep, len(corners))
+        weights = PatchWeights.of(keep, len(corners))
         for i, (row, col) in enumerate(corners):
-            if scale[i] is not False:
-                out[..., row:row + ph, col:col + pw] += patches[:, i] if scale[i] is True else patches[:, i] * scale[i]
-        ctx.scale, ctx.corners, ctx.size = scale, corners, (ph, pw)
+            if weights.placed[i]:
+                out[..., row:row + ph, col:col + pw] += weights.applied(patches[:, i], i)
+        ctx.weights, ctx.corners, ctx.size = weights, corners, (ph, pw)
         return out
 
     @staticmethod
     def backward(ctx, grad: Tensor):
-        ph, pw = ctx.size
+        ph, pw, weights = *ctx.size, ctx.weights
         parts = []
-        for (row, col), scale in zip(ctx.corners, ctx.scale):
+        for i, (row, col) in enumerate(ctx.corners):
             part = grad[..., row:row + ph, col:col + pw]
-            parts.append(part if scale is True else torch.zeros_like(part) if scale is False else part * scale)
+            parts.append(weights.applied(part, i) if weights.placed[i] else torch.zeros_like(part))
         return torch.stack(parts, dim=1), None, None, None
 
 
-def _keep_scales(keep: Tensor | None, n: int) -> list:
-    """Per particle: True (kept at weight 1 in every batch row), False (kept nowhere), else the (B, 1, 1,
-    1, 1) weights of its batch rows."""
-    if keep is None:
-        return [True] * n
-    ones, zeros = (keep == 1).all(0).tolist(), (keep == 0).all(0).tolist()
-    return [True if one else False if zero else keep[:, i, None, None, None, None]
-            for i, (one, zero) in enumerate(zip(ones, zeros))]
+@dataclass
+class PatchWeights:
+    """How each particle's patch enters the canvas: the batch rows' ``keep`` weights, sorted per particle
+    into the two cases that need no multiply.
+
+    Attributes:
+        placed: per particle, kept (weight not 0) in some batch row; an unplaced one costs nothing.
+        whole: per particle, kept at weight 1 in every batch row.
+        keep: (B, P) weights, None when all are 1.
+    """
+
+    placed: list[bool]
+    whole: list[bool]
+    keep: Tensor | None
+
+    @classmethod
+    def of(cls, keep: Tensor | None, n: int) -> PatchWeights:
+        """The weights of ``n`` particles from ``keep`` (B, n) (None: all 1)."""
+        if keep is None:
+            return cls(placed=[True] * n, whole=[True] * n, keep=None)
+        zeros = (keep == 0).all(0).tolist()
+        return cls(placed=[not z for z in zeros], whole=(keep == 1).all(0).tolist(), keep=keep)
+
+    def applied(self, x: Tensor, i: int) -> Tensor:
+        """(B, ...) values of particle i's patch (or its gradient) times its batch rows' weights."""
+        return x if self.whole[i] else x * self.keep[:, i, None, None, None, None]

@@ -11,6 +11,7 @@ encoder its states are computed once per scan and only the decoder runs in the e
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -189,6 +190,13 @@ def _menu_masks(probs: np.ndarray, choices: list, spacing_mm):
         yield drop_specks(by_threshold[th], tissue, mv, spacing_mm) == INCLUSION
 
 
+def _tie_order(choice: tuple) -> tuple[float, float, float]:
+    """Sort key of a (smooth_mm, threshold, min_volume_mm3) choice among equals: the least smoothing, the
+    lowest threshold (None, the argmax, lowest of all), then the largest minimum volume."""
+    smooth_mm, threshold, min_volume = choice
+    return float(smooth_mm), -math.inf if threshold is None else float(threshold), -float(min_volume)
+
+
 def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: torch.device, spacing_mm,
                      collate_fn: Callable = collate_images, thresholds=THRESHOLD_CHOICES,
                      volumes=MIN_VOLUME_CHOICES_MM3, smooths=SMOOTH_CHOICES_MM,
@@ -229,9 +237,7 @@ def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: t
     sizing = [float(np.mean(e)) if e else float("nan") for e in diameter_errors]
     ranked = [-1.0 if np.isnan(f) else f for f in scores]
     near = [i for i, f in enumerate(ranked) if f >= max(ranked) - tolerance]
-    n_volumes = len(volumes)                              # choices: smoothing-, then threshold-major
-    best = min(near, key=lambda i: (float("inf") if np.isnan(sizing[i]) else sizing[i],
-                                    i // n_volumes, -(i % n_volumes)))
+    best = min(near, key=lambda i: (float("inf") if np.isnan(sizing[i]) else sizing[i], *_tie_order(choices[i])))
 
     def table(values):
         return {f"{sm:g}": {str(th): {f"{mv:g}": v for (s_, t, mv), v in zip(choices, values) if (s_, t) == (sm, th)}
