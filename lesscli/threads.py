@@ -161,7 +161,8 @@ def resolve_threads(work: Work, cores: int, override: int | str | None = None, u
     if override == AUTO or work == "latency":
         others = load()
         n = choose_threads(cores, others, work, size() if work == "latency" else 0, None, jobs)
-        why = f"{'--threads auto' if override == AUTO else 'latency-bound'}: cores {cores}, others' load {others:.2f}"
+        why = (f"{'--threads auto' if override == AUTO else 'latency-bound'}: cores {cores}, others' load "
+               f"{others:.2f}")
         if user is not None and override != AUTO and n > user:
             return user, f"{why}, capped by OMP_NUM_THREADS"
         return n, why
@@ -238,7 +239,8 @@ def deterministic_kernels(device) -> None:
         torch.use_deterministic_algorithms(True, warn_only=True)
 
 
-REALTIME_PRIORITY = 10           # SCHED_FIFO priority of --realtime (1-99): above every normal process, low among RT
+# SCHED_FIFO priority of --realtime (1-99): above every normal process, low among RT
+REALTIME_PRIORITY = 10
 
 
 def set_realtime(priority: int = REALTIME_PRIORITY, tasks: str = "/proc/self/task") -> None:
@@ -263,5 +265,6 @@ def set_realtime(priority: int = REALTIME_PRIORITY, tasks: str = "/proc/self/tas
             continue
         except PermissionError:
             raise LessError(f"--realtime: this process may not take real-time priority {priority} (it needs "
-                            f"root, CAP_SYS_NICE or a real-time limit `ulimit -r` of {priority} or more)") from None
+                            f"root, CAP_SYS_NICE or a real-time limit `ulimit -r` of {priority} or "
+                            "more)") from None
     logging.getLogger("less").info("scheduling: real-time FIFO, priority %d", priority)

@@ -33,7 +33,8 @@ def _scene(names, orientations, n_traj: int, spacing_mm: float, seed: int, name:
     doc = {"name": name, "seed": seed, "phantoms": {"set": "single", "names": list(names),
                                                      "orientations": list(orientations)},
            "sensor": {"layout": "xela"}, "contact": {"tier": "winkler"},
-           "motion": {"kind": "poke", "n_traj": n_traj, "spacing_mm": spacing_mm, "margin_mm": POOL_MARGIN_MM}}
+           "motion": {"kind": "poke", "n_traj": n_traj, "spacing_mm": spacing_mm,
+                      "margin_mm": POOL_MARGIN_MM}}
     return parse_scene(doc, where=f"<bench guide {name}>")
 
 
@@ -42,7 +43,8 @@ def simulate_set(names, orientations, n_traj: int, spacing_mm: float, seed: int,
     from lesscli.data.ops import subsample
     from lesscli.sim.simulate import simulate
 
-    return subsample(simulate(_scene(names, orientations, n_traj, spacing_mm, seed, name)), every=SUBSAMPLE_EVERY)
+    return subsample(simulate(_scene(names, orientations, n_traj, spacing_mm, seed, name)),
+                     every=SUBSAMPLE_EVERY)
 
 
 def train_model(work: str, quick: bool, seed: int) -> str:
@@ -71,8 +73,8 @@ def train_model(work: str, quick: bool, seed: int) -> str:
                                                           device="cpu")), rep)
     LOG.warning("bench guide: fitting the 2D image decoder (%d epochs)", fit_epochs)
     fit_imager(train, None, rep, ImageFitConfig(image=ImageModelConfig(dim=2, width=16, patch_px=16),
-                                                train=LoopConfig(epochs=fit_epochs, lr=1e-2, batch_size=4, seed=seed,
-                                                                 device="cpu"),
+                                                train=LoopConfig(epochs=fit_epochs, lr=1e-2, batch_size=4,
+                                                                 seed=seed, device="cpu"),
                                                 loss=LossConfig(alpha_power=0.5)), path)
     return path
 
@@ -110,7 +112,8 @@ class Loop:
         from lesscli.infer.predict import scan_grid
 
         cfg = ckpt["config"]["image"]
-        self.grid, self.truth = scan_grid(pool, 0, int(cfg["dim"]), int(cfg.get("slice", AUTO_SLICE)), imager.grid)
+        self.grid, self.truth = scan_grid(pool, 0, int(cfg["dim"]), int(cfg.get("slice", AUTO_SLICE)),
+                                          imager.grid)
         self.imager, self.ckpt, self.pool = imager, ckpt, pool
         off = pool.traj_offsets
         self.spans = [(int(off[i]), int(off[i + 1])) for i in range(pool.n_traj)]
@@ -132,7 +135,8 @@ class Loop:
         f1 = f1_from(*confusion(labels == INCLUSION, self.truth == INCLUSION))
         return 0.0 if f1 is None else float(f1)
 
-    def run(self, strategy: str, start: list[int], budget: int, eval_every: int, batch: int, rng) -> list[tuple]:
+    def run(self, strategy: str, start: list[int], budget: int, eval_every: int, batch: int,
+            rng) -> list[tuple]:
         """[(touches, F1)] for one strategy, evaluated every ``eval_every`` touches and at the budget."""
         from lesscli.infer.stream import StreamingImager
 
@@ -227,7 +231,8 @@ def run_guide(model_path: str, bench: GuideBench) -> tuple[list[dict], dict[str,
         for name in TEST_INSERTS:
             pool = simulate_set([name], [0], 260, POOL_SPACING_MM, bench.seed + r, f"guide-pool-{name}")
             loop = Loop(imager, ckpt, pool)
-            start = list(np.random.default_rng([bench.seed, r]).choice(pool.n_traj, bench.start, replace=False))
+            start = list(np.random.default_rng([bench.seed, r]).choice(pool.n_traj, bench.start,
+                                                                       replace=False))
             for s in STRATEGIES:
                 curves[s].append(loop.run(s, start, bench.budget, bench.eval_every, bench.batch,
                                           np.random.default_rng([bench.seed, r, 1])))

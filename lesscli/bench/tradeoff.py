@@ -5,8 +5,9 @@ spacing, state width d_z, image decoder width, subsampling rate, SSL training ep
 prediction only, the turns averaged (``image predict --turns``). For each setting the run simulates
 (once per tier, cached), subsamples, pretrains a LESS representation, fits a 3D image decoder (once
 per trained setting: settings that differ only in ``turns`` share the model), predicts the held-out
-``single`` inserts and the ``multiple`` set, and scores the inclusion class. Each row holds the times (simulation, pretraining, image fitting, inference latency
-per scan) and the micro F1 on both sets, plus ratios against the base setting measured in the same run.
+``single`` inserts and the ``multiple`` set, and scores the inclusion class. Each row holds the times
+(simulation, pretraining, image fitting, inference latency per scan) and the micro F1 on both sets, plus
+ratios against the base setting measured in the same run.
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ import numpy as np
 
 # knob name -> Setting field it varies
 KNOBS: dict[str, str] = {"tier": "tier", "receptive_field": "receptive_field_mm", "spacing": "spacing_mm",
-                         "dim": "dim", "width": "width", "subsample": "every", "epochs": "epochs", "turns": "turns"}
+                         "dim": "dim", "width": "width", "subsample": "every", "epochs": "epochs",
+                         "turns": "turns"}
 
 
 @dataclass(frozen=True)
@@ -34,7 +36,8 @@ class Setting:
     width: int = 16             # channels of the image decoder's first feature map
     every: int = 50
     epochs: int = 10
-    turns: int = 1              # prediction only: images averaged over the scan's turns (image predict --turns)
+    # prediction only: images averaged over the scan's turns (image predict --turns)
+    turns: int = 1
 
     def trained(self) -> Setting:
         """The setting of the model it predicts with (prediction-only knobs at their base)."""
@@ -91,7 +94,8 @@ def make_plan(quick: bool, values: dict[str, tuple], epochs: int | None = None,
     """``QUICK`` or ``FULL`` with ``values`` replacing those knobs' values, ``epochs`` the base SSL epochs
     and ``sizes`` (``TradeoffPlan`` fields) replacing the plan's; None keeps the plan's own."""
     plan = QUICK if quick else FULL
-    plan = replace(plan, **{k: v for k, v in sizes.items() if v is not None}, values={**plan.values, **values})
+    plan = replace(plan, **{k: v for k, v in sizes.items() if v is not None},
+                   values={**plan.values, **values})
     if epochs:
         plan = replace(plan, base=replace(plan.base, epochs=epochs))
     return plan
@@ -145,7 +149,8 @@ def make_data(plan: TradeoffPlan, tier: str, run: TradeoffRun) -> BenchData:
 
     t0 = time.perf_counter()
     single = simulate(parse_scene(scene_doc(plan, "single", tier, run.seed), f"<tradeoff single {tier}>"))
-    multiple = simulate(parse_scene(scene_doc(plan, "multiple", tier, run.seed + 1), f"<tradeoff multiple {tier}>"))
+    multiple = simulate(parse_scene(scene_doc(plan, "multiple", tier, run.seed + 1),
+                                    f"<tradeoff multiple {tier}>"))
     sim_s = time.perf_counter() - t0
     parts = split(single, "insert", plan.test_share, 0.0, np.random.default_rng(run.seed), "tradeoff single")
     return BenchData(parts["train"], parts["test"], multiple, sim_s)
@@ -163,8 +168,8 @@ def train_setting(plan: TradeoffPlan, s: Setting, data: BenchData, run: Tradeoff
     env = distributed.DistEnv(device=distributed.resolve_device(run.device))
     pcfg = load_config(PretrainConfig, None, (), {
         "model.name": "less", "model.dim": s.dim, "model.receptive_field_mm": s.receptive_field_mm,
-        "model.spacing_mm": s.spacing_mm, "train.epochs": s.epochs, "train.lr": plan.lr, "train.seed": run.seed,
-        "train.device": run.device})
+        "model.spacing_mm": s.spacing_mm, "train.epochs": s.epochs, "train.lr": plan.lr,
+        "train.seed": run.seed, "train.device": run.device})
     rep, img = os.path.join(run.workdir, stem + "_rep.pt"), os.path.join(run.workdir, stem + "_img.pt")
     t0 = time.perf_counter()
     pretrain(train, None, pcfg, rep, env=env)
@@ -239,7 +244,8 @@ def run_tradeoff(plan: TradeoffPlan, knobs: list[str], run: TradeoffRun) -> list
         rows.append({"knob": knob, "value": value, **s.__dict__, "sim_s": data[s.tier].sim_s,
                      "pretrain_s": res["pretrain_s"], "fit_s": res["fit_s"],
                      "train_s": res["pretrain_s"] + res["fit_s"], "train_steps": res["train_steps"],
-                     **{k: v for k, v in res.items() if k.startswith(("latency", "f1_", "com_"))}, "_setting": s})
+                     **{k: v for k, v in res.items() if k.startswith(("latency", "f1_", "com_"))},
+                     "_setting": s})
     _ratios(rows, plan.base)
     for r in rows:
         r.pop("_setting")

@@ -13,8 +13,8 @@ from lesscli.cli.common import (
     threads_option,
 )
 
-TABLE_COLUMNS = ["knob", "value", "sim_s", "pretrain_s", "fit_s", "train_s", "train_s_ratio", "latency_ms_per_scan",
-                 "f1_single", "f1_multiple", "f1_single_delta", "f1_multiple_delta"]
+TABLE_COLUMNS = ["knob", "value", "sim_s", "pretrain_s", "fit_s", "train_s", "train_s_ratio",
+                 "latency_ms_per_scan", "f1_single", "f1_multiple", "f1_single_delta", "f1_multiple_delta"]
 
 
 def _parse_values(items: tuple[str, ...], knobs: dict, base) -> dict[str, tuple]:
@@ -32,12 +32,13 @@ def _parse_values(items: tuple[str, ...], knobs: dict, base) -> dict[str, tuple]
 @click.command("tradeoff")
 @click.option("--quick", is_flag=True, help="Minutes on a CPU: small data, few epochs, few values per knob.")
 @click.option("--knob", "knobs", multiple=True, metavar="NAME",
-              help="Vary only these knobs (repeatable): tier, receptive_field, spacing, dim, width, subsample, epochs, "
-                   "turns (prediction only).")
+              help="Vary only these knobs (repeatable): tier, receptive_field, spacing, dim, width, "
+                   "subsample, epochs, turns (prediction only).")
 @click.option("--inserts", type=click.IntRange(min=4), default=None,
               help="Single-inclusion inserts to simulate (a quarter held out for testing).")
 @click.option("--n-traj", type=click.IntRange(min=2), default=None, help="Pokes per scan.")
-@click.option("--epochs", type=click.IntRange(min=1), default=None, help="Base SSL epochs (the epochs knob varies it).")
+@click.option("--epochs", type=click.IntRange(min=1), default=None,
+              help="Base SSL epochs (the epochs knob varies it).")
 @click.option("--image-epochs", type=click.IntRange(min=1), default=None, help="Imaging epochs per setting.")
 @click.option("--values", "values", multiple=True, metavar="KNOB=V1,V2",
               help="Values tried for a knob, e.g. --values receptive_field=5,10,20 (repeatable).")
@@ -50,9 +51,9 @@ def _parse_values(items: tuple[str, ...], knobs: dict, base) -> dict[str, tuple]
 @device_option()
 @threads_option()
 @seed_option()
-@format_option
-def cli(quick, knobs, inserts, n_traj, epochs, image_epochs, values, work_dir, plot_path, knob_plot, device, threads,
-        seed, fmt) -> None:
+@format_option()
+def cli(quick, knobs, inserts, n_traj, epochs, image_epochs, values, work_dir, plot_path, knob_plot, device,
+        threads, seed, fmt) -> None:
     """For each setting (one knob changed from the base): simulate (once per tier), pretrain,
     fit a 3D imager, predict held-out single inserts and the multiple set, and score them, all on
     the same data in one run. One record per setting: simulation, pretraining, fitting and total

@@ -77,7 +77,8 @@ def onset_index(time_s: np.ndarray, z_mm: np.ndarray, window_s: float = ONSET_WI
     return int(hits[0]) if hits.size else None
 
 
-def recentre(pos: np.ndarray, rot: np.ndarray, t_ref: np.ndarray, rot_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def recentre(pos: np.ndarray, rot: np.ndarray, t_ref: np.ndarray,
+             rot_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Express poses in the reference frame: ``p <- (p - t_ref) R_ref``, ``R <- R_ref^T R``.
 
     Args:
@@ -180,7 +181,8 @@ def preprocess(stream: Stream, t_ref_m: np.ndarray, rot_ref: np.ndarray,
     ts = np.asarray(stream.sensor_t_s, np.float64) - stream.sensor_t_s[0]
     keep = dedupe_times(np.asarray(stream.robot_t_s, np.float64))
     tr = np.asarray(stream.robot_t_s, np.float64)[keep] - stream.robot_t_s[0]
-    pos_m, rot = np.asarray(stream.robot_pos_m, np.float64)[keep], np.asarray(stream.robot_rot, np.float64)[keep]
+    pos_m, rot = (np.asarray(stream.robot_pos_m, np.float64)[keep],
+                  np.asarray(stream.robot_rot, np.float64)[keep])
     end_s = min(ts[-1], tr[-1])
     in_robot = tr <= end_s
     if in_robot.sum() < 2:

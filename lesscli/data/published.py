@@ -106,8 +106,10 @@ def read_stream(group, where: str, pose_group: str) -> pp.Stream:
         raise DataError(f"{where}: '{pose_group}/ee_position' has shape {pos.shape}, expected (M, 3)")
     rot = _dataset(group, f"{pose_group}/ee_rotation", where).astype(np.float64)
     if rot.shape not in ((len(pos), 3, 3), (len(pos), 9)):
-        raise DataError(f"{where}: '{pose_group}/ee_rotation' has shape {rot.shape}, expected ({len(pos)}, 3, 3)")
-    t_r = _timestamps(_dataset(group, f"{pose_group}/timestamps", where), len(pos), f"{pose_group}/timestamps", where)
+        raise DataError(f"{where}: '{pose_group}/ee_rotation' has shape {rot.shape}, expected ({len(pos)}, "
+                        "3, 3)")
+    t_r = _timestamps(_dataset(group, f"{pose_group}/timestamps", where), len(pos),
+                      f"{pose_group}/timestamps", where)
     return pp.Stream(t_s, _finite(data, "xela/data", where).reshape(-1, SENSOR_TAXELS, 3), t_r,
                      _finite(pos, f"{pose_group}/ee_position", where),
                      _finite(rot, f"{pose_group}/ee_rotation", where).reshape(-1, 3, 3))
@@ -125,7 +127,8 @@ def _attr_str(attrs, key: str) -> str:
 def traj_attributes(attrs) -> dict:
     """Group attributes -> TRAJ_ATTRS values: ``force`` the target force (N), ``angle`` the yaw (degrees ->
     rad), ``dx``/``dy`` grid offsets (m -> mm), ``primitive``."""
-    return {"target_force_n": _attr_float(attrs, "force"), "yaw_rad": _attr_float(attrs, "angle", np.pi / 180),
+    return {"target_force_n": _attr_float(attrs, "force"),
+            "yaw_rad": _attr_float(attrs, "angle", np.pi / 180),
             "dx_mm": _attr_float(attrs, "dx", pp.M_TO_MM), "dy_mm": _attr_float(attrs, "dy", pp.M_TO_MM),
             "primitive": _attr_str(attrs, "primitive")}
 
@@ -144,11 +147,13 @@ def _reference_pose(h5, path: str) -> tuple[np.ndarray, np.ndarray]:
     except KeyError as exc:
         raise DataError(f"{path}: missing file attribute {exc} (reference pose)") from None
     except ValueError:
-        raise DataError(f"{path}: file attributes 'position' (3,) / 'orientation' (9,) have wrong sizes") from None
+        raise DataError(f"{path}: file attributes 'position' (3,) / 'orientation' (9,) have wrong "
+                        "sizes") from None
     return t_ref, rot_ref
 
 
-# ---------------------------------------------------------------------------------------------- calibration, labels
+# ---------------------------------------------------------------------------------------------- calibration,
+# labels
 
 def load_calibration(source: FolderSource | ZipSource, rel: str) -> dict:
     """``est_to_robot_calibration.npz`` -> {'r_pos' (3,3), 't_pos' (3,), 'R_ori' (3,3)}."""
@@ -183,7 +188,8 @@ def find_calibration(source: FolderSource | ZipSource, rel: str, opts: ImportOpt
                     "dataset root; pass --calibration)")
 
 
-def label_volume(raw: np.ndarray, insert: str, orientation: int, name: str, top_slice: str = "last") -> LabelVolume:
+def label_volume(raw: np.ndarray, insert: str, orientation: int, name: str,
+                 top_slice: str = "last") -> LabelVolume:
     """A published (D, H, W) label -> a LabelVolume in the pose frame for ``orientation``.
 
     Raw codes are mapped to 0..3, rotated by -45 deg x orientation on the canvas, mirrored along x
@@ -197,7 +203,8 @@ def label_volume(raw: np.ndarray, insert: str, orientation: int, name: str, top_
     if raw.shape[1:] != LABEL_INPLANE:
         raise DataError(f"{name}: label is {' x '.join(map(str, raw.shape))}, but the published layout is "
                         f"D x {LABEL_INPLANE[0]} x {LABEL_INPLANE[1]} (spacing {SPACING_MM[1]} mm in-plane); "
-                        "a resampled or cropped label would get the wrong field of view, use the original file")
+                        "a resampled or cropped label would get the wrong field of view, use the original "
+                        "file")
     data = pp.rotate_label(pp.map_label_codes(raw, name), -pp.ORIENTATION_STEP_DEG * orientation)
     data = data[:, :, ::-1]
     if top_slice == "first":
@@ -218,7 +225,8 @@ def find_label(source: FolderSource | ZipSource, insert: str, orientation: int,
     labels, folder = (source, f"{LABEL_DIR}/") if not opts.labels_dir else (
         FolderSource(opts.labels_dir) if os.path.isdir(opts.labels_dir) else None, "")
     pattern = re.compile(rf"^{re.escape(folder.lower())}{re.escape(insert.lower())}_(\d+)\.npy$")
-    found = sorted((int(m[1]), f) for f in (labels.files() if labels else []) if (m := pattern.match(f.lower())))
+    found = sorted((int(m[1]), f) for f in (labels.files() if labels else [])
+                   if (m := pattern.match(f.lower())))
     chosen = [f for n, f in found if n == opts.mri_scan] or [f for _n, f in found[:1]]
     volume = None
     if chosen:
@@ -234,8 +242,10 @@ def _dropped() -> dict:
     return {"short": 0, "no_onset": 0, "too_long": 0}
 
 
-def import_file(source: FolderSource | ZipSource, rel: str, opts: ImportOptions) -> tuple[ScanSet | None, dict]:
-    """One HDF5 scan file (``rel`` in ``source``) -> (a one-scan ScanSet or None when nothing survives, its record).
+def import_file(source: FolderSource | ZipSource, rel: str,
+                opts: ImportOptions) -> tuple[ScanSet | None, dict]:
+    """One HDF5 scan file (``rel`` in ``source``) -> (a one-scan ScanSet or None when nothing survives, its
+    record).
 
     Raises DataError naming the file (and trajectory) when the file is broken.
     """
@@ -284,7 +294,8 @@ def _read_traj(h5, name: str, path: str, pose_group: str, calib: dict | None, t_
     except (KeyError, TypeError, ValueError, OSError, AttributeError) as exc:
         raise DataError(f"{path}: {name}: unreadable ({type(exc).__name__}: {exc})") from None
     if calib is not None:
-        stream.robot_pos_m, stream.robot_rot = pp.calibrate_estimate(stream.robot_pos_m, stream.robot_rot, calib)
+        stream.robot_pos_m, stream.robot_rot = pp.calibrate_estimate(stream.robot_pos_m, stream.robot_rot,
+                                                                     calib)
     out, reason = pp.preprocess(stream, t_ref, rot_ref, max_steps)
     return (reason if out is None else out), traj_attrs
 
@@ -294,7 +305,8 @@ def _one_scan(trajs: list[pp.Processed], attrs: list[dict], insert: str, orienta
     trajs = [pp.Processed(t.pose[::every], t.force[::every], t.time_s[::every]) for t in trajs]
     lengths = np.array([len(t.pose) for t in trajs], np.int64)
     traj_attrs = {key: np.array([a[key] for a in attrs]) for key in attrs[0]}
-    traj_attrs = {k: (v.astype(str) if k == "primitive" else v.astype(np.float32)) for k, v in traj_attrs.items()}
+    traj_attrs = {k: (v.astype(str) if k == "primitive" else v.astype(np.float32)) for k,
+                  v in traj_attrs.items()}
     return ScanSet(
         pose=np.concatenate([t.pose for t in trajs]), force=np.concatenate([t.force for t in trajs]),
         time_s=np.concatenate([t.time_s for t in trajs]),
@@ -308,7 +320,8 @@ def _one_scan(trajs: list[pp.Processed], attrs: list[dict], insert: str, orienta
 def import_meta(every: int, hand_held: bool, counts_per_newton: float | None = None) -> dict:
     """``meta`` of an imported scan set: counts as force unit (newtons with a calibration, recorded in
     ``sensor.counts_per_n``), 100 Hz / every, how it was made."""
-    sensor, units, force = xela_uscu(), "counts", "raw sensor counts, first sample of each trajectory subtracted"
+    sensor, units, force = (xela_uscu(), "counts",
+                            "raw sensor counts, first sample of each trajectory subtracted")
     if counts_per_newton:
         sensor, units = {**sensor, "counts_per_n": float(counts_per_newton)}, "N"
         force = f"newtons: raw sensor counts / {counts_per_newton:g} counts per N, first sample subtracted"
@@ -319,7 +332,8 @@ def import_meta(every: int, hand_held: bool, counts_per_newton: float | None = N
 
 
 def import_published(root: str, opts: ImportOptions, shard: tuple[int, int] = (0, 1), on_error: str = "fail",
-                     progress: Callable | None = None, report: Callable[[dict], None] | None = None) -> ScanSet:
+                     progress: Callable | None = None,
+                     report: Callable[[dict], None] | None = None) -> ScanSet:
     """Import every scan file of shard ``i/n`` of the dataset at ``root`` into one scan set.
 
     Args:

@@ -45,7 +45,8 @@ class Surface:
         return self.a_mm + self.b * np.asarray(x_mm, np.float64) + self.c * np.asarray(y_mm, np.float64)
 
     def to_dict(self) -> dict:
-        return {"a_mm": round(self.a_mm, 4), "b": round(self.b, 5), "c": round(self.c, 5), "onsets": self.onsets}
+        return {"a_mm": round(self.a_mm, 4), "b": round(self.b, 5), "c": round(self.c, 5),
+                "onsets": self.onsets}
 
 
 def pad_half_size(sensor: dict) -> tuple[float, float]:
@@ -134,7 +135,8 @@ def fit_surface(onsets: np.ndarray) -> Surface:
     if max(abs(coef[1]), abs(coef[2])) > MAX_SLOPE:
         return flat
     centre = onsets[:, :2].mean(axis=0)
-    return Surface(float(coef[0] - coef[1] * centre[0] - coef[2] * centre[1]), float(coef[1]), float(coef[2]), n)
+    return Surface(float(coef[0] - coef[1] * centre[0] - coef[2] * centre[1]), float(coef[1]), float(coef[2]),
+                   n)
 
 
 def to_surface(pose: np.ndarray, surf: Surface) -> np.ndarray:
@@ -235,7 +237,8 @@ class OnlineSurface:
     def _close(self) -> None:
         if len(self._low) >= 2:
             normal = np.asarray(self._normal) - self._normal[0]
-            onset = trajectory_onset(np.asarray(self._low), normal, onset_level(normal, self.taxels, self.noise_n))
+            onset = trajectory_onset(np.asarray(self._low), normal,
+                                     onset_level(normal, self.taxels, self.noise_n))
             if onset is not None:
                 self.onsets.append(onset)
                 self.surface = fit_surface(np.asarray(self.onsets))
@@ -250,10 +253,12 @@ class OnlineSurface:
         normal = float(np.asarray(force, np.float64).reshape(self.taxels, 3)[:, 2].sum())
         if self._normal and normal - self._normal[0] > self.noise_level:
             if not self._touching and not self.onsets:
-                self.surface = Surface(float(low[2]), 0.0, 0.0, 0)        # provisional: the first touch's onset
+                # provisional: the first touch's onset
+                self.surface = Surface(float(low[2]), 0.0, 0.0, 0)
             self._touching = True
         elif self._touching:
-            self._close()                                                    # lifted off: this sample starts the next
+            # lifted off: this sample starts the next
+            self._close()
         self._low.append(low)
         self._normal.append(normal)
         return to_surface(pose, self.surface)[0]

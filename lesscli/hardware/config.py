@@ -100,8 +100,10 @@ class LiftConfig:
             problems.append(f"heights must lie in [offset_mm, {g.top_height_mm:g}) (arms' reach)")
         if g.direction not in (1, -1) or g.lead_mm <= 0 or g.stages < 1 or g.arm_length_mm <= 0:
             problems.append("need direction = 1 or -1, lead_mm > 0, stages >= 1, arm_length_mm > 0")
-        if not 0 <= self.rotator_zero_ticks <= TICKS_PER_TURN - 1 - (ORIENTATIONS - 1) * TICKS_PER_ORIENTATION:
-            problems.append("[rotator] zero_ticks must be in 0..511 so that orientation 7 stays within one turn")
+        if not 0 <= self.rotator_zero_ticks <= TICKS_PER_TURN - 1 - (ORIENTATIONS
+                                                                     - 1) * TICKS_PER_ORIENTATION:
+            problems.append("[rotator] zero_ticks must be in 0..511 so that orientation 7 stays within one "
+                            "turn")
         if self.lift_id == self.rotator_id:
             problems.append(f"lift and rotator share id {self.lift_id}")
         if min(self.lift_velocity, self.homing_velocity, self.rotator_velocity) <= 0:

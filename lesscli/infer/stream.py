@@ -90,7 +90,8 @@ class PatchCanvas:
         if self.decoder.context:
             particles = self.within_context(particles, seen)
             z = self.decoder.with_context(hidden[None], seen[None])[0, particles]
-        new = resample_patches(self.decoder.patches(z[None], channels_last=True), self.size)[0]  # (k, C, D, ph, pw)
+        # (k, C, D, ph, pw)
+        new = resample_patches(self.decoder.patches(z[None], channels_last=True), self.size)[0]
         for j, p in enumerate(particles.tolist()):
             if self.place[p] is None:
                 continue
@@ -120,7 +121,8 @@ class PatchCanvas:
 class WholeImage:
     """Fallback for decoders without local patches: decode the whole image after each update."""
 
-    def __init__(self, decoder: torch.nn.Module, xy_mm: Tensor, grid: ImageGrid, device: torch.device) -> None:
+    def __init__(self, decoder: torch.nn.Module, xy_mm: Tensor, grid: ImageGrid,
+                 device: torch.device) -> None:
         self.decoder, self.xy_mm, self.grid = decoder, xy_mm, grid
         self._logits: Tensor | None = None
 
@@ -128,7 +130,8 @@ class WholeImage:
         self._logits = None
 
     def update(self, particles: Tensor, z: Tensor, hidden: Tensor, seen: Tensor) -> None:
-        self._logits = self.decoder(ParticleStates(z=hidden[None], xy_mm=self.xy_mm, seen=seen[None]), self.grid)[0]
+        self._logits = self.decoder(ParticleStates(z=hidden[None], xy_mm=self.xy_mm, seen=seen[None]),
+                                    self.grid)[0]
 
     def logits(self) -> Tensor:
         return self._logits
@@ -155,7 +158,8 @@ def update_work(imager: torch.nn.Module) -> int:
             decoder.patches(torch.zeros(1, 1, decoder.inp.in_features))
         per_patch = counter.get_total_flops()
     encoder = 2 * sum(p.numel() for p in imager.encoder.parameters())
-    reach = getattr(decoder, "context", 0) or 1             # a context re-decodes the advanced ones' neighbours
+    # a context re-decodes the advanced ones' neighbours
+    reach = getattr(decoder, "context", 0) or 1
     decoded = (math.sqrt(PARTICLES_PER_TOUCH) + reach - 1) ** 2
     return round(PARTICLES_PER_TOUCH * encoder + decoded * per_patch)
 
@@ -219,7 +223,8 @@ class StreamingImager:
         """Raw force (T, 3) or (T * 3,) in sensor units -> (T * 3,) float32 normalised, as in training."""
         flat = np.asarray(force, np.float64).reshape(-1)
         if flat.shape[0] != self.force_dim:
-            raise DataError(f"force has {flat.shape[0]} values, the model expects {self.force_dim} (taxels x 3)")
+            raise DataError(f"force has {flat.shape[0]} values, the model expects {self.force_dim} (taxels x "
+                            "3)")
         return torch.from_numpy(((flat - self.mean) / self.std).astype(np.float32)).to(self.device)
 
     def push(self, pose: np.ndarray, force: np.ndarray) -> Tensor:
@@ -228,9 +233,11 @@ class StreamingImager:
         Returns:
             (k,) long indices of the particles the sample advanced (empty: outside every field or capped).
         """
-        pose_t = torch.from_numpy(np.ascontiguousarray(np.asarray(pose).reshape(-1), np.float32)).to(self.device)
+        pose_t = torch.from_numpy(np.ascontiguousarray(np.asarray(pose).reshape(-1),
+                                                       np.float32)).to(self.device)
         if pose_t.shape[0] != POSE_DIM:
-            raise DataError(f"pose has {pose_t.shape[0]} values, expected {POSE_DIM} (x, y, z mm, roll, pitch, yaw rad)")
+            raise DataError(f"pose has {pose_t.shape[0]} values, expected {POSE_DIM} (x, y, z mm, roll, "
+                            "pitch, yaw rad)")
         return self.push_normalised(pose_t, self.normalise(force))
 
     @torch.no_grad()
@@ -276,8 +283,8 @@ class StreamingImager:
 
         n = int(pose.shape[0])
         flat = normalise_forces(force, self.mean, self.std)
-        item = {"pose": torch.from_numpy(np.ascontiguousarray(pose, np.float32)), "force": torch.from_numpy(flat),
-                "scan_index": 0}
+        item = {"pose": torch.from_numpy(np.ascontiguousarray(pose, np.float32)),
+                "force": torch.from_numpy(flat), "scan_index": 0}
         batch = collate([item]).to(self.device)
         self.reset()
         states = self.encoder(batch)

@@ -45,7 +45,8 @@ def _geometry(vol: LabelVolume, code: int, points: str) -> tuple[float, np.ndarr
         return None
     c3 = m.centroid_mm(mask, vol.origin_mm, vol.spacing_mm)
     c2 = m.centroid_mm(mask[k:k + 1], vol.origin_mm, vol.spacing_mm)[1:]
-    return m.diameter_mm(mask, vol.spacing_mm, points), c3, m.diameter_mm(mask[k:k + 1], vol.spacing_mm, points), c2
+    return (m.diameter_mm(mask, vol.spacing_mm, points), c3,
+            m.diameter_mm(mask[k:k + 1], vol.spacing_mm, points), c2)
 
 
 def average_baseline(volumes: Iterable[LabelVolume], cls: str = "inclusion",
@@ -94,5 +95,6 @@ def score_baseline(baseline: AverageBaseline, truth_labels: np.ndarray, origin_m
         c_true = m.centroid_mm(sub, origin_mm, spacing_mm)
         row.update({f"diameter_true_mm_{suffix}": d_true, f"diameter_pred_mm_{suffix}": d_pred,
                     f"diameter_error_mm_{suffix}": m.abs_diff(d_pred, d_true),
-                    f"com_error_mm_{suffix}": m.distance_mm(c_pred, None if c_true is None else c_true[axes])})
+                    f"com_error_mm_{suffix}": m.distance_mm(c_pred,
+                                                            None if c_true is None else c_true[axes])})
     return row

@@ -139,17 +139,20 @@ class ParticleEncoder(nn.Module):
     force_norm = "global"        # the force normalisation it is trained with by default (data.batching)
 
     def __init__(self, force_dim: int, dim: int = 128, spacing_mm: float = 6.0, grid_extent_mm: float = 60.0,
-                 receptive_field_mm: float = 10.0, max_steps_per_particle: int | None = None, n_freq: int = 16,
-                 grid_center_mm: tuple[float, float] = (0.0, 0.0), particles_per_axis: int | None = None) -> None:
+                 receptive_field_mm: float = 10.0, max_steps_per_particle: int | None = None,
+                 n_freq: int = 16, grid_center_mm: tuple[float, float] = (0.0, 0.0),
+                 particles_per_axis: int | None = None) -> None:
         super().__init__()
         if not receptive_field_mm > 0:
             raise ValueError(f"receptive_field_mm must be > 0, got {receptive_field_mm}")
         self.settings = {"force_dim": int(force_dim), "dim": int(dim), "spacing_mm": float(spacing_mm),
-                         "grid_extent_mm": float(grid_extent_mm), "receptive_field_mm": float(receptive_field_mm),
+                         "grid_extent_mm": float(grid_extent_mm),
+                         "receptive_field_mm": float(receptive_field_mm),
                          "max_steps_per_particle": None if max_steps_per_particle is None
                          else int(max_steps_per_particle),
                          "n_freq": int(n_freq), "grid_center_mm": [float(c) for c in grid_center_mm],
-                         "particles_per_axis": None if particles_per_axis is None else int(particles_per_axis)}
+                         "particles_per_axis": None if particles_per_axis is None
+                         else int(particles_per_axis)}
         self.dim = int(dim)
         self.force_dim = int(force_dim)
         self.receptive_field_mm = float(receptive_field_mm)
@@ -189,7 +192,8 @@ class ParticleEncoder(nn.Module):
     def _gather(self, batch: Batch) -> SeenRows:
         """The receptive-field gather and its seen (batch, particle) rows, poses centred."""
         xy = self.xy_mm.to(batch.pose.dtype)
-        g = gather_receptive_field(batch.pose[..., :2], batch.valid, xy, self.receptive_field_mm, self.max_steps)
+        g = gather_receptive_field(batch.pose[..., :2], batch.valid, xy, self.receptive_field_mm,
+                                   self.max_steps)
         bi, pi = g.seen.nonzero(as_tuple=True)
         index = g.index[bi, pi]                                      # (N, C)
         shift = torch.zeros(pi.shape[0], 1, POSE_DIM, dtype=batch.pose.dtype, device=batch.pose.device)
@@ -197,7 +201,8 @@ class ParticleEncoder(nn.Module):
         return SeenRows(gathered=g, batch_index=bi, particle_index=pi, step_index=index,
                         pose=batch.pose[bi[:, None], index] - shift, mask=g.mask[bi, pi])
 
-    def _folded_states(self, batch: Batch, rows: SeenRows, last_only: bool, at: Tensor | None = None) -> Tensor:
+    def _folded_states(self, batch: Batch, rows: SeenRows, last_only: bool,
+                       at: Tensor | None = None) -> Tensor:
         """The ragged GRU over the folded input gates of ``rows`` (:meth:`_gather`): (N, C, d_z) states,
         (N, d_z) with ``last_only``, or (N, k, d_z) after the slots ``at`` (N, k) (each row run only up to
         its last slot in ``at``)."""
@@ -224,7 +229,8 @@ class ParticleEncoder(nn.Module):
         if self._folds_inputs():
             return self._folded_states(batch, seq.rows, last_only=False, at=at)
         real = self.fle(seq.pose[seq.mask], seq.force[seq.mask])      # inputs of real steps only
-        z = self._run_gru(real.new_zeros(*seq.mask.shape, real.shape[-1]).index_put((seq.mask,), real), seq.count)
+        z = self._run_gru(real.new_zeros(*seq.mask.shape, real.shape[-1]).index_put((seq.mask,), real),
+                          seq.count)
         return z if at is None else z.gather(1, at[..., None].expand(-1, -1, z.shape[-1]))
 
     def encode_sequence(self, batch: Batch) -> ParticleSequence:
@@ -239,7 +245,8 @@ class ParticleEncoder(nn.Module):
             and type(self)._run_gru is ParticleEncoder._run_gru
 
     def _input_gates(self, batch: Batch, pose: Tensor, scan: Tensor, step: Tensor) -> Tensor:
-        """The GRU's input gates ``W_ih FLE(pose, force) + b_ih`` of S real steps, with the linear maps folded.
+        """The GRU's input gates ``W_ih FLE(pose, force) + b_ih`` of S real steps, with the linear maps
+        folded.
 
         ``W_ih (P phi(pose) + p + MLP(force))``: the pose part goes through the product ``W_ih P`` (3H x
         6 * 2 n_freq, much narrower than d_z), the force part is computed once per scan step and gathered
@@ -256,7 +263,8 @@ class ParticleEncoder(nn.Module):
         w, proj = self.gru.weight_ih_l0, self.fle.pose_encoding.proj
         per_step = self.fle.force_mlp(batch.force) @ w.t()                   # (B, L, 3H)
         bias = torch.addmv(self.gru.bias_ih_l0, w, proj.bias)
-        return torch.addmm(bias, self.fle.pose_encoding.features(pose), (w @ proj.weight).t()) + per_step[scan, step]
+        return torch.addmm(bias, self.fle.pose_encoding.features(pose),
+                           (w @ proj.weight).t()) + per_step[scan, step]
 
     def _run_gru(self, x: Tensor, count: Tensor) -> Tensor:
         """GRU over (N, C, dim) inputs, each row only up to its ``count`` real steps (inputs past it are
@@ -300,7 +308,8 @@ class GlobalEncoder(ParticleEncoder):
                  n_freq: int = 16, **_ignored) -> None:
         super().__init__(force_dim, dim=dim, spacing_mm=1.0, grid_extent_mm=0.0, receptive_field_mm=math.inf,
                          max_steps_per_particle=max_steps_per_particle, n_freq=n_freq)
-        self.settings = {k: self.settings[k] for k in ("force_dim", "dim", "max_steps_per_particle", "n_freq")}
+        self.settings = {k: self.settings[k]
+                         for k in ("force_dim", "dim", "max_steps_per_particle", "n_freq")}
 
     def _grid(self) -> Tensor:
         return torch.zeros(1, 2)

@@ -70,7 +70,8 @@ def class_weights(y: torch.Tensor, power: float = ALPHA_POWER) -> torch.Tensor:
     return inv / inv.sum().clamp_min(torch.finfo(torch.float32).tiny)
 
 
-def dice_loss(probs: torch.Tensor, y: torch.Tensor, eps: float = DICE_EPS, per: str = "batch") -> torch.Tensor:
+def dice_loss(probs: torch.Tensor, y: torch.Tensor, eps: float = DICE_EPS,
+              per: str = "batch") -> torch.Tensor:
     """Soft multi-class Dice loss.
 
     Empty-class rule: a class absent from both the truth and the argmax prediction (predicted at a voxel
@@ -106,7 +107,8 @@ def dice_loss(probs: torch.Tensor, y: torch.Tensor, eps: float = DICE_EPS, per: 
     return 1.0 - score.mean()
 
 
-def focal_loss(log_probs: torch.Tensor, y: torch.Tensor, alpha: torch.Tensor, gamma: float = GAMMA) -> torch.Tensor:
+def focal_loss(log_probs: torch.Tensor, y: torch.Tensor, alpha: torch.Tensor,
+               gamma: float = GAMMA) -> torch.Tensor:
     """Class-weighted focal loss averaged over all voxels of the batch.
 
     Args:
@@ -119,7 +121,8 @@ def focal_loss(log_probs: torch.Tensor, y: torch.Tensor, alpha: torch.Tensor, ga
         0-d float32.
     """
     if gamma != 0 and gamma < 1:
-        raise ValueError(f"gamma must be 0 or >= 1 (got {gamma}); (1 - p)^gamma has an infinite slope at p = 1")
+        raise ValueError(f"gamma must be 0 or >= 1 (got {gamma}); (1 - p)^gamma has an infinite slope at p = "
+                         "1")
     n_voxels = y.numel() // y.shape[1]
     # only the true class of each voxel contributes: gather it instead of multiplying by zeros, so that
     # -inf-like log-probabilities of other classes never meet a 0 weight

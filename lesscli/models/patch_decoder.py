@@ -75,19 +75,22 @@ class PatchDecoder(nn.Module):
         return {**out, "context": int(context)} if context else out
 
     def __init__(self, d_z: int, n_classes: int = 4, dim: int = 2, patch_px: int = PATCH_PX,
-                 depth_px: int = DEPTH_PX, patch_spacing_mm: tuple[float, float, float] = (0.9, 0.4774, 0.4774),
-                 width: int = 64, stitch: str = "sum", context: int = 0,
-                 context_width: int = CONTEXT_WIDTH) -> None:
+                 depth_px: int = DEPTH_PX,
+                 patch_spacing_mm: tuple[float, float, float] = (0.9, 0.4774, 0.4774), width: int = 64,
+                 stitch: str = "sum", context: int = 0, context_width: int = CONTEXT_WIDTH) -> None:
         super().__init__()
         if stitch not in STITCH_MODES:
             raise ValueError(f"stitch must be one of {STITCH_MODES}, got '{stitch}'")
         if context < 0 or (context and context % 2 == 0) or context_width < 1:
-            raise ValueError(f"context must be 0 or odd and context_width >= 1, got {context}, {context_width}")
+            raise ValueError(f"context must be 0 or odd and context_width >= 1, got {context}, "
+                             f"{context_width}")
         self.stitch, self.context = stitch, int(context)
-        self.neighbours = nn.Conv2d(d_z + 1, context_width, context, padding=context // 2) if context else None
+        self.neighbours = nn.Conv2d(d_z + 1, context_width, context,
+                                    padding=context // 2) if context else None
         n_up = round(math.log2(patch_px / BASE_PX))
         if dim not in (2, 3) or BASE_PX * 2**n_up != patch_px or n_up < 1:
-            raise ValueError(f"patch decoder needs dim 2 or 3 and patch_px = 4 * 2^k, k >= 1, got {dim}, {patch_px}")
+            raise ValueError(f"patch decoder needs dim 2 or 3 and patch_px = 4 * 2^k, k >= 1, got {dim}, "
+                             f"{patch_px}")
         self.dim, self.n_classes, self.width = dim, n_classes, width
         self.patch_px, self.depth_px = patch_px, depth_px if dim == 3 else 1
         self.patch_spacing_mm = tuple(float(s) for s in patch_spacing_mm)
@@ -176,7 +179,8 @@ def resample_patches(patches: Tensor, size: tuple[int, int, int]) -> Tensor:
     return out.reshape(b, p, c, *size)
 
 
-def target_patch_size(patch_shape: tuple[int, int, int], patch_spacing_mm, grid: ImageGrid) -> tuple[int, int, int]:
+def target_patch_size(patch_shape: tuple[int, int, int], patch_spacing_mm,
+                      grid: ImageGrid) -> tuple[int, int, int]:
     """Patch size in ``grid`` pixels with the same physical extent (columns span the grid's depth)."""
     depth = grid.shape[0] if patch_shape[0] > 1 or grid.shape[0] > 1 else 1
     sizes = [max(1, round(patch_shape[a] * patch_spacing_mm[a] / grid.spacing_mm[a])) for a in (1, 2)]

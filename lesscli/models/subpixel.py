@@ -196,7 +196,8 @@ class _SubpixelConvT(torch.autograd.Function):
         sums = [None, None]                                  # weight, bias: over chunks of the batch
         step = max(1, WEIGHT_GRAD_POSITIONS // math.prod(x.shape[2:]))
         for x_part, full_part in zip(x.split(step), full.split(step)) if needs[1] or needs[2] else ():
-            parts = backward(full_part, x_part, weight, [weight.shape[1]], *geometry, [False, needs[1], needs[2]])
+            parts = backward(full_part, x_part, weight, [weight.shape[1]], *geometry,
+                             [False, needs[1], needs[2]])
             for i, part in enumerate(parts[1:]):
                 if part is not None:
                     sums[i] = part if sums[i] is None else sums[i] + part

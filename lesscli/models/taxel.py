@@ -80,9 +80,11 @@ class TaxelParticleEncoder(ParticleEncoder):
         super().__init__(force_dim, **kwargs)
         xy = torch.as_tensor(taxel_xy_mm, dtype=torch.float64).reshape(-1, 2)
         if xy.shape[0] * AXES != self.force_dim:
-            raise ValueError(f"less-taxel: {xy.shape[0]} taxels x {AXES} axes != {self.force_dim} force features")
+            raise ValueError(f"less-taxel: {xy.shape[0]} taxels x {AXES} axes != {self.force_dim} force "
+                             "features")
         if map_cells < 1 or not map_pitch_mm > 0:
-            raise ValueError(f"less-taxel: map_cells >= 1 and map_pitch_mm > 0 needed, got {map_cells}, {map_pitch_mm}")
+            raise ValueError(f"less-taxel: map_cells >= 1 and map_pitch_mm > 0 needed, got {map_cells}, "
+                             f"{map_pitch_mm}")
         if map_contrast not in MAP_CONTRASTS:
             raise ValueError(f"less-taxel: map_contrast must be one of {MAP_CONTRASTS}, got {map_contrast!r}")
         self.settings.update({"taxel_xy_mm": xy.tolist(), "map_cells": int(map_cells),
@@ -94,7 +96,8 @@ class TaxelParticleEncoder(ParticleEncoder):
         self.gru_dim = self.dim
         self.cells = int(map_cells) ** 2
         self.dim = self.gru_dim + MAP_CHANNELS * self.cells
-        self.paper_fle = self._modules.pop("fle")           # the paper's FLE feeds the GRU; fle() adds the map
+        # the paper's FLE feeds the GRU; fle() adds the map
+        self.paper_fle = self._modules.pop("fle")
 
     def fle(self, pose: Tensor, force: Tensor) -> Tensor:
         """Step inputs ``[FLE(pose, force) (gru_dim), sum w log k, sum w contrast, sum w (m each)]``.
@@ -111,7 +114,8 @@ class TaxelParticleEncoder(ParticleEncoder):
         presses = (pose[..., 2:3] < 0) & (normal > CONTACT_FORCE)
         log_k = torch.log(torch.clamp(normal / (depth + DEPTH_FLOOR_MM), min=STIFFNESS_FLOOR))
         # the Gaussian weight of a cell is separable: exp(-dx^2 / 2 s^2) exp(-dy^2 / 2 s^2)
-        d = taxel_xy(pose, self.taxel_xy_mm)[..., None, :] - self.axis_mm.to(pose.dtype)[:, None]  # (..., T, n, 2)
+        # (..., T, n, 2)
+        d = taxel_xy(pose, self.taxel_xy_mm)[..., None, :] - self.axis_mm.to(pose.dtype)[:, None]
         wx, wy = torch.exp(-(d * d) / (2 * self.sigma_mm**2)).unbind(-1)
         pressing = presses.to(pose.dtype)
         contrast = log_k - self._step_trend(pressing, log_k)
@@ -149,7 +153,8 @@ class TaxelParticleEncoder(ParticleEncoder):
         past ``count``): the packed GRU on the first ``gru_dim``, running sums for the map."""
         g, m = self.gru_dim, self.cells
         h_gru = super()._run_gru(x[..., :g], count)
-        real = (torch.arange(x.shape[1], device=x.device) < count[:, None].to(x.device))[..., None].to(x.dtype)
+        real = (torch.arange(x.shape[1], device=x.device)
+                < count[:, None].to(x.device))[..., None].to(x.dtype)
         s = torch.cumsum(x[..., g:g + 2 * m] * real, dim=1)
         w = torch.cumsum(x[..., g + 2 * m:] * real, dim=1)
         return torch.cat([h_gru, s / (w + MAP_EPS).repeat(1, 1, 2) * real, torch.log1p(w) * real], dim=-1)

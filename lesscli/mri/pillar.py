@@ -117,8 +117,8 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
     if n_inclusions == 0:
         none = np.zeros(insert.shape, dtype=bool)
         return none, [], None, [], none.copy()
-    search = _Search(fraction, insert, insert if deep is None else deep, inc_ids, n_inclusions, spacing_mm, axis,
-                     max_diameter_mm, smoothing)
+    search = _Search(fraction, insert, insert if deep is None else deep, inc_ids, n_inclusions, spacing_mm,
+                     axis, max_diameter_mm, smoothing)
     search.walk()
     search.side = _base_side(search.traces, search.columns, search.contrasts, search.labels, search.core0,
                              search.step, search.voxel_mm3)
@@ -145,8 +145,10 @@ class _Search:
         self.spacing = np.asarray(spacing_mm, dtype=np.float64)
         self.axis, self.max_diameter_mm, self.smoothing = axis, max_diameter_mm, smoothing
         self.voxel = float(self.spacing.max())
-        along = int(np.argmax(np.abs(axis)))          # slabs one plane of voxel centres thick (the module's docstring)
-        self.step, self.voxel_mm3 = float(self.spacing[along] / abs(axis[along])), float(np.prod(self.spacing))
+        # slabs one plane of voxel centres thick (the module's docstring)
+        along = int(np.argmax(np.abs(axis)))
+        self.step, self.voxel_mm3 = (float(self.spacing[along] / abs(axis[along])),
+                                     float(np.prod(self.spacing)))
         self.core0 = 0.5 * max_diameter_mm + CORE_MARGIN_VOXELS * self.voxel
         self.labels = list(range(1, n_inclusions + 1))
         centres = ndimage.center_of_mass(inc_ids > 0, inc_ids, self.labels)
@@ -161,15 +163,15 @@ class _Search:
         return inner, inner + max(RING_WIDTH_MM, 2 * self.voxel)
 
     def trace(self, label: int, sign: int, core: float, line: np.ndarray | None = None, ball=None) -> Trace:
-        return _trace(self.columns[label], sign, np.zeros((2, 2)) if line is None else line, core, self.rings(core),
-                      self.step, self.voxel_mm3, self.contrasts[label], ball)
+        return _trace(self.columns[label], sign, np.zeros((2, 2)) if line is None else line, core,
+                      self.rings(core), self.step, self.voxel_mm3, self.contrasts[label], ball)
 
     def walk(self) -> None:
         """Each inclusion's column and its first traces on both sides, the hydrogel level taken again from the
         slabs walked on either side."""
         for label, centre in zip(self.labels, self.centres):
-            self.columns[label] = _column(self.fraction, self.insert, self.deep, self.inc_ids, label, centre, self.axis,
-                                          self.spacing, self.rings(self.core0)[1])
+            self.columns[label] = _column(self.fraction, self.insert, self.deep, self.inc_ids, label, centre,
+                                          self.axis, self.spacing, self.rings(self.core0)[1])
             self.contrasts[label] = _contrast(self.fraction, self.inc_ids, label, self.columns[label],
                                               self.rings(self.core0), self.spacing)
             for _ in range(2):
@@ -178,13 +180,15 @@ class _Search:
             self.traces[label, 1], self.traces[label, -1] = both
 
     def fit_balls(self) -> np.ndarray:
-        """Each inclusion's blurred ball and the line under its centre; a column whose gap to the base is short
+        """Each inclusion's blurred ball and the line under its centre; a column whose gap to the base is
+        short
         walked again past its ball. Returns the voxels past the balls where a body runs on into the base."""
         side = self.side
         run_on = np.zeros(self.insert.shape, dtype=bool)
         for label, centre in zip(self.labels, self.centres):
-            ball = self.balls[label] = _column_ball(self.fraction, self.deep, self.inc_ids, label, self.columns[label],
-                                                    side, self.core0, self.step, self.spacing)
+            ball = self.balls[label] = _column_ball(self.fraction, self.deep, self.inc_ids, label,
+                                                    self.columns[label], side, self.core0, self.step,
+                                                    self.spacing)
             self.under[label] = _ball_axis(ball, centre, self.axis)
             col = self.columns[label]
             if ball is not None and _run_on(col, side, self.step):
@@ -202,17 +206,19 @@ class _Search:
         if trace.profiled is not False:
             return trace.end_mm
         if label not in self.clear:
-            self.clear[label] = _clear_end(self.fraction, self.insert, self.deep, self.inc_ids, label, self.centres,
-                                           self.balls, self.axis, self.spacing, self.side, self.step, self.voxel_mm3,
-                                           self.contrasts[label])
+            self.clear[label] = _clear_end(self.fraction, self.insert, self.deep, self.inc_ids, label,
+                                           self.centres, self.balls, self.axis, self.spacing, self.side,
+                                           self.step, self.voxel_mm3, self.contrasts[label])
         return trace.end_mm if self.clear[label] is None else self.clear[label]
 
     def measure(self) -> tuple[dict, dict, list[int], list[int]]:
-        """The posts the traces on the base's side show: label -> (line, slab cross-sections, core radius, end),
+        """The posts the traces on the base's side show: label -> (line, slab cross-sections, core radius,
+        end),
         label -> the trace measured, the labels across a short gap, and those without a post."""
         side, voxel = self.side, self.voxel
         scatter = _pooled_scatter(_inner(trace) for trace in self.traces.values())
-        thin_core = 0.25 * self.max_diameter_mm + CORE_MARGIN_VOXELS * voxel  # half the widest pillar's, less noise
+        # half the widest pillar's, less noise
+        thin_core = 0.25 * self.max_diameter_mm + CORE_MARGIN_VOXELS * voxel
         thin = {}                           # every trace again in the thin core, read once if one is needed
         found, finals, short, missing = {}, {}, [], []
         for label in self.labels:
@@ -240,8 +246,8 @@ class _Search:
         ball, side = self.balls[label], self.side
         start = (self.columns[label].start[side] if ball is None
                  else _ball_surface(ball, self.centres[label - 1], self.axis, side))
-        return _post_radius(self.columns[label], side, start, end, ball, self.contrasts[label], core, self.rings(core),
-                            self.step, self.voxel_mm3, self.under[label])
+        return _post_radius(self.columns[label], side, start, end, ball, self.contrasts[label], core,
+                            self.rings(core), self.step, self.voxel_mm3, self.under[label])
 
     def refine(self, found: dict, finals: dict, cores: dict, missing: list[int]) -> None:
         """Line, radius and blur of each post with slabs enough refined together (one blurred cylinder); a
@@ -250,8 +256,8 @@ class _Search:
             if len(final.area_mm2) >= MIN_LINE_SLABS:
                 line, radius, end = found[label]
                 ball = self.balls[label]
-                line, fitted = _fit_cylinder(self.columns[label], self.side, final, line, radius, cores[label],
-                                             self.step, self.contrasts[label], ball,
+                line, fitted = _fit_cylinder(self.columns[label], self.side, final, line, radius,
+                                             cores[label], self.step, self.contrasts[label], ball,
                                              None if ball is None else self.under[label], self.smoothing)
                 if len(final.area_mm2) >= MIN_OWN_SLABS:        # its own slabs must show a post too
                     radius = fitted if radius >= MIN_RADIUS_MM else 0.0
@@ -266,14 +272,15 @@ class _Search:
         for label in short:
             col, end = self.columns[label], self.base_end(label, self.traces[label, self.side])
             fitted = None if self.balls[label] is None else partial(self.short_radius, label, self.core0, end)
-            radius = _gap_radius(col, self.side, end, self.contrasts[label], self.core0, self.step, self.voxel_mm3,
-                                 found, self.under[label], self.max_diameter_mm, fitted)
+            radius = _gap_radius(col, self.side, end, self.contrasts[label], self.core0, self.step,
+                                 self.voxel_mm3, found, self.under[label], self.max_diameter_mm, fitted)
             if radius is None:
                 missing.append(label)
             else:
                 found[label] = (self.under[label], radius, end)
 
-    def draw(self, found: dict, diameter_mm: float | None) -> tuple[np.ndarray, BaseSurface | None, list[Post]]:
+    def draw(self, found: dict,
+             diameter_mm: float | None) -> tuple[np.ndarray, BaseSurface | None, list[Post]]:
         """The pillar mask, the base's surface (one cast plane: the median of where the posts met it) and the
         posts of ``found`` (label -> (line, radius, end)), each ``diameter_mm`` wide where that is given."""
         side, axis = self.side, self.axis
@@ -290,8 +297,10 @@ class _Search:
             pillar[tuple(i[sel] for i in col.index)] = True
         base = None
         if found:
-            base = BaseSurface(side * axis, float(np.median([side * float(self.centres[label - 1] @ axis) + end
-                                                             for label, (_line, _radius, end) in found.items()])))
+            base = BaseSurface(side * axis,
+                               float(np.median([side * float(self.centres[label - 1] @ axis) + end
+                                                             for label,
+                                                             (_line, _radius, end) in found.items()])))
         posts = [_post(*found[label], self.centres[label - 1], axis, side,
                        self.columns[label].start[side] if self.balls[label] is None
                        else _ball_surface(self.balls[label], self.centres[label - 1], axis, side),
@@ -342,10 +351,12 @@ class BaseSurface:
     def past_mm(self, spacing: np.ndarray, shape: tuple) -> np.ndarray:
         """How far each voxel's centre lies past the surface, mm: positive in the base's silicone (which no
         inclusion's ball holds), negative on the filling's side."""
-        d = np.meshgrid(*(np.arange(n) * s * a for n, s, a in zip(shape, spacing, self.normal)), indexing="ij",
-                        sparse=True)
+        d = np.meshgrid(*(np.arange(n) * s * a for n, s, a in zip(shape, spacing, self.normal)),
+                        indexing="ij", sparse=True)
         return d[0] + d[1] + d[2] - self.offset_mm
 
     def shifted(self, origin_index: np.ndarray, spacing: np.ndarray) -> BaseSurface:
-        """The same plane on a grid (of the same spacing) whose index 0 lies at this one's ``origin_index``."""
-        return BaseSurface(self.normal, self.offset_mm - float(self.normal @ (np.asarray(origin_index) * spacing)))
+        """The same plane on a grid (of the same spacing) whose index 0 lies at this one's
+        ``origin_index``."""
+        return BaseSurface(self.normal,
+                           self.offset_mm - float(self.normal @ (np.asarray(origin_index) * spacing)))

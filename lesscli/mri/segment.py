@@ -60,9 +60,10 @@ class SegmentParams:
     pillar_diameter_mm: float | None = None
 
     def __post_init__(self):
-        if self.pillar_diameter_mm is not None and not 0 < self.pillar_diameter_mm <= self.pillar_max_diameter_mm:
-            raise ValueError(f"the pillar diameter ({self.pillar_diameter_mm:g} mm) must lie above 0 and at most "
-                             f"the thickest pillar's ({self.pillar_max_diameter_mm:g} mm)")
+        if (self.pillar_diameter_mm is not None
+            and not 0 < self.pillar_diameter_mm <= self.pillar_max_diameter_mm):
+            raise ValueError(f"the pillar diameter ({self.pillar_diameter_mm:g} mm) must lie above 0 and at "
+                             f"most the thickest pillar's ({self.pillar_max_diameter_mm:g} mm)")
 
 
 @dataclass
@@ -220,11 +221,13 @@ def _surface(corrected: np.ndarray, insert: np.ndarray, levels: tuple[float, flo
     inside = ndimage.distance_transform_edt(ins, sampling=spacing)
     outside = ndimage.distance_transform_edt(~ins, sampling=spacing)
     band_mm = SURFACE_BAND_VOXELS * voxel
-    depth = SURFACE_LAYER_VOXELS * voxel           # the layer is at least a voxel thick: slices must not fall past it
+    # the layer is at least a voxel thick: slices must not fall past it
+    depth = SURFACE_LAYER_VOXELS * voxel
     layer = ins & (inside > depth) & (inside <= depth + max(SURFACE_LAYER_MM, voxel))
     sigma = SURFACE_SIGMA_MM / spacing
     weight = ndimage.gaussian_filter(layer.astype(np.float32), sigma)
-    level = ndimage.gaussian_filter(np.where(layer, img, 0.0).astype(np.float32), sigma) / np.maximum(weight, 1e-6)
+    level = ndimage.gaussian_filter(np.where(layer, img, 0.0).astype(np.float32), sigma) / np.maximum(weight,
+                                                                                                     1e-6)
     band = ((ins & (inside <= band_mm)) | (~ins & (outside <= band_mm))) & (weight > SURFACE_MIN_WEIGHT)
     threshold = np.where(np.abs(level - dark) <= np.abs(level - bright), half_level(air, dark),
                          half_level(air, bright))
@@ -283,7 +286,8 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     arr = arr - min(float(arr.min()), 0.0)             # magnitudes are >= 0; shift signed data
     scale = float(np.percentile(_sample(arr), NORM_PERCENTILE)) or float(arr.max())
     smooth_mm = params.smooth_mm if params.smooth_mm is not None else SMOOTH_VOXELS * float(spacing.min())
-    smoothed = ndimage.gaussian_filter(arr / scale, sigma=smooth_mm / spacing) if smooth_mm > 0 else arr / scale
+    smoothed = (ndimage.gaussian_filter(arr / scale, sigma=smooth_mm / spacing) if smooth_mm > 0
+                else arr / scale)
     corrected, foreground = correct_bias(smoothed, spacing, params.bias_degree)
     air, dark, bright = _levels(corrected, foreground)
     t_air, t_tissue = 0.5 * (air + dark), 0.5 * (dark + bright)
@@ -299,12 +303,13 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     pillar, inclusion, more, shapes, base, posts = split_silicone(silicone, insert, spacing,
                                                                   params.pillar_max_diameter_mm,
                                                                   params.skin_max_thickness_mm, fraction,
-                                                                  params.inclusion_shape, params.pillar_diameter_mm,
+                                                                  params.inclusion_shape,
+                                                                  params.pillar_diameter_mm,
                                                                   smooth_mm / spacing)
     labels = np.full(arr.shape, BACKGROUND, dtype=np.uint8)
     labels[insert] = INSERT
     labels[pillar] = PILLAR
     labels[inclusion] = INCLUSION
     levels = {"air": air, "silicone": sil_level, "hydrogel": gel_level}
-    return Segmentation(labels, spacing, silicone_brighter, levels, (t_air, t_tissue), corrected.astype(np.float32),
-                        silicone, warnings + more, shapes, base, posts)
+    return Segmentation(labels, spacing, silicone_brighter, levels, (t_air, t_tissue),
+                        corrected.astype(np.float32), silicone, warnings + more, shapes, base, posts)

@@ -36,7 +36,8 @@ def save_figure(fig, path: str, dpi: float | None = None) -> None:
 
     fmt = figure_format(path)
     metadata = {"pdf": {"CreationDate": None}, "svg": {"Date": None}}.get(fmt)     # no clock time inside
-    with atomic_path(path, "." + fmt) as tmp, matplotlib.rc_context({"svg.hashsalt": "less"}):  # nor random ids
+    # nor random ids
+    with atomic_path(path, "." + fmt) as tmp, matplotlib.rc_context({"svg.hashsalt": "less"}):
         fig.savefig(tmp, format=fmt, dpi=dpi, **({"metadata": metadata} if metadata else {}))
 
 
@@ -100,7 +101,8 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
     front = []
     for i in idx:
         ti, si = points[i]
-        dominated = any((points[j][0] <= ti and points[j][1] >= si) and (points[j][0] < ti or points[j][1] > si)
+        dominated = any((points[j][0] <= ti and points[j][1] >= si)
+                        and (points[j][0] < ti or points[j][1] > si)
                         for j in idx if j != i)
         if not dominated:
             front.append(i)
@@ -129,7 +131,8 @@ def pareto_figure(rows: Sequence[Mapping], path: str, time_key: str = "train_s",
             ax.scatter([pts[i][0] for i in sel], [pts[i][1] for i in sel], marker=markers[k % len(markers)],
                        label=knob, zorder=3)
             for i in sel:
-                ax.annotate(str(rows[i]["value"]), pts[i], fontsize=7, xytext=(3, 3), textcoords="offset points")
+                ax.annotate(str(rows[i]["value"]), pts[i], fontsize=7, xytext=(3, 3),
+                            textcoords="offset points")
         front = pareto_front(pts)
         if front:
             ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], "k--", lw=1, label="Pareto front")

@@ -2,8 +2,8 @@
 
 The checkpoint is a normal ``less.checkpoint`` (``torch.load(weights_only=True)``) with an empty model
 state and ``config = {"model": "forcemap", "forcemap": <Calibration as a dict>, "image": {"dim",
-"slice"}, "grid": <first training target grid>, "data": <the training scans' data signature>}``; ``less image predict`` recognises it by
-``config["model"]`` (:func:`lesscli.infer.predict.predict_file`).
+"slice"}, "grid": <first training target grid>, "data": <the training scans' data signature>}``; ``less image
+predict`` recognises it by ``config["model"]`` (:func:`lesscli.infer.predict.predict_file`).
 """
 
 from __future__ import annotations

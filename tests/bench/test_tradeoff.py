@@ -30,7 +30,8 @@ def test_pareto_front_keeps_the_undominated_points_sorted_by_time():
 def test_settings_vary_one_knob_around_the_base():
     found = settings_of(QUICK, ["receptive_field", "tier"])
     assert [(k, v) for k, v, _ in found] == [("receptive_field", 5.0), ("receptive_field", 10.0),
-                                              ("receptive_field", 20.0), ("tier", "winkler"), ("tier", "green")]
+                                              ("receptive_field", 20.0), ("tier", "winkler"),
+                                              ("tier", "green")]
     assert found[0][2] == Setting(receptive_field_mm=5.0) and found[4][2] == Setting(tier="green")
     assert found[1][2] == QUICK.base == found[3][2]
 
@@ -68,10 +69,12 @@ def test_a_setting_shared_by_two_knobs_is_trained_once_and_ratios_use_the_base(m
 
 def test_turns_share_the_trained_model_and_are_evaluated_each(monkeypatch, tmp_path):
     trained, evaluated = [], []
-    monkeypatch.setattr(tradeoff, "make_data", lambda plan, tier, run: tradeoff.BenchData(None, None, None, 1.0))
+    monkeypatch.setattr(tradeoff, "make_data", lambda plan, tier,
+                        run: tradeoff.BenchData(None, None, None, 1.0))
     monkeypatch.setattr(tradeoff, "train_setting", lambda plan, s, data, run, stem: trained.append(s) or {
         "imager": stem, "pretrain_s": 2.0, "fit_s": 1.0, "train_steps": 10})
-    monkeypatch.setattr(tradeoff, "evaluate", lambda path, s, data, run: evaluated.append((path, s.turns)) or {
+    monkeypatch.setattr(tradeoff, "evaluate", lambda path, s, data,
+                        run: evaluated.append((path, s.turns)) or {
         "latency_ms_per_scan": 2.0 * s.turns, "f1_single": 0.5 + s.turns / 100, "f1_multiple": 0.5})
     rows = run_tradeoff(QUICK, ["turns"], TradeoffRun(workdir=str(tmp_path)))
     assert trained == [QUICK.base] and evaluated == [("s00", 1), ("s00", 4)]
@@ -93,9 +96,10 @@ def test_figures_are_non_blank_pngs(tmp_path):
 
 
 def test_bench_tradeoff_tiny_run_end_to_end(tmp_path, run_less):
-    proc = run_less("bench", "tradeoff", "--quick", "--knob", "receptive_field", "--values", "receptive_field=5,10",
-                    "--inserts", "4", "--n-traj", "4", "--epochs", "1", "--image-epochs", "1", "--threads", "1",
-                    "--plot", "tradeoff.png", "--format", "jsonl", env=ONE_THREAD)
+    proc = run_less("bench", "tradeoff", "--quick", "--knob", "receptive_field", "--values",
+                    "receptive_field=5,10", "--inserts", "4", "--n-traj", "4", "--epochs", "1",
+                    "--image-epochs", "1", "--threads", "1", "--plot", "tradeoff.png", "--format", "jsonl",
+                    env=ONE_THREAD)
     assert proc.returncode == 0, proc.stderr.decode(errors="replace")
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert [(r["knob"], r["value"]) for r in rows] == [("receptive_field", 5.0), ("receptive_field", 10.0)]
