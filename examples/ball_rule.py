@@ -58,7 +58,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("preds", nargs="+", help="prediction files (`less image predict` outputs with truth)")
     args = parser.parse_args()
-    print("| file | as predicted | " + " | ".join("every region" if g == 0 else f"round >= {g:g}" for g in GATES)
+    print("| file | as predicted | "
+          + " | ".join("every region" if g == 0 else f"round >= {g:g}" for g in GATES)
           + " |")
     print("|---" * (len(GATES) + 2) + "|")
     for path in args.preds:

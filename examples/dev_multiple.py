@@ -47,16 +47,19 @@ def _spheres(kind: str, rng: np.random.Generator) -> list[Sphere]:
             if min(gaps) < 4.0:
                 continue
         if all(math.hypot(x, y) <= REACH_MM for x, y in xy):
-            return [Sphere((round(x, 3), round(y, 3), inclusion_depth_mm(d / 2)), d / 2) for (x, y), d in zip(xy, ds)]
+            return [Sphere((round(x, 3), round(y, 3), inclusion_depth_mm(d / 2)), d / 2) for (x, y),
+                    d in zip(xy, ds)]
 
 
 def dev_multiple(seed: int = SEED) -> list[Phantom]:
     """Eight inserts: three chains, two curves, three with separate inclusions."""
     rng = np.random.default_rng(seed)
     out = []
-    for i, kind in enumerate(["chain", "curve", "separate", "chain", "separate", "curve", "chain", "separate"]):
+    for i, kind in enumerate(["chain", "curve", "separate", "chain", "separate", "curve", "chain",
+                              "separate"]):
         inclusions, pillars = hanging(_spheres(kind, rng))
-        out.append(Phantom(f"Dev{i}{kind[:2].capitalize()}{len(inclusions)}", inclusions=inclusions, pillars=pillars))
+        out.append(Phantom(f"Dev{i}{kind[:2].capitalize()}{len(inclusions)}", inclusions=inclusions,
+                           pillars=pillars))
     return out
 
 

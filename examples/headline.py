@@ -18,8 +18,8 @@ from pathlib import Path
 
 IMAGERS = ["less", "global", "less-taxel", "global-taxel", "forcemap", "average"]
 NAMES = {"forcemap": "classical", "average": "average"}
-SET_NAMES = {"test": "single (held-out scans)", "handheld": "hand-held-like", "train": "train (its own scans)",
-             "val": "validation"}
+SET_NAMES = {"test": "single (held-out scans)", "handheld": "hand-held-like",
+             "train": "train (its own scans)", "val": "validation"}
 SET_ORDER = ["val", "single", "test", "multiple", "large", "handheld", "train"]
 SINGLE = ("single", "test")
 COLUMNS = [("f1_micro_2d", "2D F1", 3), ("com_error_mm_2d", "2D centroid mm", 2),
@@ -99,7 +99,8 @@ def ratio_table(groups: dict) -> list[str]:
            "|---|---|---|---|---|"]
     for m in imagers(groups):
         if m != "average":
-            cells = [ratio(groups, o, m, k) for k in ("f1_micro_2d", "f1_micro_3d") for o in ("multiple", "large")]
+            cells = [ratio(groups, o, m, k) for k in ("f1_micro_2d", "f1_micro_3d")
+                     for o in ("multiple", "large")]
             out.append(f"| {NAMES.get(m, m)} | " + " | ".join(cells) + " |")
     return out
 
@@ -134,8 +135,9 @@ def main(argv: list[str]) -> None:
         add_times(groups, args.times)
         COLUMNS.append(("train_seconds", "training s", 0))
     lines = [f"Inclusion class; micro F1 over each set's scans, mean ± std over seeds (from {args.records}).",
-             "", *main_table(groups), "", "Generalisation: each imager's micro F1 on a set over its F1 on single.",
-             "", *ratio_table(groups)]
+             "", *main_table(groups), "",
+             "Generalisation: each imager's micro F1 on a set over its F1 on single.", "",
+             *ratio_table(groups)]
     if not args.no_paper:
         lines += ["", "The paper's numbers (real data; 2D):", "", *paper_table()]
     print("\n".join(lines))

@@ -6,52 +6,11 @@ voxels 0.4-1.2 mm, both contrasts, Rician noise 0.02-0.1, bias 0.1-0.4), labels 
 ``lesscli.mri.segment.segment`` and scores it against the truth: insert Dice per volume, inclusion and
 pillar Dice per inclusion (in the cell of voxels nearer to it than to the others). Prints the markdown
 table of min / median per parameter band (pillar Dice only where the pillar is at least 2 voxels wide);
-``--out`` keeps the rows as JSON lines (each case's ``base_error_mm``: how far past the true base surface,
-into the base, the one found lies; each inclusion's ``post_diameter_error_mm`` and
-``post_height_error_mm``, the post found under it against the truth, and ``post_offset_mm``, its foot's
-distance from the true axis). ``--partial-volume box`` draws the same volumes with each voxel's share of
-each tissue (the family's default is a ramp of the signed distance, which adds tissue around thin posts;
-tests/mri_family.py), sampled at ``--box-points`` points per axis (8); a flat surface then leaves the slice
-whose centres lie within half a sub-voxel step of it undecided (the scan is the same on either side), and
-the rows' ``dice_insert_decided`` and ``dice_pillar_decided`` leave out those at the insert's outer faces
-and at the base's surface under the filling (`Volume.undecided_slices`).
-
-``--floating`` draws the same volumes without posts: the footer counts those where a pillar voxel is
-drawn or an inclusion lacks its "no pillar found" warning (each case row has ``pillar_voxels_drawn``).
-
-``--lone-short`` draws each seed's volume with its first inclusion alone, on a post 1-2.5 mm tall: the
-posts whose radius is fitted to all their silicone, below the blurred ball (no other post to pool with);
-the footer gives their diameter error. `lesscli.mri.ball.CAP_SHUT_VOXELS` was chosen on seeds
-900-939 of it (box partial volume).
-
-``--near-skin`` draws each seed's volume with its highest sphere 0.5-2 mm under the skin (the family's
-stay 2 mm or more from it): the first inclusion's post made tall enough, and its sphere wide enough that the
-post need not pass 15 mm, for it to reach there in an insert of 28 mm or more; rows keep ``skin_gap_mm``.
-
-``--tilted`` tilts each seed's insert axis 0-10 degrees off the array's first axis about an in-plane axis at any
-azimuth, as a phantom laid in a coil by hand is (the family's are upright); rows keep ``tilt_deg``.
-
-``--known-diameter`` segments each volume with its posts' true diameter given, as a lab that knows its
-mould's would (``less mri-label --pillar-diameter-mm``): the posts are found, placed and ended from the
-scan as without it, and drawn that wide (the rows' ``post_diameter_error_mm`` stays the measured one's).
-
-``--margins 0.025,0.05,0.1`` segments nothing: it scores the truth itself, drawn again with each post
-wider and narrower by each radius (mm), with the base's surface that far up and down, and with each
-sphere that much wider and narrower about its centre, against the truth as drawn, and prints how many
-volumes that alone takes below the pillar target: how close to its knife edge the target puts each
-volume.
-
-``--rows a.jsonl,b.jsonl`` segments nothing either: it prints the band table and footer of rows written
-before with ``--out``, the files joined (docs/results/mri-label-family.md's table over the 700, from the runs of its halves).
+``--out`` keeps the rows as JSON lines. The other options draw variants of the family or score rows
+written before (``--help``); docs/results/mri-label-family.md gives the runs behind its tables.
 
     python examples/mri_family.py --seeds 1000-1059 --out results/mri_family.jsonl
     python examples/mri_family.py --seeds 1000-1059 --partial-volume box
-    python examples/mri_family.py --seeds 5081,3017 --partial-volume box --box-points 24
-    python examples/mri_family.py --seeds 0-99 --margins 0.025,0.05,0.1
-    python examples/mri_family.py --seeds 900-939 --partial-volume box --lone-short
-    python examples/mri_family.py --seeds 0-99 --partial-volume box --near-skin
-    python examples/mri_family.py --seeds 1000-1099 --partial-volume box --tilted
-    python examples/mri_family.py --seeds 1000-1059 --known-diameter
     python examples/mri_family.py --rows box-a.jsonl,box-b.jsonl
 """
 
@@ -109,9 +68,11 @@ def lone_short(case):
 
 
 def small_coarse(seed: int) -> Case:
-    """A volume of small spheres at coarse voxels, seeded by ``[seed // 100, seed % 100]`` (seeds 4900-4979 and
-    49200-49279 are the two probes of docs/results/mri-label-rounds.md): 1-3 inclusions, the first of 6-7 mm and the others over the
-    family's range; every voxel side 0.9-1.2 mm; noise 0.05-0.1; posts, bias, base and contrast as the family's."""
+    """A volume of small spheres at coarse voxels, seeded by ``[seed // 100, seed % 100]`` (seeds 4900-4979
+    and 49200-49279 are the two probes of docs/results/mri-label-rounds.md): 1-3 inclusions, the first of 6-7
+    mm and the others over the
+    family's range; every voxel side 0.9-1.2 mm; noise 0.05-0.1; posts, bias, base and contrast as the
+    family's."""
     rng = np.random.default_rng([seed // 100, seed % 100])
     n = int(rng.integers(1, 4))
     spacing = tuple(float(v) for v in np.round(rng.uniform(*SMALL_COARSE["spacing_mm"], 3), 2))
@@ -119,18 +80,20 @@ def small_coarse(seed: int) -> Case:
     others = tuple(float(v) for v in np.round(rng.uniform(*RANGES["inclusion_mm"], n - 1), 1))
     return Case(seed=seed, spacing_mm=spacing, inclusion_mm=(first, *others),
                 pillar_mm=float(np.round(rng.uniform(*RANGES["pillar_mm"]), 2)),
-                pillar_height_mm=tuple(float(v) for v in np.round(rng.uniform(*RANGES["pillar_height_mm"], n), 1)),
+                pillar_height_mm=tuple(float(v)
+                                       for v in np.round(rng.uniform(*RANGES["pillar_height_mm"], n), 1)),
                 base_up=bool(rng.random() < 0.5), silicone_brighter=bool(rng.random() < 0.5),
                 noise=float(np.round(rng.uniform(*SMALL_COARSE["noise"]), 3)),
                 bias=float(np.round(rng.uniform(*RANGES["bias"]), 3)))
 
 
 def near_skin(case):
-    """``case`` with its highest sphere 0.5-2 mm under the skin (seeded by the case): the first inclusion's post
-    raised, where it is shorter, to take its sphere there in an insert of MIN_INSERT_MM, and that sphere
+    """``case`` with its highest sphere 0.5-2 mm under the skin (seeded by the case): the first inclusion's
+    post raised, where it is shorter, to take its sphere there in an insert of MIN_INSERT_MM, and that sphere
     widened, where it is narrower, so that the post need not pass the family's tallest."""
     gap = float(np.round(np.random.default_rng([48, case.seed]).uniform(*NEAR_SKIN_MM), 2))
-    reach = MIN_INSERT_MM - case.skin_mm - case.base_mm - gap       # post plus sphere, to the gap under the skin
+    # post plus sphere, to the gap under the skin
+    reach = MIN_INSERT_MM - case.skin_mm - case.base_mm - gap
 
     def up(value: float, least: float) -> float:
         return max(value, math.ceil(least * 10.0 - 1e-9) / 10.0)
@@ -143,13 +106,15 @@ def near_skin(case):
 
 def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lone: bool = False,
              known: bool = False, near: bool = False, small: bool = False, tilt: bool = False) -> list[dict]:
-    """One volume: a case row (insert Dice, pillar voxels drawn, warnings) and one row per inclusion, each with
-    the case's parameters; ``small``: drawn by :func:`small_coarse`, not ``draw_case``; ``floating``: the
-    volume drawn without posts; ``lone``: :func:`lone_short`; ``near``: :func:`near_skin`; ``known``: segmented
+    """One volume: a case row (insert Dice, pillar voxels drawn, warnings) and one row per inclusion, each
+    with the case's parameters; ``small``: drawn by :func:`small_coarse`, not ``draw_case``; ``floating``: the
+    volume drawn without posts; ``lone``: :func:`lone_short`; ``near``: :func:`near_skin`; ``known``:
+    segmented
     with the posts' true diameter given (``SegmentParams.pillar_diameter_mm``)."""
     from lesscli.mri.segment import SegmentParams, segment
 
-    case = dataclasses.replace(small_coarse(seed) if small else draw_case(seed), partial_volume=partial_volume)
+    case = dataclasses.replace(small_coarse(seed) if small else draw_case(seed),
+                               partial_volume=partial_volume)
     if floating:
         case = dataclasses.replace(case, pillar_mm=0.0)
     if lone:
@@ -166,12 +131,14 @@ def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lo
               "pillar_mm": case.pillar_mm, "pillar_voxels": round(pillar_voxels_wide(case), 2),
               "contrast": "silicone-brighter" if case.silicone_brighter else "silicone-darker",
               "base": "up" if case.base_up else "down", "noise": case.noise, "bias": case.bias,
-              "inclusions": len(case.inclusion_mm), "skin_gap_mm": case.skin_gap_mm, "tilt_deg": case.tilt_deg}
+              "inclusions": len(case.inclusion_mm), "skin_gap_mm": case.skin_gap_mm,
+              "tilt_deg": case.tilt_deg}
     base = None if seg.base_surface is None else round(base_error_mm(seg.base_surface, volume), 4)
     rows = [{"row": "case", **common, **insert_scores(seg.labels, volume),
              "base_error_mm": base, "pillar_voxels_drawn": int((seg.labels == PILLAR).sum()),
              "seconds": round(time.perf_counter() - t0, 2), "warnings": seg.warnings}]
-    rows += [{"row": "inclusion", **common, **r, **{k: None if v is None else round(v, 4) for k, v in e.items()}}
+    rows += [{"row": "inclusion", **common, **r,
+              **{k: None if v is None else round(v, 4) for k, v in e.items()}}
              for r, e in zip(inclusion_scores(seg.labels, volume), post_errors(seg.posts, volume))]
     return rows
 
@@ -179,7 +146,8 @@ def run_case(seed: int, partial_volume: str = "ramp", floating: bool = False, lo
 def shortfalls(case: dict, inclusions: list[dict]) -> list[str]:
     """The Dice of one volume below the acceptance (pillar only where at least 2 voxels wide)."""
     fails = [f"insert {case['dice_insert']:.3f}"] if case["dice_insert"] < ACCEPT["insert"] else []
-    fails += [f"inclusion {r['dice_inclusion']:.3f}" for r in inclusions if r["dice_inclusion"] < ACCEPT["inclusion"]]
+    fails += [f"inclusion {r['dice_inclusion']:.3f}" for r in inclusions
+              if r["dice_inclusion"] < ACCEPT["inclusion"]]
     fails += [f"pillar {r['dice_pillar']:.3f} ({r['pillar_voxels']} voxels)" for r in inclusions
               if r["dice_pillar"] < ACCEPT["pillar"] and r["pillar_voxels"] >= MIN_PILLAR_VOXELS]
     return fails
@@ -200,7 +168,8 @@ def margin_row(seed: int, deltas: list[float]) -> dict:
         for name, change in PERTURBATIONS.items():
             for sign in ("+", "-"):
                 moved = generate(perturbed(case, **change(delta if sign == "+" else -delta)), image=False)
-                row[f"{name}{sign}{delta:g}"] = [r["dice_pillar"] for r in inclusion_scores(moved.truth, truth)]
+                row[f"{name}{sign}{delta:g}"] = [r["dice_pillar"]
+                                                 for r in inclusion_scores(moved.truth, truth)]
     return row
 
 
@@ -213,8 +182,8 @@ def margin_table(rows: list[dict], deltas: list[float]) -> str:
         return [r["seed"] for r in wide if any(min(r[f"{n}{s}{delta:g}"]) < ACCEPT["pillar"]
                                                for n in names for s in "+-")]
 
-    lines = [(f"Volumes with pillars at least 2 voxels wide: {len(wide)} of {len(rows)}. Below the pillar target "
-              f"({ACCEPT['pillar']}) with the truth itself moved by:"), "",
+    lines = [(f"Volumes with pillars at least 2 voxels wide: {len(wide)} of {len(rows)}. Below the pillar "
+              f"target ({ACCEPT['pillar']}) with the truth itself moved by:"), "",
              "| perturbation (mm) | post radius +- | base surface +- | sphere radius +- | any | seeds |",
              "|---|---|---|---|---|---|"]
     for delta in deltas:
@@ -235,7 +204,8 @@ BANDS = [
     ("contrast", "contrast", ["silicone-darker", "silicone-brighter"]),
     ("base", "base", ["down", "up"]),
 ]
-NEAR_SKIN_BANDS = [("highest sphere under the skin (mm)", "skin_gap_mm", [(0.5, 1.0), (1.0, 1.5), (1.5, 2.0)])]
+NEAR_SKIN_BANDS = [("highest sphere under the skin (mm)", "skin_gap_mm",
+                    [(0.5, 1.0), (1.0, 1.5), (1.5, 2.0)])]
 TILT_BANDS = [("insert axis tilt (degrees)", "tilt_deg", [(0.0, 3.3), (3.3, 6.7), (6.7, 10.0)])]
 
 
@@ -261,8 +231,9 @@ def table(rows: list[dict]) -> str:
             pil = [r["dice_pillar"] for r in inc if r["pillar_voxels"] >= MIN_PILLAR_VOXELS]
             label = band if isinstance(band, str) else (f"{band[0]:g}" if band[0] == band[1]
                                                         else f"{band[0]:g}-{band[1]:g}")
+            seeds = {i['seed'] for i in inc}
             lines.append(f"| {title} | {label} | {len({r['seed'] for r in inc})} | {len(inc)} | "
-                         f"{_stat([r['dice_insert'] for r in cases if r['seed'] in {i['seed'] for i in inc}])} | "
+                         f"{_stat([r['dice_insert'] for r in cases if r['seed'] in seeds])} | "
                          f"{_stat([r['dice_inclusion'] for r in inc])} | {_stat(pil)} |")
     pil = [r["dice_pillar"] for r in incs if r["pillar_voxels"] >= MIN_PILLAR_VOXELS]
     thin = [r["dice_pillar"] for r in incs if 0 < r["pillar_voxels"] < MIN_PILLAR_VOXELS]
@@ -277,14 +248,14 @@ def table(rows: list[dict]) -> str:
     if floating:
         silent = sum(1 for c in floating if c["pillar_voxels_drawn"] or sum(
             "no pillar found under the inclusion" in w for w in c["warnings"]) != c["inclusions"])
-        lines.append(f"Without posts: {len(floating)} volumes, {silent} with a pillar voxel drawn or an inclusion "
-                     "without its warning.")
+        lines.append(f"Without posts: {len(floating)} volumes, {silent} with a pillar voxel drawn or an "
+                     "inclusion without its warning.")
     diameters = [r["post_diameter_error_mm"] for r in incs if r.get("post_diameter_error_mm") is not None]
     if diameters:
         lines.append(f"Post diameter error: mean {np.mean(diameters):+.3f} mm, sd {np.std(diameters):.3f}, "
                      f"mean absolute {np.mean(np.abs(diameters)):.3f} ({len(diameters)} posts).")
-    lines.append(f"Pillars under 2 voxels wide (not in the acceptance): {len(thin)}, Dice min / median {_stat(thin)}. "
-                 f"Volumes with warnings: {sum(1 for r in cases if r['warnings'])}. "
+    lines.append(f"Pillars under 2 voxels wide (not in the acceptance): {len(thin)}, Dice min / median "
+                 f"{_stat(thin)}. Volumes with warnings: {sum(1 for r in cases if r['warnings'])}. "
                  f"Volumes meeting all three targets: {meeting} of {len(cases)}"
                  + (f" ({decided} with the Dice taken without the slices the box partial volume leaves "
                     "undecided at the base and the insert's outer faces)." if decided != meeting else "."))
@@ -294,31 +265,44 @@ def table(rows: list[dict]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="1000-1059", help="seeds as ranges, e.g. 0-39 or 1000-1059,2000")
-    parser.add_argument("--out", default=None, help="JSON lines of every case and inclusion")
+    parser.add_argument("--out", default=None,
+                        help="JSON lines of every case and inclusion (a case's base_error_mm: how far past "
+                             "the true base surface the one found lies; an inclusion's "
+                             "post_diameter_error_mm, post_height_error_mm and post_offset_mm, its foot's "
+                             "distance from the true axis)")
     parser.add_argument("--partial-volume", default="ramp", choices=PARTIAL_VOLUMES,
-                        help="the family's partial volume: ramp (default) or box")
+                        help="the family's partial volume: ramp (default; it adds tissue around thin posts) "
+                             "or box, each voxel's share of each tissue (rows' dice_insert_decided and "
+                             "dice_pillar_decided leave out the slices a flat surface leaves undecided)")
     parser.add_argument("--box-points", type=int, default=mri_family.BOX_POINTS,
                         help="sub-voxel points per axis of the box partial volume")
     parser.add_argument("--floating", action="store_true",
-                        help="draw the volumes without posts: no pillar may be drawn, one warning per inclusion")
+                        help="draw the volumes without posts: no pillar may be drawn, one warning per "
+                             "inclusion (rows keep pillar_voxels_drawn)")
     drawn = parser.add_mutually_exclusive_group()
     drawn.add_argument("--lone-short", action="store_true",
-                       help="draw each volume's first inclusion alone, on a post 1-2.5 mm tall")
+                       help="draw each volume's first inclusion alone, on a post 1-2.5 mm tall (radius "
+                            "fitted to all its silicone, no other post to pool with); the footer gives their "
+                            "diameter error")
     drawn.add_argument("--near-skin", action="store_true",
-                       help="draw each volume's highest sphere 0.5-2 mm under the skin")
+                       help="draw each volume's highest sphere 0.5-2 mm under the skin (rows keep "
+                            "skin_gap_mm)")
     parser.add_argument("--small-coarse", action="store_true",
-                        help="draw small spheres at coarse voxels (the first 6-7 mm, voxels 0.9-1.2 mm, noise "
-                             "0.05-0.1; seeded by seed // 100 and seed %% 100) instead of the family's draw")
+                        help="draw small spheres at coarse voxels (the first 6-7 mm, voxels 0.9-1.2 mm, "
+                             "noise 0.05-0.1; seeded by seed // 100 and seed %% 100) instead of the family's "
+                             "draw")
     parser.add_argument("--tilted", action="store_true",
-                        help="tilt each volume's insert axis 0-10 degrees off the array's first axis")
+                        help="tilt each volume's insert axis 0-10 degrees off the array's first axis (rows "
+                             "keep tilt_deg)")
     parser.add_argument("--known-diameter", action="store_true",
-                        help="segment with the posts' true diameter given (less mri-label --pillar-diameter-mm)")
+                        help="segment with the posts' true diameter given (less mri-label "
+                             "--pillar-diameter-mm)")
     parser.add_argument("--margins", default=None,
-                        help="perturbations of the truth, mm (e.g. 0.025,0.05,0.1): segment nothing, count the "
-                             "volumes each takes below the pillar target")
+                        help="perturbations of the truth, mm (e.g. 0.025,0.05,0.1): segment nothing, count "
+                             "the volumes each takes below the pillar target")
     parser.add_argument("--rows", default=None,
-                        help="rows written before with --out, comma-separated files joined: print their band table "
-                             "and footer, segment nothing")
+                        help="rows written before with --out, comma-separated files joined: print their band "
+                             "table and footer, segment nothing")
     args = parser.parse_args()
     if args.rows:
         print(table(_read_rows(args.rows.split(","))))
@@ -343,7 +327,8 @@ def main() -> None:
 
 
 def _read_rows(paths: list[str]) -> list[dict]:
-    """The case and inclusion rows of ``paths`` (``--out`` files) joined; exits with one line naming a file that
+    """The case and inclusion rows of ``paths`` (``--out`` files) joined; exits with one line naming a file
+    that
     cannot be read or holds no case row."""
     rows = []
     for path in paths:

@@ -3,11 +3,12 @@
 For every scan with one inclusion, the classical force map (``lesscli.infer.forcemap``: stiffness per
 taxel at each poke's deepest step, flat-fielded, quadratic trend removed) is sampled on a window of
 cells around the inclusion's TRUE centre (default 21 x 21 at 1 mm), with its radial profile in 1 mm
-rings out to 10 mm (raw and divided by its peak, a scale-free shape). Regressors fitted on the training scans map these to the volume-equivalent diameter
-and are scored on the test scans. Then spheres are drawn at each test inclusion's TRUE 3D centroid with
-(a) its true diameter, (b) the regressed one, (c) the training mean, and (d) the true one moved 1.5 mm
-sideways, and the 3D micro F1 against the label volumes is printed: what an imager that already knew
-where the inclusion is (in-plane and in depth) would score with the size these touches give.
+rings out to 10 mm (raw and divided by its peak, a scale-free shape). Regressors fitted on the training scans
+map these to the volume-equivalent diameter and are scored on the test scans. Then spheres are drawn at each
+test inclusion's TRUE 3D centroid with (a) its true diameter, (b) the regressed one, (c) the training mean,
+and (d) the true one moved 1.5 mm sideways, and the 3D micro F1 against the label volumes is printed: what an
+imager that already knew where the inclusion is (in-plane and in depth) would score with the size these
+touches give.
 
     python examples/size_ceiling.py work/accuracy/split/train.npz work/accuracy/single.npz
     python examples/size_ceiling.py ... --cells 7 --pitch-mm 2.5     # the window of a particle's map
@@ -59,7 +60,8 @@ def features(path: str, sigma_mm: float, offsets_mm: np.ndarray) -> tuple[np.nda
         patch[ok] = fmap.residual[iy[ok], ix[ok]] / fmap.spread
         profile = np.array([patch[r].mean() for r in rings])
         peak = max(profile[:2].max(), 1e-9)
-        x_rows.append(np.concatenate([patch.ravel(), profile, profile / peak, [peak, (profile / peak > 0.5).sum()]]))
+        x_rows.append(np.concatenate([patch.ravel(), profile, profile / peak,
+                                      [peak, (profile / peak > 0.5).sum()]]))
         diameters.append(diam[0])
         where.append((s, label))
     return np.array(x_rows), np.array(diameters), where
@@ -88,7 +90,8 @@ def main() -> None:
     offsets = (np.arange(a.cells) - (a.cells - 1) / 2) * a.pitch_mm
     x_train, d_train, _ = features(a.train, a.sigma_mm, offsets)
     x_test, d_test, where = features(a.test, a.sigma_mm, offsets)
-    print(f"{len(d_train)} training and {len(d_test)} test inclusions; test diameter SD {d_test.std():.2f} mm")
+    print(f"{len(d_train)} training and {len(d_test)} test inclusions; test diameter SD {d_test.std():.2f} "
+          "mm")
     print("| diameter from | R^2 | mean abs error (mm) | 3D micro F1, sphere at the true centroid |")
     print("|---|---|---|---|")
     print(f"| truth | 1 | 0 | {micro_f1(where, 0.0, d_test):.3f} |")
@@ -98,10 +101,12 @@ def main() -> None:
                             n_estimators=200, max_depth=2, subsample=0.8, random_state=0))):
         pred = model.fit(x_train, d_train).predict(x_test)
         r2 = 1 - ((pred - d_test) ** 2).sum() / ((d_test - d_test.mean()) ** 2).sum()
-        print(f"| {name} | {r2:.2f} | {np.abs(pred - d_test).mean():.2f} | {micro_f1(where, 0.0, pred):.3f} |")
+        print(f"| {name} | {r2:.2f} | {np.abs(pred - d_test).mean():.2f} | {micro_f1(where, 0.0, pred):.3f} "
+              "|")
     mean = np.full(len(d_test), d_train.mean())
     r2 = 1 - ((mean - d_test) ** 2).sum() / ((d_test - d_test.mean()) ** 2).sum()
-    print(f"| training mean | {r2:.2f} | {np.abs(mean - d_test).mean():.2f} | {micro_f1(where, 0.0, mean):.3f} |")
+    print(f"| training mean | {r2:.2f} | {np.abs(mean - d_test).mean():.2f} | "
+          f"{micro_f1(where, 0.0, mean):.3f} |")
 
 
 if __name__ == "__main__":

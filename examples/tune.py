@@ -34,7 +34,8 @@ def read_space(path: str, model: str) -> dict:
     common, own = space.get("common", {}), space.get("models", {}).get(model, {})
     if not space.get("trial"):
         raise SystemExit(f"{path}: no [[trial]] tables")
-    trials = [{"trial": i, "pretrain": [*common.get("pretrain", []), *own.get("pretrain", []), *t.get("pretrain", [])],
+    trials = [{"trial": i,
+               "pretrain": [*common.get("pretrain", []), *own.get("pretrain", []), *t.get("pretrain", [])],
                "fit": [*common.get("fit", []), *own.get("fit", []), *t.get("fit", [])]}
               for i, t in enumerate(space["trial"])]
     return {"trials": trials, "turns": [int(v) for v in common.get("turns", [1])]}
@@ -65,8 +66,8 @@ def run_trial(trial: dict, turns: list[int], args: argparse.Namespace) -> dict:
     t0 = time.perf_counter()
     ssl = less(["pretrain", args.train, "--val", args.val, "-o", str(rep), "--model", args.model,
                 "--seed", str(args.seed), *trial["pretrain"]], args)
-    fit = less(["image", "fit", args.train, "--val", args.val, "--rep", str(rep), "-o", str(img), "--dim", "3",
-                "--seed", str(args.seed), *trial["fit"]], args)
+    fit = less(["image", "fit", args.train, "--val", args.val, "--rep", str(rep), "-o", str(img), "--dim",
+                "3", "--seed", str(args.seed), *trial["fit"]], args)
     record = {**trial, "model": args.model, "ssl_best_loss": ssl.get("best_loss"),
               "ssl_best_epoch": ssl.get("best_epoch"), "fit_best_epoch": fit.get("best_epoch"),
               "labelling": {k: fit.get(k) for k in ("threshold", "min_volume_mm3", "smooth_mm")},
@@ -94,7 +95,8 @@ def choose(records: list[dict]) -> tuple[dict, int]:
 
 def write_config(path: str, best: dict, turns: int, args: argparse.Namespace) -> None:
     scores = best["val"][str(turns)]
-    lines = [f"# {args.model}: chosen by examples/tune.py on {args.val} (validation only), trial {best['trial']}",
+    lines = [(f"# {args.model}: chosen by examples/tune.py on {args.val} (validation only), trial "
+              f"{best['trial']}"),
              f"# of {args.space}; search log: {args.log}",
              f'model = "{args.model}"', f"trial = {best['trial']}", f"turns = {turns}",
              f"pretrain = {json.dumps(best['pretrain'])}", f"fit = {json.dumps(best['fit'])}",
@@ -127,7 +129,8 @@ def cmd_run(args: argparse.Namespace) -> None:
                           "train_seconds": record["train_seconds"]}), file=sys.stderr)
     best, turns = choose(records)
     write_config(args.output, best, turns, args)
-    print(json.dumps({"model": args.model, "trial": best["trial"], "turns": turns, **best["val"][str(turns)]}))
+    print(json.dumps({"model": args.model, "trial": best["trial"], "turns": turns,
+                      **best["val"][str(turns)]}))
 
 
 def cmd_args(args: argparse.Namespace) -> None:

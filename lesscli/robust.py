@@ -10,7 +10,8 @@ MAD_TO_SIGMA = 1.4826           # median absolute deviation -> standard deviatio
 
 def robust_sigma(values: np.ndarray, centre: float | None = None) -> float:
     """MAD_TO_SIGMA times the median absolute deviation of ``values`` (non-empty) about ``centre`` (their
-    median where None): the standard deviation of normal scatter, which a minority of outliers does not move."""
+    median where None): the standard deviation of normal scatter, which a minority of outliers does not
+    move."""
     values = np.asarray(values)
     if centre is None:
         centre = np.median(values)

@@ -1,32 +1,15 @@
 """The thread policy: how many CPU threads a command's torch (and BLAS) work gets.
 
 Threads are chosen, not inherited, and the default does not depend on what else the machine is doing,
-so the same command gives the same numbers whether it runs alone or beside busy neighbours (the
-thread count changes the order of floating-point sums, hence the last bits of every result):
+so the same command gives the same numbers whether it runs alone or beside busy neighbours (the thread
+count changes the order of floating-point sums, hence the last bits of every result). Throughput work
+takes the usable cores split between ``jobs`` workers, or the user's ``OMP_NUM_THREADS``; latency-bound
+work (a stream update, a guide query: real-time, no file whose bits matter) follows the load, one thread
+unless the work is large and at least two cores are clearly free; ``--threads N`` fixes the count and
+``--threads auto`` asks for the load-adaptive choice for any work (:func:`resolve_threads`).
 
-- Throughput work (training, imaging, simulation, benchmarks of them) takes the cores this process
-  may run on (its CPU affinity), split between ``jobs`` worker processes (at least one each): a number
-  fixed by the machine, not by its load.
-- A user's ``OMP_NUM_THREADS`` (set before the command started) is that count instead, per process;
-  for latency-bound work it caps the choice below. The toolkit never overwrites it.
-- Latency-bound work (a stream update, a guide query), which is real-time and gives no file whose
-  bits matter, follows the load: one thread, unless the work is large and at least two cores are
-  clearly free (the cores minus the others' load).
-- ``--threads N`` fixes the count; ``--threads auto`` asks for the load-adaptive choice for any work
-  (the free cores, at least one), trading bit-identical reruns for speed on a shared machine.
-
-The others' load is the smaller of the 1-minute load average and the processes runnable right now (a
-short sample): the average alone still counts a job that ended a minute ago, the sample alone misses
-a bursty one between its bursts.
-
-:func:`choose_threads` is the load-adaptive rule and :func:`resolve_threads` the whole policy (both
-pure, table-tested); :func:`apply_threads` reads the machine where the policy needs it, applies the
-choice to torch and, where threadpoolctl is installed, to the BLAS/OpenMP pools.
-
-Fewer threads keep latency-bound work from waiting on its own threads, not on other processes: with
-more runnable processes than cores, an update now and then waits out another's time slice.
-:func:`set_realtime` (``--realtime`` of ``stream`` and ``bench stream``) lets it preempt them instead:
-the real-time FIFO policy, where the system permits it.
+:func:`set_realtime` (``--realtime`` of ``stream`` and ``bench stream``) lets latency-bound work preempt
+other processes instead of waiting out their time slices: the real-time FIFO policy, where permitted.
 """
 
 from __future__ import annotations
@@ -112,7 +95,8 @@ def combined_load(average: float, now: float | None, starting: float = 0.0) -> f
 
 
 def other_load(starting: float = 0.0) -> float:
-    """The load of the other processes on this machine, read now (see :func:`combined_load`)."""
+    """The load of the other processes on this machine, read now (see :func:`combined_load`): the average
+    alone still counts a job that ended a minute ago, the sample alone misses a bursty one between bursts."""
     return combined_load(load_average(), runnable_now(), starting)
 
 
@@ -177,7 +161,8 @@ def resolve_threads(work: Work, cores: int, override: int | str | None = None, u
     if override == AUTO or work == "latency":
         others = load()
         n = choose_threads(cores, others, work, size() if work == "latency" else 0, None, jobs)
-        why = f"{'--threads auto' if override == AUTO else 'latency-bound'}: cores {cores}, others' load {others:.2f}"
+        why = (f"{'--threads auto' if override == AUTO else 'latency-bound'}: cores {cores}, others' load "
+               f"{others:.2f}")
         if user is not None and override != AUTO and n > user:
             return user, f"{why}, capped by OMP_NUM_THREADS"
         return n, why
@@ -254,7 +239,8 @@ def deterministic_kernels(device) -> None:
         torch.use_deterministic_algorithms(True, warn_only=True)
 
 
-REALTIME_PRIORITY = 10           # SCHED_FIFO priority of --realtime (1-99): above every normal process, low among RT
+# SCHED_FIFO priority of --realtime (1-99): above every normal process, low among RT
+REALTIME_PRIORITY = 10
 
 
 def set_realtime(priority: int = REALTIME_PRIORITY, tasks: str = "/proc/self/task") -> None:
@@ -279,5 +265,6 @@ def set_realtime(priority: int = REALTIME_PRIORITY, tasks: str = "/proc/self/tas
             continue
         except PermissionError:
             raise LessError(f"--realtime: this process may not take real-time priority {priority} (it needs "
-                            f"root, CAP_SYS_NICE or a real-time limit `ulimit -r` of {priority} or more)") from None
+                            f"root, CAP_SYS_NICE or a real-time limit `ulimit -r` of {priority} or "
+                            "more)") from None
     logging.getLogger("less").info("scheduling: real-time FIFO, priority %d", priority)

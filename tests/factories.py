@@ -59,7 +59,8 @@ def random_scanset(n_scans: int = 2, traj_per_scan: int = 3, max_len: int = 12, 
     force[..., 2] += -pose[:, 2:3] * 0.5
     time_s = np.concatenate([np.arange(k) * 0.01 for k in lengths])
     inserts = inserts or [f"St{10 + 2 * (i % 3)}C{5 + i}" for i in range(n_scans)]
-    labels = [sphere_labels(center_mm=(-8.0, 2.0 * i, -3.0 + i), name=f"{inserts[i]}_0") for i in range(n_scans)] \
+    labels = [sphere_labels(center_mm=(-8.0, 2.0 * i, -3.0 + i), name=f"{inserts[i]}_0")
+              for i in range(n_scans)] \
         if with_labels else []
     return ScanSet(
         pose=pose, force=force, time_s=time_s,
@@ -99,7 +100,8 @@ def poke_scanset(n_scans: int, seed: int, traj_per_scan: int = 10, steps: int = 
     return ScanSet(pose=np.concatenate(pose), force=np.concatenate(force),
                    time_s=np.concatenate([np.arange(n) * 0.5 for n in lengths]),
                    traj_offsets=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
-                   traj_scan=np.array(traj_scan, np.int64), scan_insert=np.array([f"St12C{s}" for s in range(n_scans)]),
+                   traj_scan=np.array(traj_scan, np.int64),
+                   scan_insert=np.array([f"St12C{s}" for s in range(n_scans)]),
                    scan_orientation=np.zeros(n_scans, np.int64), scan_label=-np.ones(n_scans, np.int64),
                    meta=default_meta(xela_uscu()))
 

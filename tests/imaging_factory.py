@@ -44,9 +44,10 @@ def learnable_scanset(n_scans: int, seed: int, steps_per_traj: int = 8, traj_per
     return ScanSet(
         pose=pose.reshape(n, 6), force=force.reshape(n, 30, 3),
         time_s=np.tile(np.arange(steps_per_traj) * 0.5, n_traj),
-        traj_offsets=np.arange(n_traj + 1, dtype=np.int64) * steps_per_traj, traj_scan=scan_of.astype(np.int64),
-        scan_insert=np.array([f"Sph{i}" for i in range(n_scans)]), scan_orientation=np.zeros(n_scans, np.int64),
-        scan_label=np.arange(n_scans, dtype=np.int64), labels=labels, meta=default_meta(xela_uscu()))
+        traj_offsets=np.arange(n_traj + 1, dtype=np.int64) * steps_per_traj,
+        traj_scan=scan_of.astype(np.int64), scan_insert=np.array([f"Sph{i}" for i in range(n_scans)]),
+        scan_orientation=np.zeros(n_scans, np.int64), scan_label=np.arange(n_scans, dtype=np.int64),
+        labels=labels, meta=default_meta(xela_uscu()))
 
 
 def make_representation(path: str, scans: ScanSet, name: str = "less", dim: int = 16, seed: int = 0) -> None:
@@ -100,7 +101,8 @@ def tiny_imager(dim: int = 2, cap: int | None = None, encoder: str = "less", see
             dec = {"name": "global", "d_z": enc.dim, "n_classes": 4, "dim": dim, "width": 8,
                    "shape": list(grid.shape)}
         decoder = build_decoder(dec, seed)
-    last = [m for m in decoder.modules() if isinstance(m, (torch.nn.ConvTranspose2d, torch.nn.ConvTranspose3d))][-1]
+    last = [m for m in decoder.modules()
+            if isinstance(m, (torch.nn.ConvTranspose2d, torch.nn.ConvTranspose3d))][-1]
     with torch.no_grad():
         last.weight.mul_(gain)
         last.bias.mul_(gain)

@@ -1,25 +1,11 @@
 """An MRI-like phantom family for testing `less mri-label`, written apart from `lesscli.mri.synth`.
 
 Own geometry (signed distances in mm, no `lesscli.phantom`) and own image model, so that the
-segmentation is tested on volumes it was not developed with:
-
-- an octagonal insert (``width_mm`` across flats, ``height_mm`` tall) with a silicone skin on top and
-  on the sides and a thicker silicone base, filled with hydrogel; 1-3 spherical inclusions, each on a
-  cylindrical pillar standing on the base (``pillar_height_mm`` from the base to the sphere's bottom);
-  ``inclusion_aspect`` other than 1 stretches each inclusion along the phantom's x into a spheroid
-  (diameter ``inclusion_mm`` across, ``aspect`` times that along x: an inclusion that is not a ball);
-- posed with the base down or up along array axis 0 and an arbitrary rotation about it, shifted, and
-  (``tilt_deg``) tilted off axis 0 by a few degrees about an in-plane axis at ``tilt_azimuth_deg``, as a
-  phantom laid in a coil by hand is;
-- partial volume (``partial_volume``): ``ramp``, a voxel's fill is a linear ramp of the signed
-  distance at its centre over its width measured along the surface normal (the box projected on the
-  normal; exact for a flat surface, but it adds tissue around a thin convex structure: a post's
-  cross-section grows by about (voxel / diameter)^2 / 3), or ``box``, the share of each voxel's box
-  inside each tissue (an 8 x 8 x 8 point average near the surfaces: what a voxel integrates, conserving
-  each tissue's amount); then a slight Gaussian blur;
-- a smooth multiplicative bias ``exp(b g)``: g is a linear ramp plus two broad Gaussian bumps scaled to
-  [-1, 1] (not a polynomial and not cosines);
-- Rician noise ``|s + n1 + i n2|`` with sigma relative to the brighter tissue.
+segmentation is tested on volumes it was not developed with: an octagonal hydrogel insert with a
+silicone skin and base, 1-3 inclusions (spheres, or spheroids with ``inclusion_aspect``) each on a
+cylindrical pillar standing on the base; posed base down or up along array axis 0, rotated, shifted
+and optionally tilted (:class:`Case`); partial volume, a slight blur, a smooth multiplicative bias and
+Rician noise (:func:`generate`).
 
 The truth classifies voxel centres: inclusion inside a sphere, pillar inside a cylinder and inside the
 hydrogel cavity (its foot in the base stays insert), insert inside the octagonal prism.
@@ -58,8 +44,10 @@ class Case:
     base_mm: float = 3.0
     inclusion_aspect: float = 1.0
     partial_volume: str = "ramp"
-    sphere_margin_mm: float = 0.0   # each sphere drawn this much wider in radius, where it was laid out (`perturbed`)
-    skin_gap_mm: float | None = None    # the highest sphere this far under the skin (None: MIN_GAP_MM and 0-4 mm more)
+    # each sphere drawn this much wider in radius, where it was laid out (`perturbed`)
+    sphere_margin_mm: float = 0.0
+    # the highest sphere this far under the skin (None: MIN_GAP_MM and 0-4 mm more)
+    skin_gap_mm: float | None = None
     tilt_deg: float = 0.0               # the insert's axis tilted off array axis 0 by this much
     tilt_azimuth_deg: float = 0.0       # about the in-plane axis at this angle from array axis 1 to axis 2
 
@@ -78,10 +66,13 @@ class Volume:
     centres_index: np.ndarray       # (n, 3) inclusion centres as (fractional) array indices
     height_mm: float
     case: Case
-    base_index: float               # the base's surface under the filling, as a (fractional) index along axis 0
+    # the base's surface under the filling, as a (fractional) index along axis 0
+    base_index: float
     #                                   (at the scan's lateral centre)
-    feet_index: np.ndarray          # (n, 3) where each inclusion's axis meets the base's surface, as array indices
-    axis_mm: np.ndarray             # the insert's axis in the array frame (unit, mm), from the base to the top
+    # (n, 3) where each inclusion's axis meets the base's surface, as array indices
+    feet_index: np.ndarray
+    # the insert's axis in the array frame (unit, mm), from the base to the top
+    axis_mm: np.ndarray
 
     def outer_indices(self) -> tuple[float, float]:
         """The insert's outer faces normal to its axis, the base's and the top skin's, as (fractional) indices
@@ -91,10 +82,11 @@ class Volume:
         return base_face, base_face + self.height_mm * down
 
     def undecided_slices(self, surfaces: tuple[float, ...] | None = None) -> np.ndarray:
-        """(axis-0 length,) bool: the slices whose voxel centres lie nearer one of ``surfaces`` (flat, normal to
-        axis 0, as fractional indices; default: the base's surface under the filling) than half the box partial
-        volume's sub-voxel step. A flat surface anywhere in that band leaves the same points of each box on
-        either side, so the image is the same whichever side of it the centres (and the truth) are; the ramp is
+        """(axis-0 length,) bool: the slices whose voxel centres lie nearer one of ``surfaces`` (flat, normal
+        to axis 0, as fractional indices; default: the base's surface under the filling) than half the box
+        partial volume's sub-voxel step. A flat surface anywhere in that band leaves the same points of each
+        box on either side, so the image is the same whichever side of it the centres (and the truth) are; the
+        ramp is
         continuous and leaves none, and a tilted insert's surfaces are not normal to axis 0."""
         k = np.arange(self.truth.shape[0])
         flat = self.case.partial_volume == "box" and self.case.tilt_deg == 0.0
@@ -129,8 +121,8 @@ def _layout(case: Case, rng: np.random.Generator) -> tuple[np.ndarray, float]:
     gap = MIN_GAP_MM if case.skin_gap_mm is None else case.skin_gap_mm
     need = float(np.max(case.base_mm + heights + 2 * radii)) + gap + case.skin_mm
     if case.skin_gap_mm is not None and need < MIN_INSERT_MM - 1e-6:       # (the sum's rounding)
-        raise ValueError(f"case {case}: a skin gap needs posts and spheres reaching {MIN_INSERT_MM:g} mm less the gap "
-                         "and skin")
+        raise ValueError(f"case {case}: a skin gap needs posts and spheres reaching {MIN_INSERT_MM:g} mm "
+                         "less the gap and skin")
     height = max(MIN_INSERT_MM, need) + (float(rng.uniform(0.0, 4.0)) if case.skin_gap_mm is None else 0.0)
     apothem = 0.5 * case.width_mm - case.skin_mm
     wide = radii * max(1.0, case.inclusion_aspect)             # in-plane reach (a spheroid's long axis)
@@ -202,8 +194,17 @@ def _box_fills(body: np.ndarray, silicone: np.ndarray, grid: list[np.ndarray], s
 
 
 def generate(case: Case, image: bool = True) -> Volume:
-    """Generate the scan and truth of ``case`` (deterministic in ``case.seed``); ``image`` False: the truth and
-    layout alone (``Volume.image`` None), as drawn with it."""
+    """Generate the scan and truth of ``case`` (deterministic in ``case.seed``); ``image`` False: the truth
+    and layout alone (``Volume.image`` None), as drawn with it.
+
+    Partial volume (``partial_volume``): ``ramp``, a voxel's fill is a linear ramp of the signed distance at
+    its centre over its width measured along the surface normal (exact for a flat surface, but it adds
+    tissue around a thin convex structure: a post's cross-section grows by about (voxel / diameter)^2 / 3),
+    or ``box``, the share of each voxel's box inside each tissue (an 8 x 8 x 8 point average near the
+    surfaces, conserving each tissue's amount); then a slight Gaussian blur. The bias is ``exp(b g)``, g a
+    linear ramp plus two broad Gaussian bumps scaled to [-1, 1] (not a polynomial and not cosines); the
+    noise is Rician, ``|s + n1 + i n2|``, with sigma relative to the brighter tissue.
+    """
     from scipy import ndimage
 
     rng = np.random.default_rng(case.seed)
@@ -213,7 +214,8 @@ def generate(case: Case, image: bool = True) -> Volume:
     margin = float(rng.uniform(3.0, 6.0))
     tilt = math.radians(case.tilt_deg)
     extent = np.array([height * math.cos(tilt) + 2 * radius_xy * math.sin(tilt),
-                       2 * radius_xy + height * math.sin(tilt), 2 * radius_xy + height * math.sin(tilt)]) + 2 * margin
+                       2 * radius_xy + height * math.sin(tilt),
+                       2 * radius_xy + height * math.sin(tilt)]) + 2 * margin
     shape = tuple(math.ceil(e / s) for e, s in zip(extent, spacing))
     grid = [(np.arange(n) - (n - 1) / 2) * s for n, s in zip(shape, spacing)]
     a0, a1, a2 = np.meshgrid(*grid, indexing="ij", sparse=True)
@@ -221,7 +223,8 @@ def generate(case: Case, image: bool = True) -> Volume:
     shift = rng.uniform(-2.0, 2.0, 3)
     c, s = math.cos(yaw), math.sin(yaw)
     radii = 0.5 * np.asarray(case.inclusion_mm) + case.sphere_margin_mm
-    rot = _tilt(case.tilt_deg, case.tilt_azimuth_deg)       # the upright frame's axes in the array frame (columns)
+    # the upright frame's axes in the array frame (columns)
+    rot = _tilt(case.tilt_deg, case.tilt_azimuth_deg)
 
     def distances(a0, a1, a2):
         """Signed distances (mm) of body, cavity, spheres and pillars at array-frame points (broadcast)."""
@@ -237,7 +240,8 @@ def generate(case: Case, image: bool = True) -> Volume:
         spheres = [_spheroid_sd(x - cx, y - cy, z - cz, r, case.inclusion_aspect)
                    for (cx, cy, cz), r in zip(centres, radii)]
         pillars = [np.maximum(np.sqrt((x - cx) ** 2 + (y - cy) ** 2) - 0.5 * case.pillar_mm,
-                              _slab_sd(z, case.base_mm - 1.0, cz)) for cx, cy, cz in centres] if case.pillar_mm > 0 else []
+                              _slab_sd(z, case.base_mm - 1.0, cz))
+                   for cx, cy, cz in centres] if case.pillar_mm > 0 else []
         return body, cavity, spheres, pillars
 
     def silicone_of(cavity, spheres, pillars):
@@ -263,8 +267,10 @@ def generate(case: Case, image: bool = True) -> Volume:
     centres_index = index_of(centres[:, 0], centres[:, 1], centres[:, 2])
     feet_index = index_of(centres[:, 0], centres[:, 1], np.full(len(centres), case.base_mm))
     base_mm = ((case.base_mm - 0.5 * height) * sign + rot[1, 0] * shift[1] + rot[2, 0] * shift[2]) / rot[0, 0]
-    base = (base_mm + shift[0]) / spacing[0] + (shape[0] - 1) / 2       # at the lateral centre (a1 = a2 = 0 mm)
-    volume = Volume(None, truth, spacing, centres_index, height, case, float(base), feet_index, sign * rot[:, 0])
+    # at the lateral centre (a1 = a2 = 0 mm)
+    base = (base_mm + shift[0]) / spacing[0] + (shape[0] - 1) / 2
+    volume = Volume(None, truth, spacing, centres_index, height, case, float(base), feet_index,
+                    sign * rot[:, 0])
     if not image:
         return volume
     if case.silicone_brighter:
@@ -288,8 +294,8 @@ def generate(case: Case, image: bool = True) -> Volume:
 
 # Bands of the family: each parameter is drawn uniformly from its full range.
 RANGES = {
-    "pillar_mm": (1.5, 4.0), "pillar_height_mm": (1.0, 15.0), "inclusion_mm": (6.0, 16.0), "noise": (0.02, 0.1),
-    "bias": (0.1, 0.4), "spacing_mm": (0.4, 1.2),
+    "pillar_mm": (1.5, 4.0), "pillar_height_mm": (1.0, 15.0), "inclusion_mm": (6.0, 16.0),
+    "noise": (0.02, 0.1), "bias": (0.1, 0.4), "spacing_mm": (0.4, 1.2),
 }
 TILT_DEG = (0.0, 10.0)          # `tilted`: the insert's axis off array axis 0, degrees
 
@@ -303,14 +309,16 @@ def draw_case(seed: int) -> Case:
                 else (spacing[0], spacing[1], float(np.round(rng.uniform(*RANGES["spacing_mm"]), 2))),
                 inclusion_mm=tuple(float(v) for v in np.round(rng.uniform(*RANGES["inclusion_mm"], n), 1)),
                 pillar_mm=float(np.round(rng.uniform(*RANGES["pillar_mm"]), 2)),
-                pillar_height_mm=tuple(float(v) for v in np.round(rng.uniform(*RANGES["pillar_height_mm"], n), 1)),
+                pillar_height_mm=tuple(float(v)
+                                       for v in np.round(rng.uniform(*RANGES["pillar_height_mm"], n), 1)),
                 base_up=bool(rng.random() < 0.5), silicone_brighter=bool(rng.random() < 0.5),
                 noise=float(np.round(rng.uniform(*RANGES["noise"]), 3)),
                 bias=float(np.round(rng.uniform(*RANGES["bias"]), 3)))
 
 
 def tilted(case: Case) -> Case:
-    """``case`` with the insert's axis tilted off array axis 0 by TILT_DEG about an in-plane axis at any azimuth
+    """``case`` with the insert's axis tilted off array axis 0 by TILT_DEG about an in-plane axis at any
+    azimuth
     (seeded by the case)."""
     rng = np.random.default_rng([50, case.seed])
     return replace(case, tilt_deg=float(np.round(rng.uniform(*TILT_DEG), 2)),
@@ -373,7 +381,8 @@ def post_errors(posts: list, volume: Volume, reach_mm: float = 3.0) -> list[dict
     for k, foot in enumerate(volume.feet_index):
         off = np.linalg.norm(feet - foot[1:] * spacing[1:], axis=1)
         if not len(off) or off.min() > reach_mm:
-            rows.append({"post_diameter_error_mm": None, "post_height_error_mm": None, "post_offset_mm": None})
+            rows.append({"post_diameter_error_mm": None, "post_height_error_mm": None,
+                         "post_offset_mm": None})
             continue
         post = posts[int(np.argmin(off))]
         radius = post.radius_mm if post.measured_radius_mm is None else post.measured_radius_mm
@@ -393,7 +402,8 @@ def inclusion_scores(labels: np.ndarray, volume: Volume) -> list[dict]:
     """
     truth, spacing = volume.truth, volume.spacing_mm
     if volume.case.tilt_deg:
-        grid = np.meshgrid(*(np.arange(k) * h for k, h in zip(truth.shape, spacing)), indexing="ij", sparse=True)
+        grid = np.meshgrid(*(np.arange(k) * h for k, h in zip(truth.shape, spacing)), indexing="ij",
+                           sparse=True)
         d2 = []
         for c in volume.centres_index:
             d = [g - ci * h for g, ci, h in zip(grid, c, spacing)]
@@ -408,7 +418,8 @@ def inclusion_scores(labels: np.ndarray, volume: Volume) -> list[dict]:
     for k in range(len(volume.centres_index)):
         cell = np.broadcast_to(cell_of == k, truth.shape)
         pillar, true_pillar = (labels == PILLAR) & cell, (truth == PILLAR) & cell
-        rows.append({"inclusion_mm": volume.case.inclusion_mm[k], "pillar_height_mm": volume.case.pillar_height_mm[k],
+        rows.append({"inclusion_mm": volume.case.inclusion_mm[k],
+                     "pillar_height_mm": volume.case.pillar_height_mm[k],
                      "dice_inclusion": dice((labels == INCLUSION) & cell, (truth == INCLUSION) & cell),
                      "dice_pillar": dice(pillar, true_pillar),
                      "dice_pillar_decided": dice(pillar & decided, true_pillar & decided)})

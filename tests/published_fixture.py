@@ -63,7 +63,8 @@ def robot_trajectory(xy_local_mm, yaw_rad: float, t_s: np.ndarray) -> tuple[np.n
 
 
 def write_traj(group, rng: np.random.Generator, xy_mm, yaw_rad: float, sensor_t0: float = 1000.0,
-               robot_t0: float = 2000.0, hand_held_calib: dict | None = None, primitive: str | None = None) -> None:
+               robot_t0: float = 2000.0, hand_held_calib: dict | None = None,
+               primitive: str | None = None) -> None:
     """One ``traj_<i>`` group: sensor 100 Hz, robot 250 Hz, clocks with different origins."""
     total = HOVER_S + DESCENT_S + RISE_S
     t_sensor = np.arange(0, total + 0.05, SENSOR_DT_S)
@@ -151,7 +152,8 @@ def break_file(path: str, dataset: str = "robot/ee_position", traj: str = "traj_
 
 
 def zip_root(root: str, path: str, top: str = "dataset", compression: int = zipfile.ZIP_DEFLATED) -> str:
-    """Zip every file under ``root`` into ``path`` inside one top folder ``top`` (as published); returns ``path``."""
+    """Zip every file under ``root`` into ``path`` inside one top folder ``top`` (as published); returns
+    ``path``."""
     with zipfile.ZipFile(path, "w", compression) as archive:
         for folder, _dirs, names in sorted(os.walk(root)):
             for name in sorted(names):
@@ -161,7 +163,8 @@ def zip_root(root: str, path: str, top: str = "dataset", compression: int = zipf
 
 
 def write_archive(path: str, seed: int = 0, n_traj: int = 2, compression: int = zipfile.ZIP_DEFLATED) -> str:
-    """A published-style archive of two scans and their labels (built in a sibling folder); returns ``path``."""
+    """A published-style archive of two scans and their labels (built in a sibling folder); returns
+    ``path``."""
     rng = np.random.default_rng(seed)
     root = f"{path}.src"
     for name in ("phantomA_St12C13_0", "phantomA_St10D5_1"):

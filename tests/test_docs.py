@@ -62,8 +62,9 @@ def test_every_page_is_in_the_nav_or_the_results_index():
         for field in ("**Measures:**", "**Command:**", "**Commit:**"):
             assert field in head, f"{page.relative_to(ROOT)}: no {field} line under its title"
         commit = re.search(r"\*\*Commit:\*\* ([0-9a-f]{7,40})", head).group(1)
-        assert subprocess.run(["git", "-C", str(ROOT), "cat-file", "-e", f"{commit}^{{commit}}"],
-                              capture_output=True, check=False).returncode == 0, f"{page.name}: no commit {commit}"
+        found = subprocess.run(["git", "-C", str(ROOT), "cat-file", "-e", f"{commit}^{{commit}}"],
+                               capture_output=True, check=False)
+        assert found.returncode == 0, f"{page.name}: no commit {commit}"
 
 
 def test_every_results_folder_names_its_command():

@@ -90,5 +90,6 @@ def test_wheel_holds_the_package_scenes_and_commands(tmp_path):
         entry_points = zf.read(meta.replace("METADATA", "entry_points.txt")).decode()
     assert {"lesscli/scenes/quick.toml", "lesscli/scenes/poke.toml", "lesscli/cli/main.py"} <= names
     assert "Name: less-tactile" in metadata and "Requires-Dist: threadpoolctl" in metadata
-    assert "less = lesscli.cli.main:entry" in entry_points and "lesscli = lesscli.cli.main:entry" in entry_points
+    assert ("less = lesscli.cli.main:entry" in entry_points
+            and "lesscli = lesscli.cli.main:entry" in entry_points)
     assert not any(n.startswith(("tests/", "examples/")) for n in names)

@@ -92,5 +92,6 @@ def test_tutorial_runs_from_an_empty_folder_and_prints_its_table(tmp_path):
         if row["f1_micro_3d"] != "-":
             f1 = float(got[model]["f1_micro_3d"])
             assert abs(f1 - float(row["f1_micro_3d"])) <= F1_TOLERANCE, (model, f1, row)
-    assert float(got["less-taxel"]["f1_micro_3d"]) >= 0.5           # it learns: a model that finds nothing scores 0
+    # it learns: a model that finds nothing scores 0
+    assert float(got["less-taxel"]["f1_micro_3d"]) >= 0.5
     assert len(list((tmp_path / "figures").glob("*.png"))) == 6

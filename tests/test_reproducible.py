@@ -44,8 +44,8 @@ def run_pipeline(folder: Path) -> dict[str, str]:
     folder.mkdir()
     (folder / "tiny.toml").write_text(TINY_SCENE)
     for args in PIPELINE:
-        proc = subprocess.run([str(BIN / "less"), "-q", *args, "--format", "jsonl"], cwd=folder, env=_environment(),
-                              capture_output=True, timeout=900, check=False)
+        proc = subprocess.run([str(BIN / "less"), "-q", *args, "--format", "jsonl"], cwd=folder,
+                              env=_environment(), capture_output=True, timeout=900, check=False)
         assert proc.returncode == 0, (args, proc.stderr.decode())
     return {name: hashlib.sha256((folder / name).read_bytes()).hexdigest() for name in OUTPUTS}
 
@@ -65,7 +65,8 @@ def test_a_rerun_of_simulate_writes_the_same_bytes_and_the_fixed_history_time(tm
     (tmp_path / "tiny.toml").write_text(TINY_SCENE)
     for run in ("c", "d"):                  # the same command line in two folders
         (tmp_path / run).mkdir()
-        subprocess.run([str(BIN / "less"), "-q", "simulate", "../tiny.toml", "-o", "a.npz", "--format", "jsonl"],
+        subprocess.run([str(BIN / "less"), "-q", "simulate", "../tiny.toml", "-o", "a.npz", "--format",
+                        "jsonl"],
                        cwd=tmp_path / run, env=_environment(), check=True, capture_output=True, timeout=600)
     assert (tmp_path / "c" / "a.npz").read_bytes() == (tmp_path / "d" / "a.npz").read_bytes()
     assert [h["time"] for h in load_scans(str(tmp_path / "c" / "a.npz")).meta["history"]] == \

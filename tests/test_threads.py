@@ -149,7 +149,8 @@ def tiny_files(tmp_path):
 def test_threads_option_reaches_torch_inside_stream(tiny_files, monkeypatch, keep_threads):
     tmp_path = tiny_files
     seen, push = [], StreamingImager.push
-    monkeypatch.setattr(StreamingImager, "push", lambda self, *a: seen.append(torch.get_num_threads()) or push(self, *a))
+    monkeypatch.setattr(StreamingImager, "push", lambda self,
+                        *a: seen.append(torch.get_num_threads()) or push(self, *a))
     for threads in (3, 1):
         seen.clear()
         result = CliRunner().invoke(cli, ["stream", str(tmp_path / "im.pt"), str(tmp_path / "s.npz"),
@@ -161,7 +162,8 @@ def test_threads_option_reaches_torch_inside_stream(tiny_files, monkeypatch, kee
 @pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads /proc")
 def test_bench_stream_load_reports_quiet_and_loaded_rows_and_leaves_no_busy_process(keep_threads):
     result = CliRunner().invoke(cli, ["bench", "stream", "--load", "1", "--steps", "50", "--updates", "5",
-                                      "--full-repeats", "1", "--dim", "2", "--width", "8", "--format", "jsonl"])
+                                      "--full-repeats", "1", "--dim", "2", "--width", "8", "--format",
+                                      "jsonl"])
     assert result.exit_code == 0, result.output
     rows = [json.loads(line) for line in result.stdout.splitlines() if line.strip()]
     assert [(r["load"], r["steps"]) for r in rows] == [(0, 50), (1, 50)]
@@ -234,7 +236,8 @@ resource.setrlimit(resource.RLIMIT_RTPRIO, (0, 0))
 
 
 def _python(code: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", code], check=False, capture_output=True, text=True, timeout=60)
+    return subprocess.run([sys.executable, "-c", code], check=False, capture_output=True, text=True,
+                          timeout=60)
 
 
 @pytest.mark.skipif(not hasattr(os, "SCHED_FIFO"), reason="no real-time scheduling on this platform")
@@ -255,9 +258,10 @@ def test_realtime_takes_the_fifo_policy_where_the_system_permits_it_and_refuses_
 @pytest.mark.skipif(not hasattr(os, "SCHED_FIFO"), reason="no real-time scheduling on this platform")
 @pytest.mark.parametrize("command", ["bench", "stream"])
 def test_realtime_commands_run_under_it_or_stop_with_one_line(command, tiny_files):
-    args = {"bench": ["bench", "stream", "--steps", "50", "--updates", "3", "--full-repeats", "1", "--dim", "2",
-                      "--width", "8", "--format", "jsonl"],
-            "stream": ["stream", str(tiny_files / "im.pt"), str(tiny_files / "s.npz"), "--emit-every", "2"]}[command]
+    args = {"bench": ["bench", "stream", "--steps", "50", "--updates", "3", "--full-repeats", "1", "--dim",
+                      "2", "--width", "8", "--format", "jsonl"],
+            "stream": ["stream", str(tiny_files / "im.pt"), str(tiny_files / "s.npz"), "--emit-every",
+                       "2"]}[command]
     permitted = _python(_PROBE).returncode == 0
     out = subprocess.run([sys.executable, "-m", "lesscli", "-v", *args, "--realtime"], check=False,
                          capture_output=True, text=True, timeout=120)
@@ -328,18 +332,21 @@ def test_the_users_omp_num_threads_is_respected_and_left_alone(tiny_files):
     probe = "; import os; print('OMP', os.environ.get('OMP_NUM_THREADS'))"
     out = subprocess.run(args, cwd=tiny_files, env={**env, "OMP_NUM_THREADS": "1"}, capture_output=True,
                          text=True, timeout=300, check=True)
-    assert json.loads(out.stdout.splitlines()[-1])["threads"] == 1 and "threads: 1 (OMP_NUM_THREADS)" in out.stderr
-    plain = subprocess.run(args, cwd=tiny_files, env=env, capture_output=True, text=True, timeout=300, check=True)
+    assert (json.loads(out.stdout.splitlines()[-1])["threads"] == 1
+            and "threads: 1 (OMP_NUM_THREADS)" in out.stderr)
+    plain = subprocess.run(args, cwd=tiny_files, env=env, capture_output=True, text=True, timeout=300,
+                           check=True)
     assert json.loads(plain.stdout.splitlines()[-1])["threads"] == len(os.sched_getaffinity(0))
-    auto = subprocess.run([*args, "--threads", "auto"], cwd=tiny_files, env=env, capture_output=True, text=True,
-                          timeout=300, check=True)
+    auto = subprocess.run([*args, "--threads", "auto"], cwd=tiny_files, env=env, capture_output=True,
+                          text=True, timeout=300, check=True)
     assert "threads: " in auto.stderr and "--threads auto: cores" in auto.stderr
-    bad = subprocess.run([*args, "--threads", "many"], cwd=tiny_files, env=env, capture_output=True, text=True,
-                         timeout=300, check=False)
+    bad = subprocess.run([*args, "--threads", "many"], cwd=tiny_files, env=env, capture_output=True,
+                         text=True, timeout=300, check=False)
     assert bad.returncode == 2 and "'many' is not a whole number >= 1 nor 'auto'" in bad.stderr
     # the policy never writes the user's variable: a child started by the command sees what the user set
     code = ("import os, sys; os.environ['OMP_NUM_THREADS'] = '1'; from lesscli.threads import apply_threads, "
-            "set_threads; apply_threads('throughput', torch_too=False); set_threads(5, torch_too=False)" + probe)
+            "set_threads; apply_threads('throughput', torch_too=False); set_threads(5, torch_too=False)"
+            + probe)
     assert subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120,
                           check=True).stdout.split() == ["OMP", "1"]
 

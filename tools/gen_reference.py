@@ -25,7 +25,8 @@ HEADER = "<!-- written by tools/gen_reference.py from the CLI's --help; do not e
 
 
 def _help(command: click.Command, path: list[str], parent: click.Context | None) -> tuple[str, click.Context]:
-    ctx = click.Context(command, info_name=path[-1], parent=parent, terminal_width=WIDTH, max_content_width=WIDTH)
+    ctx = click.Context(command, info_name=path[-1], parent=parent, terminal_width=WIDTH,
+                        max_content_width=WIDTH)
     return command.get_help(ctx), ctx
 
 
@@ -61,7 +62,8 @@ def pages() -> dict[str, str]:
              "| command | what it does |", "|---|---|"]
     index += [f"| [`less {n}`]({n}.md) | {COMMANDS[n][1].replace('|', '/')} |" for n in sorted(COMMANDS)]
     index += ["", "The settings that `--config` files and `--set KEY=VALUE` reach, with their defaults:",
-              "[settings](settings.md). Every file format, as the code that reads it defines it: [formats](formats.md)."]
+              ("[settings](settings.md). Every file format, as the code that reads it defines it: "
+               "[formats](formats.md).")]
     top = cli.get_help(root)
     index += ["", "## less", "", "```text", top.rstrip(), "```", ""]
     out["index.md"] = "\n".join(index)
@@ -82,15 +84,20 @@ FORMATS = [  # (title, module whose docstring defines the format)
 
 
 def _formats() -> str:
-    """The file formats, each from the module docstring of the code that reads and writes it."""
+    """The file formats, each from the module docstring (and ``KEYS`` table) of the code that reads and
+    writes it."""
     import ast
 
     lines = [HEADER, "", "# File formats", "",
-             "Each format as the module that reads and writes it defines it (its docstring); `less info FILE`",
-             "describes any such file.", ""]
+             "Each format as the module that reads and writes it defines it (its docstring and table of",
+             "keys); `less info FILE` describes any such file.", ""]
     for title, path in FORMATS:
-        doc = ast.get_docstring(ast.parse((ROOT / path).read_text()))
-        lines += [f"## {title}", "", f"From `{path}`:", "", "```text", doc.rstrip(), "```", ""]
+        tree = ast.parse((ROOT / path).read_text())
+        lines += [f"## {title}", "", f"From `{path}`:", "", "```text", ast.get_docstring(tree).rstrip()]
+        keys = [n.value.value for n in tree.body if isinstance(n, ast.Assign) and len(n.targets) == 1
+                and getattr(n.targets[0], "id", None) == "KEYS"]
+        lines += ["", keys[0].rstrip()] if keys else []     # the module's table of keys, where it has one
+        lines += ["```", ""]
     return "\n".join(lines)
 
 
@@ -122,7 +129,8 @@ def _settings(cli: click.Group) -> str:
             args = [a for a in args if a != "EFFECTS"] + [f"--set=effects.{e}={{}}" for e in EFFECTS]
         result = runner.invoke(cli, [*args, "--print-config"], catch_exceptions=False)
         if result.exit_code != 0:
-            raise RuntimeError(f"less {' '.join(args)} --print-config exited {result.exit_code}: {result.output}")
+            raise RuntimeError(f"less {' '.join(args)} --print-config exited {result.exit_code}: "
+                               f"{result.output}")
         lines += [f"## {title}", "", what, "", "```toml", result.output.rstrip(), "```", ""]
     return "\n".join(lines)
 

@@ -1,22 +1,14 @@
 """``less bench guide``: closed-loop palpation with the simulator; F1 against the number of touches.
 
-Each test phantom (held out from training) is poked by the simulator on a dense pool of candidate
-touches (pokes on a jittered 3 mm grid, subsampled 1:50 like the training data); a strategy decides
-which pool touch comes next:
-
-* ``guided``: ``lesscli.infer.guide`` on the current streamed image (the pool touch nearest to each
-  suggestion; ``--batch`` suggestions per round), covering the class entropy;
-* ``guided-inclusion``: the same, covering the inclusion-vs-rest entropy (``--score inclusion``);
-* ``raster``: a row-by-row grid whose spacing fits the touch budget into the phantom (the paper's
-  robot scan), each point mapped to its nearest pool touch;
-* ``random``: pool touches in random order.
-
-All strategies start from the same ``--start`` random touches. The image is updated incrementally
-(``lesscli.infer.stream``) and scored (inclusion F1 on the 2D slice or the volume, ``lesscli.metrics``)
-every ``--eval-every`` touches. The summary row gives the raster strategy's final F1, the number of
-touches from which the guided strategy stays at or above it (and when it first reaches it), and the
-mean F1 over the curve per strategy. Without ``--model`` a small 2D model is trained first
-on simulated poke data of other inserts (minutes; cached in ``--work-dir``).
+Each held-out test phantom is poked by the simulator on a dense pool of candidate touches (a jittered
+3 mm grid, subsampled 1:50 like the training data), and a strategy decides which pool touch comes next
+(:meth:`Loop._plan`): ``guided`` (``lesscli.infer.guide`` on the streamed image, covering the class
+entropy), ``guided-inclusion`` (the inclusion-vs-rest entropy), ``raster`` (the paper's row-by-row robot
+scan, fitted to the touch budget) or ``random``. All start from the same ``--start`` random touches; the
+image is updated incrementally (``lesscli.infer.stream``) and its inclusion F1 scored every
+``--eval-every`` touches. The summary row (:func:`summary_row`) tells how many touches each strategy
+needs to match the raster scan's final F1. Without ``--model`` a small 2D model is trained first on
+simulated poke data of other inserts (minutes; cached in ``--work-dir``).
 """
 
 from __future__ import annotations
@@ -41,7 +33,8 @@ def _scene(names, orientations, n_traj: int, spacing_mm: float, seed: int, name:
     doc = {"name": name, "seed": seed, "phantoms": {"set": "single", "names": list(names),
                                                      "orientations": list(orientations)},
            "sensor": {"layout": "xela"}, "contact": {"tier": "winkler"},
-           "motion": {"kind": "poke", "n_traj": n_traj, "spacing_mm": spacing_mm, "margin_mm": POOL_MARGIN_MM}}
+           "motion": {"kind": "poke", "n_traj": n_traj, "spacing_mm": spacing_mm,
+                      "margin_mm": POOL_MARGIN_MM}}
     return parse_scene(doc, where=f"<bench guide {name}>")
 
 
@@ -50,7 +43,8 @@ def simulate_set(names, orientations, n_traj: int, spacing_mm: float, seed: int,
     from lesscli.data.ops import subsample
     from lesscli.sim.simulate import simulate
 
-    return subsample(simulate(_scene(names, orientations, n_traj, spacing_mm, seed, name)), every=SUBSAMPLE_EVERY)
+    return subsample(simulate(_scene(names, orientations, n_traj, spacing_mm, seed, name)),
+                     every=SUBSAMPLE_EVERY)
 
 
 def train_model(work: str, quick: bool, seed: int) -> str:
@@ -79,8 +73,8 @@ def train_model(work: str, quick: bool, seed: int) -> str:
                                                           device="cpu")), rep)
     LOG.warning("bench guide: fitting the 2D image decoder (%d epochs)", fit_epochs)
     fit_imager(train, None, rep, ImageFitConfig(image=ImageModelConfig(dim=2, width=16, patch_px=16),
-                                                train=LoopConfig(epochs=fit_epochs, lr=1e-2, batch_size=4, seed=seed,
-                                                                 device="cpu"),
+                                                train=LoopConfig(epochs=fit_epochs, lr=1e-2, batch_size=4,
+                                                                 seed=seed, device="cpu"),
                                                 loss=LossConfig(alpha_power=0.5)), path)
     return path
 
@@ -118,7 +112,8 @@ class Loop:
         from lesscli.infer.predict import scan_grid
 
         cfg = ckpt["config"]["image"]
-        self.grid, self.truth = scan_grid(pool, 0, int(cfg["dim"]), int(cfg.get("slice", AUTO_SLICE)), imager.grid)
+        self.grid, self.truth = scan_grid(pool, 0, int(cfg["dim"]), int(cfg.get("slice", AUTO_SLICE)),
+                                          imager.grid)
         self.imager, self.ckpt, self.pool = imager, ckpt, pool
         off = pool.traj_offsets
         self.spans = [(int(off[i]), int(off[i + 1])) for i in range(pool.n_traj)]
@@ -140,7 +135,8 @@ class Loop:
         f1 = f1_from(*confusion(labels == INCLUSION, self.truth == INCLUSION))
         return 0.0 if f1 is None else float(f1)
 
-    def run(self, strategy: str, start: list[int], budget: int, eval_every: int, batch: int, rng) -> list[tuple]:
+    def run(self, strategy: str, start: list[int], budget: int, eval_every: int, batch: int,
+            rng) -> list[tuple]:
         """[(touches, F1)] for one strategy, evaluated every ``eval_every`` touches and at the budget."""
         from lesscli.infer.stream import StreamingImager
 
@@ -164,7 +160,8 @@ class Loop:
         return curve
 
     def _plan(self, strategy: str, stream, left: int, batch: int, rng) -> list:
-        """The next target x, y positions (mm) of a strategy."""
+        """The next target x, y positions (mm) of a strategy: the guide's ``batch`` suggestions, the rest
+        of a raster fitted to the ``left`` touches, or the pool in random order."""
         import numpy as np
 
         from lesscli.infer.guide import UNCERTAINTY, GuideOptions, octagon_mask, suggest_touches
@@ -234,7 +231,8 @@ def run_guide(model_path: str, bench: GuideBench) -> tuple[list[dict], dict[str,
         for name in TEST_INSERTS:
             pool = simulate_set([name], [0], 260, POOL_SPACING_MM, bench.seed + r, f"guide-pool-{name}")
             loop = Loop(imager, ckpt, pool)
-            start = list(np.random.default_rng([bench.seed, r]).choice(pool.n_traj, bench.start, replace=False))
+            start = list(np.random.default_rng([bench.seed, r]).choice(pool.n_traj, bench.start,
+                                                                       replace=False))
             for s in STRATEGIES:
                 curves[s].append(loop.run(s, start, bench.budget, bench.eval_every, bench.batch,
                                           np.random.default_rng([bench.seed, r, 1])))
@@ -245,7 +243,8 @@ def run_guide(model_path: str, bench: GuideBench) -> tuple[list[dict], dict[str,
 
 
 def summary_row(means: dict[str, list[tuple]], bench: GuideBench, model_path: str) -> dict:
-    """Touches each strategy needs to reach the raster strategy's final F1, and the mean F1 per strategy.
+    """Touches each strategy needs to reach the raster strategy's final F1 (to stay at or above it, and to
+    reach it first), and the mean F1 over the curve per strategy.
 
     Where raster ends no higher than the shared start (the model images nothing on these phantoms), every
     strategy "reaches" it at the start: the touch counts and the saving are None and ``note`` says why.

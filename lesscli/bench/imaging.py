@@ -77,8 +77,9 @@ def _case(dim: int, batch: int, repeat: int, gen) -> list[dict]:
     common = {"bench": "imaging", "dim": dim, "batch": batch, "particles": int(xy.shape[0]),
               "grid": "x".join(map(str, shape)), "repeat": repeat}
     return [
-        {**common, "case": "place patches: slice adds, own backward", "seconds": t_vec, "train_seconds": t_train,
-         "speedup_vs_index_add": t_base / t_vec, "train_speedup_vs_index_add": t_train_base / t_train,
+        {**common, "case": "place patches: slice adds, own backward", "seconds": t_vec,
+         "train_seconds": t_train, "speedup_vs_index_add": t_base / t_vec,
+         "train_speedup_vs_index_add": t_train_base / t_train,
          "max_abs_diff_vs_index_add": float((fast - slow).abs().max()),
          "max_abs_grad_diff_vs_index_add": float((grad - grad_base).abs().max())},
         {**common, "case": "baseline: one index_add", "seconds": t_base, "train_seconds": t_train_base,
@@ -89,7 +90,8 @@ def _case(dim: int, batch: int, repeat: int, gen) -> list[dict]:
 
 
 def run_imaging(dims: tuple[int, ...], batch: int, repeat: int, seed: int) -> list[dict]:
-    """Four rows per image dimension: stitching by slice adds and by one index_add, Dice-Focal and cross-entropy."""
+    """Four rows per image dimension: stitching by slice adds and by one index_add, Dice-Focal and
+    cross-entropy."""
     import torch
 
     gen = torch.Generator().manual_seed(seed)

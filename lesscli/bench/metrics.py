@@ -21,7 +21,8 @@ def _volumes(diameter_mm: float, seed: int):
     spacing = np.array(GRID_SPACING_MM)
     origin = -np.array([(GRID_SHAPE[0] - 1) * spacing[0], (GRID_SHAPE[1] - 1) / 2 * spacing[1],
                         (GRID_SHAPE[2] - 1) / 2 * spacing[2]])
-    z, y, x = np.meshgrid(*(origin[a] + spacing[a] * np.arange(GRID_SHAPE[a]) for a in range(3)), indexing="ij")
+    z, y, x = np.meshgrid(*(origin[a] + spacing[a] * np.arange(GRID_SHAPE[a]) for a in range(3)),
+                          indexing="ij")
     truth = np.ones(GRID_SHAPE, np.uint8)
     r_mm = np.sqrt((z + 11.0) ** 2 + (y - 2.0) ** 2 + (x + 3.0) ** 2)
     truth[r_mm <= diameter_mm / 2] = 3
@@ -52,5 +53,6 @@ def run_metrics(diameter_mm: float, repeat: int, seed: int) -> list[dict]:
         {"bench": "metrics", "case": "diameter, convex hull of row extremes", **common, "seconds": t_hull,
          "speedup_vs_all_pairs": t_pairs / t_hull, "diameter_mm": d_hull},
         {"bench": "metrics", "case": "baseline: diameter, all pairs per slice", **common, "seconds": t_pairs,
-         "speedup_vs_all_pairs": 1.0, "diameter_mm": d_pairs, "diameters_agree": abs(d_hull - d_pairs) < 1e-9},
+         "speedup_vs_all_pairs": 1.0, "diameter_mm": d_pairs,
+         "diameters_agree": abs(d_hull - d_pairs) < 1e-9},
     ]

@@ -54,12 +54,14 @@ def _synthesise(n: int, insert_name: str, contrast: str, seed: int):
                        silicone_brighter=contrast == "silicone-brighter", max_shift_mm=1.0)
     t0 = time.perf_counter()
     synth = synthesize(find_phantom(insert_name), np.random.default_rng(seed), params)
-    common = {"shape": f"{n}x{n}x{n}", "spacing_mm": round(spacing, 4), "insert": insert_name, "contrast": contrast}
+    common = {"shape": f"{n}x{n}x{n}", "spacing_mm": round(spacing, 4), "insert": insert_name,
+              "contrast": contrast}
     return synth, time.perf_counter() - t0, common
 
 
 def _label(synth, params=None) -> tuple[float, float, dict, int]:
-    """(wall seconds, CPU seconds, Dice per class against the truth, warnings) of one labelling of ``synth``."""
+    """(wall seconds, CPU seconds, Dice per class against the truth, warnings) of one labelling of
+    ``synth``."""
     from lesscli.metrics import dice
     from lesscli.mri.segment import SegmentParams, segment
 
@@ -72,8 +74,8 @@ def _label(synth, params=None) -> tuple[float, float, dict, int]:
 
 
 def run_mri(n: int, insert_name: str, contrast: str, seed: int) -> list[dict]:
-    """Four rows for an ``n``^3 volume: the full pipeline, plain thresholding, the pipeline's first call in the
-    process, and synthesis (untimed against).
+    """Four rows for an ``n``^3 volume: the full pipeline, plain thresholding, the pipeline's first call in
+    the process, and synthesis (untimed against).
 
     Each of the two compared is timed on its second call: the first pays the modules each imports on first
     use (a tenth of a second, a fifth of the pipeline itself at 96^3), which is reported in its own row, as
@@ -88,10 +90,10 @@ def run_mri(n: int, insert_name: str, contrast: str, seed: int) -> list[dict]:
     t_base, c_base = time.perf_counter() - t0, time.process_time() - c0
     t_full, c_full, scores, warnings = _label(synth)
     return [
-        {"bench": "mri", "case": "label volume (full pipeline)", **common, "seconds": t_full, "cpu_seconds": c_full,
-         "ratio_vs_threshold": t_full / t_base, **scores, "warnings": warnings},
-        {"bench": "mri", "case": "baseline: plain 3-class thresholding", **common, "seconds": t_base, "cpu_seconds": c_base,
-         "ratio_vs_threshold": 1.0},
+        {"bench": "mri", "case": "label volume (full pipeline)", **common, "seconds": t_full,
+         "cpu_seconds": c_full, "ratio_vs_threshold": t_full / t_base, **scores, "warnings": warnings},
+        {"bench": "mri", "case": "baseline: plain 3-class thresholding", **common, "seconds": t_base,
+         "cpu_seconds": c_base, "ratio_vs_threshold": 1.0},
         {"bench": "mri", "case": "label volume, first call in the process (imports included)", **common,
          "seconds": t_first, "cpu_seconds": c_first, "ratio_vs_threshold": t_first / t_base},
         {"bench": "mri", "case": "synthesise the volume (not timed against)", **common, "seconds": t_synth},
@@ -124,7 +126,8 @@ def run_knobs(n: int, insert_name: str, contrast: str, seed: int) -> list[dict]:
     rows = []
     for knob, values in KNOBS.items():
         for value in values:
-            wall, cpu, scores, warnings = base if is_default(knob, value) else _label(synth, params(knob, value))
+            wall, cpu, scores, warnings = (base if is_default(knob, value)
+                                           else _label(synth, params(knob, value)))
             rows.append({"bench": "mri", "case": "knob", **common, "knob": knob, "value": value,
                          "default": is_default(knob, value), "seconds": wall, "cpu_seconds": cpu,
                          "ratio_vs_default": wall / base[0], **scores,

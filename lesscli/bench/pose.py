@@ -34,7 +34,8 @@ def _rendered(n_frames: int, seed: int):
     traj = render.make_trajectory(rng, n_frames, step=max(1, 300 // n_frames))
     frames = []
     for i in range(n_frames):
-        tags = [render.TagPlacement(0, traj["T_cam_global"]), render.TagPlacement(1, traj["T_cam_sensor_tag"][i])]
+        tags = [render.TagPlacement(0, traj["T_cam_global"]),
+                render.TagPlacement(1, traj["T_cam_sensor_tag"][i])]
         frames.append(Frame(i, float(traj["time_s"][i]), str(i), render.render_frame(cam, tags, 31.0, rng)))
     return cam, traj, frames
 
@@ -52,7 +53,8 @@ def _run_variant(cam, traj, frames, refine: str, edge_fit: bool, mode: str) -> d
     rows = list(solve_frames(cam, dets, TrackOptions(refine=refine, global_mode=mode)))
     seconds = (time.perf_counter() - start) / len(frames)
     ok = np.array([r["ok"] for r in rows])
-    est = se3.pose_to_T(np.array([r["position_mm"] for r in rows])[ok], np.array([r["rotvec_rad"] for r in rows])[ok])
+    est = se3.pose_to_T(np.array([r["position_mm"] for r in rows])[ok],
+                        np.array([r["rotvec_rad"] for r in rows])[ok])
     true = (se3.inv_T(traj["T_cam_global"]) @ traj["T_cam_sensor_tag"])[ok]
     pos = np.linalg.norm(est[:, :3, 3] - true[:, :3, 3], axis=1)
     ang = np.rad2deg(rotations.rotation_angle(np.swapaxes(true[:, :3, :3], 1, 2) @ est[:, :3, :3]))

@@ -42,12 +42,14 @@ def default_imager(dim: int, seed: int, width: int | None = None):
 
     m, im = ModelConfig(), ImageModelConfig()
     shape, spacing = (26, 128, 128), (0.9, 0.4774, 0.4774)
-    origin = (-(shape[0] - 1) * spacing[0], -(shape[1] - 1) / 2 * spacing[1], -(shape[2] - 1) / 2 * spacing[2])
+    origin = (-(shape[0] - 1) * spacing[0], -(shape[1] - 1) / 2 * spacing[1],
+              -(shape[2] - 1) / 2 * spacing[2])
     grid = ImageGrid(shape if dim == 3 else (1, *shape[1:]), origin, spacing)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
-        enc = ParticleEncoder(N_TAXELS * 3, dim=m.dim, spacing_mm=m.spacing_mm, grid_extent_mm=m.grid_extent_mm,
-                              receptive_field_mm=m.receptive_field_mm, n_freq=m.n_freq)
+        enc = ParticleEncoder(N_TAXELS * 3, dim=m.dim, spacing_mm=m.spacing_mm,
+                              grid_extent_mm=m.grid_extent_mm, receptive_field_mm=m.receptive_field_mm,
+                              n_freq=m.n_freq)
         dec = PatchDecoder(m.dim, N_CLASSES, dim, im.patch_px, shape[0], spacing, width or im.width)
     stats = {"force_mean": [0.0] * (N_TAXELS * 3), "force_std": [1.0] * (N_TAXELS * 3)}
     return Imager(enc, dec, grid).eval(), stats
@@ -134,7 +136,8 @@ def measure(imager, stats, steps: int, updates: int, full_repeats: int, rng, rat
 
 
 def stream_models(model_path: str | None, dim: int, widths: list[int | None], seed: int) -> list[tuple]:
-    """(imager, norm stats, name) to time: the checkpoint at ``model_path``, else the default model at each width."""
+    """(imager, norm stats, name) to time: the checkpoint at ``model_path``, else the default model at each
+    width."""
     if model_path:
         from lesscli.infer.predict import load_imager
 
@@ -164,7 +167,8 @@ def run_stream(models: list[tuple], steps: list[int], loads: list[int], updates:
     rows = []
     for load in loads:
         with busy_processes(load):
-            apply_threads("latency", work, threads, extra_load=load)   # the stream command's choice beside them
+            # the stream command's choice beside them
+            apply_threads("latency", work, threads, extra_load=load)
             for imager, stats, name in models:
                 rng = np.random.default_rng(seed)
                 for n in steps:

@@ -33,7 +33,8 @@ MODELS = (*LEARNED, CLASSICAL)
 LOCAL = ("less-taxel", "less")                  # particles with a receptive field and a spacing
 TAXEL = ("less-taxel", "global-taxel")          # per-step stiffness maps
 PRECISIONS = ("float32", "bfloat16", "int8")
-FOLDED = ("pose_encoding",)                     # linear layers an encoder reads as tensors (folded into its GRU)
+# linear layers an encoder reads as tensors (folded into its GRU)
+FOLDED = ("pose_encoding",)
 STREAM_UPDATES = 200                            # streaming updates timed per seed (after half a scan)
 LATENCY_REPEATS = 3                             # whole-set predictions timed per seed (the best is kept)
 EFFECT_SPREADS = 2.0                            # an effect exceeds this many seed spreads
@@ -96,7 +97,8 @@ def represented(s: Setting) -> Setting:
 BASES = {
     "less-taxel": Setting(),
     "less": Setting(model="less", dim=64, ssl_epochs=20, ssl_lr=1e-3),
-    "global": Setting(model="global", dim=16, ssl_epochs=20, ssl_lr=1e-3, width=32, image_lr=1e-3, alpha_power=1.0),
+    "global": Setting(model="global", dim=16, ssl_epochs=20, ssl_lr=1e-3, width=32, image_lr=1e-3,
+                      alpha_power=1.0),
     "global-taxel": Setting(model="global-taxel", dim=64, ssl_epochs=20, ssl_lr=1e-3),
     "forcemap": Setting(model=CLASSICAL),
 }
@@ -189,9 +191,9 @@ QUICK = TradeoffPlan(
 # the full plan: every knob, 3 seeds (a rerun with the same --work-dir resumes where one stopped)
 FULL = TradeoffPlan(
     values={"turns": (2, 4), "predict_subsample": (100,), "threads": (1,), "precision": ("bfloat16", "int8"),
-            "smoothing": (1.5, 3.0), "grid": (0.25, 1.0), "subsample": (100,), "scans": (0.5,), "pokes": (15,),
-            "ssl_epochs": (2,), "width": (8,), "dim": (32,), "spacing": (10.0,), "receptive_field": (15.0,),
-            "map_cells": (5,), "map_pitch": (3.5,), "contrast": ("plane",)},
+            "smoothing": (1.5, 3.0), "grid": (0.25, 1.0), "subsample": (100,), "scans": (0.5,),
+            "pokes": (15,), "ssl_epochs": (2,), "width": (8,), "dim": (32,), "spacing": (10.0,),
+            "receptive_field": (15.0,), "map_cells": (5,), "map_pitch": (3.5,), "contrast": ("plane",)},
     seeds=3)
 
 
@@ -199,7 +201,8 @@ def make_plan(quick: bool, values: dict[str, tuple], **sizes) -> TradeoffPlan:
     """``QUICK`` or ``FULL`` with ``values`` replacing those knobs' values and ``sizes`` (``TradeoffPlan``
     fields) replacing the plan's; None keeps the plan's own."""
     plan = QUICK if quick else FULL
-    return replace(plan, **{k: v for k, v in sizes.items() if v is not None}, values={**plan.values, **values})
+    return replace(plan, **{k: v for k, v in sizes.items() if v is not None},
+                   values={**plan.values, **values})
 
 
 def settings_of(plan: TradeoffPlan, model: str, knobs: list[str]) -> list[tuple[str, object, Setting]]:
@@ -255,14 +258,16 @@ def make_data(plan: TradeoffPlan, workdir: str | None = None) -> BenchData:
     from lesscli.sim.simulate import simulate
     from lesscli.threads import usable_cores
 
-    sizes = {"family": plan.family, "heldout": list(plan.heldout), "multiple": plan.multiple, "n_traj": plan.n_traj}
+    sizes = {"family": plan.family, "heldout": list(plan.heldout), "multiple": plan.multiple,
+             "n_traj": plan.n_traj}
     index = os.path.join(workdir, "data.json") if workdir else None
     if index and os.path.exists(index):
         with open(index) as f:
             kept = json.load(f)
         if kept["sizes"] != sizes:
             raise DataError(f"{workdir}: holds a run on other data ({kept['sizes']}); use another --work-dir")
-        return BenchData(*(load_scans(os.path.join(workdir, f"data-{p}.npz")) for p in DATA_PARTS), kept["sim_s"])
+        return BenchData(*(load_scans(os.path.join(workdir, f"data-{p}.npz")) for p in DATA_PARTS),
+                         kept["sim_s"])
     jobs = usable_cores()
     t0 = time.perf_counter()
     family = simulate(_scene(plan, [f"phantoms.random.count={plan.family}"]), jobs=jobs)
@@ -291,7 +296,8 @@ def training_scans(data: BenchData, s: Setting) -> tuple[object, object]:
         keep = set(np.random.default_rng(0).permutation(inserts)[:max(1, round(s.scans * len(inserts)))])
         train = train.select_scans(np.array([i for i, name in enumerate(train.scan_insert) if name in keep]))
     train = subsample(train, every=s.every, trajectories=s.pokes or None, rng=np.random.default_rng(0))
-    return prepare(train, "tradeoff training"), prepare(subsample(data.val, every=s.every), "tradeoff validation")
+    return prepare(train, "tradeoff training"), prepare(subsample(data.val, every=s.every),
+                                                        "tradeoff validation")
 
 
 def test_scans(data: BenchData, s: Setting) -> dict[str, object]:
@@ -311,9 +317,10 @@ def _pretrain(s: Setting, seed: int, train, val, run: TradeoffRun, path: str) ->
 
     cfg = load_config(PretrainConfig, None, (), {
         "model.name": s.model, "model.dim": s.dim, "model.receptive_field_mm": s.receptive_field_mm,
-        "model.spacing_mm": s.spacing_mm, "model.map_cells": s.map_cells, "model.map_pitch_mm": s.map_pitch_mm,
-        "model.map_contrast": s.map_contrast, "train.epochs": s.ssl_epochs, "train.lr": s.ssl_lr,
-        "train.batch_size": 4, "ssl.k_input": 8, "ssl.k_query": 8, "train.seed": seed, "train.device": run.device})
+        "model.spacing_mm": s.spacing_mm, "model.map_cells": s.map_cells,
+        "model.map_pitch_mm": s.map_pitch_mm, "model.map_contrast": s.map_contrast,
+        "train.epochs": s.ssl_epochs, "train.lr": s.ssl_lr, "train.batch_size": 4, "ssl.k_input": 8,
+        "ssl.k_query": 8, "train.seed": seed, "train.device": run.device})
     pretrain(train, val, cfg, path, env=distributed.DistEnv(device=distributed.resolve_device(run.device)))
 
 
@@ -326,7 +333,8 @@ def _fit(s: Setting, seed: int, train, val, rep: str, run: TradeoffRun, path: st
         "image.dim": 3, "image.patch_px": 16, "image.width": s.width, "loss.alpha_power": s.alpha_power,
         "train.epochs": s.image_epochs, "train.lr": s.image_lr, "train.batch_size": 4, "train.seed": seed,
         "train.device": run.device})
-    fit_imager(train, val, rep, cfg, path, env=distributed.DistEnv(device=distributed.resolve_device(run.device)))
+    fit_imager(train, val, rep, cfg, path,
+               env=distributed.DistEnv(device=distributed.resolve_device(run.device)))
 
 
 class Store:
@@ -360,7 +368,8 @@ class Store:
         return value
 
     def file(self, kind: str, key: str) -> str:
-        return os.path.join(os.path.dirname(self.path), f"{kind}-{hashlib.sha1(key.encode()).hexdigest()[:12]}.pt")
+        return os.path.join(os.path.dirname(self.path),
+                            f"{kind}-{hashlib.sha1(key.encode()).hexdigest()[:12]}.pt")
 
 
 class Trainer:
@@ -386,7 +395,8 @@ class Trainer:
                 t0 = time.perf_counter()
                 fit_forcemap(train, path, 3, None, "tradeoff training",
                              **({"sigmas_mm": sigmas} if sigmas else {}), grid_mm=s.grid_mm)
-            return {"path": path, "pretrain_s": 0.0, "fit_s": time.perf_counter() - t0, "peak_train_mb": mem.mb}
+            return {"path": path, "pretrain_s": 0.0, "fit_s": time.perf_counter() - t0,
+                    "peak_train_mb": mem.mb}
         rkey = Store.key("representation", represented(s), seed)
         rep = self.store.get(rkey, ("path",))
         if rep is None:
@@ -394,7 +404,9 @@ class Trainer:
             with peak_memory() as mem:
                 t0 = time.perf_counter()
                 _pretrain(s, seed, train, val, self.run, rep_path)
-            rep = self.store.put(rkey, {"path": rep_path, "pretrain_s": time.perf_counter() - t0, "peak_mb": mem.mb})
+            rep = self.store.put(rkey,
+                                 {"path": rep_path, "pretrain_s": time.perf_counter() - t0,
+                                  "peak_mb": mem.mb})
         with peak_memory() as mem:
             t0 = time.perf_counter()
             _fit(s, seed, train, val, rep["path"], self.run, path)
@@ -491,7 +503,8 @@ def predicting(model: dict, s: Setting, device) -> Iterator[tuple[Callable, tupl
             return
         imager, ckpt = load_imager(model["path"], device)
         with prediction_arithmetic(imager, s.precision, device) as used:
-            yield (lambda name, scans: predict(used, ckpt, scans, opts, device, name=name)), (used, ckpt["norm_stats"])
+            yield ((lambda name, scans: predict(used, ckpt, scans, opts, device, name=name)),
+                   (used, ckpt["norm_stats"]))
 
 
 def evaluate(model: dict, s: Setting, data: BenchData, run: TradeoffRun) -> dict:
@@ -507,7 +520,8 @@ def evaluate(model: dict, s: Setting, data: BenchData, run: TradeoffRun) -> dict
     with predicting(model, s, device) as (predict_set, streamer):
         for name, scans in sets.items():
             with peak_memory() as mem:
-                seconds, preds = best_time(partial(predict_set, name, scans), LATENCY_REPEATS if name == "single" else 1)
+                seconds, preds = best_time(partial(predict_set, name, scans),
+                                           LATENCY_REPEATS if name == "single" else 1)
             if name == "single":
                 out.update(latency_ms=1e3 * seconds / scans.n_scans, peak_predict_mb=mem.mb)
             out.update(_scores(preds, name))
@@ -531,7 +545,8 @@ def average_reference(data: BenchData, run: TradeoffRun, classical: dict) -> dic
     for name, scans in test_scans(data, BASES[CLASSICAL]).items():
         preds = predict_forcemap(ckpt, scans, PredictOptions(), classical["path"], name)
         summary = summarise(score_baseline_set(preds, baseline, name))[0]
-        out.update({f"f1_{name}": summary.get("f1_micro_3d"), f"com_error_mm_{name}": summary.get("com_error_mm_3d")})
+        out.update({f"f1_{name}": summary.get("f1_micro_3d"),
+                    f"com_error_mm_{name}": summary.get("com_error_mm_3d")})
     return out
 
 

@@ -16,15 +16,21 @@ from lesscli.errors import closest
 
 # name -> (module under lesscli.cli, one-line help)
 BENCHES: dict[str, tuple[str, str]] = {
-    "metrics": ("bench_metrics", "Time to score a 26x128x128 volume with a 16 mm inclusion vs F1-only and all-pairs."),
-    "stream": ("bench_stream", "Per-update latency of streaming imaging vs full recomputation at 100/1000/5000 steps."),
+    "metrics": ("bench_metrics",
+                "Time to score a 26x128x128 volume with a 16 mm inclusion vs F1-only and all-pairs."),
+    "stream": ("bench_stream",
+               "Per-update latency of streaming imaging vs full recomputation at 100/1000/5000 steps."),
     "guide": ("bench_guide", "Closed loop: F1 vs touches for guided, raster and random touch order."),
-    "train": ("bench_train", "Seconds per training step and inference forward, LESS vs GLOBAL, default and paper sizes."),
+    "train": ("bench_train",
+              "Seconds per training step and inference forward, LESS vs GLOBAL, default and paper sizes."),
     "tradeoff": ("bench_tradeoff", "Accuracy vs time: each knob of an imager around the demo's, over seeds."),
     "mri": ("bench_mri", "Seconds to label a 256^3 synthetic MRI volume on one core vs plain thresholding."),
-    "sim": ("bench_sim", "Contact tiers: error vs closed forms / finest FEM against time per step, scan time."),
-    "pose": ("bench_pose", "AprilTag sensor-pose error and time per frame: refinements vs the plain pipeline."),
-    "imaging": ("bench_imaging", "Patch stitching (index_add vs per-particle loop) and Dice-Focal vs cross-entropy."),
+    "sim": ("bench_sim",
+            "Contact tiers: error vs closed forms / finest FEM against time per step, scan time."),
+    "pose": ("bench_pose",
+             "AprilTag sensor-pose error and time per frame: refinements vs the plain pipeline."),
+    "imaging": ("bench_imaging",
+                "Patch stitching (index_add vs per-particle loop) and Dice-Focal vs cross-entropy."),
 }
 
 

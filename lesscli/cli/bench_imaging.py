@@ -18,7 +18,7 @@ from lesscli.cli.common import format_option, renamed_option, seed_option, threa
                 help="Scans per timed batch.")
 @threads_option()
 @seed_option()
-@format_option
+@format_option()
 def cli(quick: bool, repeat: int | None, batch: int, threads: int | None, seed: int, fmt: str | None) -> None:
     """Seconds to stitch 11 x 11 particle patches onto the 128 x 128 (x 26) label grid, vectorised vs a
     per-particle loop, and the Dice-Focal loss vs cross-entropy."""

@@ -17,7 +17,7 @@ from lesscli.cli.common import format_option, renamed_option, seed_option
 @click.option("--diameter-mm", type=click.FloatRange(min=1.0, max=25.0), default=16.0, show_default=True,
               help="Diameter of the synthetic inclusion.")
 @seed_option()
-@format_option
+@format_option()
 def cli(quick: bool, repeat: int | None, diameter_mm: float, seed: int, fmt: str | None) -> None:
     """Seconds to score one volume (all 3D + 2D metrics) against the F1-only and all-pairs baselines."""
     from lesscli.bench.metrics import run_metrics

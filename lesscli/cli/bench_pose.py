@@ -13,7 +13,7 @@ from lesscli.cli.common import format_option, seed_option
 @click.command("pose")
 @click.option("--quick", is_flag=True, help="8 frames instead of 60.")
 @click.option("--frames", "n_frames", type=int, default=None, help="Frames to render (overrides --quick).")
-@format_option
+@format_option()
 @seed_option()
 def cli(quick: bool, n_frames: int | None, fmt: str | None, seed: int) -> None:
     """Pose error and time per frame of the tracking variants against the plain AprilTag pipeline.

@@ -23,7 +23,7 @@ DEFAULT_SCENE = os.path.join("examples", "scenes", "poke.toml")
 @click.option("--cache-dir", type=click.Path(), default=None,
               help="Compliance cache (default: a fresh temporary one, so "
               "precompute is timed).")
-@format_option
+@format_option()
 def cli(quick: bool, plot_path: str | None, checks: tuple[str, ...], scene_path: str | None,
         cache_dir: str | None, fmt: str | None) -> None:
     """Each contact tier's error against closed forms / the finest FEM, and its time per step.

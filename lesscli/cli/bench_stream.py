@@ -13,13 +13,17 @@ from lesscli.cli.common import comma_list, format_option, realtime_option, seed_
 
 @click.command("stream")
 @click.option("--quick", is_flag=True, help="Fewer timed updates and full passes (and only 100, 1000 steps).")
-@click.option("--steps", "steps_text", default=None, help="Comma-separated prefix lengths.  [default: 100,1000,5000]")
-@click.option("--updates", type=click.IntRange(1), default=None, help="Timed updates per length (default 200, quick 20).")
-@click.option("--full-repeats", type=click.IntRange(1), default=None, help="Timed full passes (default 10, quick 3).")
+@click.option("--steps", "steps_text", default=None,
+              help="Comma-separated prefix lengths.  [default: 100,1000,5000]")
+@click.option("--updates", type=click.IntRange(1), default=None,
+              help="Timed updates per length (default 200, quick 20).")
+@click.option("--full-repeats", type=click.IntRange(1), default=None,
+              help="Timed full passes (default 10, quick 3).")
 @click.option("--dim", type=click.Choice(["2", "3"]), default="3", show_default=True,
               help="Image dimension of the default model (3 = the 'image fit' default).")
 @click.option("--width", "width_text", default=None,
-              help="Comma-separated decoder widths of the default model to time side by side (default: image fit's).")
+              help="Comma-separated decoder widths of the default model to time side by side (default: image "
+                   "fit's).")
 @click.option("--model", "model_path", type=click.Path(), default=None,
               help="Imaging checkpoint to time instead of the default model.")
 @click.option("--load", "load_text", default="0", show_default=True, metavar="N|LIST",
@@ -30,16 +34,18 @@ from lesscli.cli.common import comma_list, format_option, realtime_option, seed_
 @threads_option(help="CPU threads for torch and BLAS (default: the stream command's choice).")
 @realtime_option()
 @seed_option()
-@format_option
-def cli(quick, steps_text, updates, full_repeats, dim, width_text, model_path, load_text, rate_hz, threads, realtime,
-        seed, fmt) -> None:
+@format_option()
+def cli(quick, steps_text, updates, full_repeats, dim, width_text, model_path, load_text, rate_hz, threads,
+        realtime, seed, fmt) -> None:
     """Per-update latency (median, p99) of incremental imaging vs full recomputation, as a table."""
     from lesscli.io.records import emit_records
 
     loads = load_levels(load_text)
-    steps = comma_list(steps_text, int, "--steps") if steps_text else DEFAULT_STEPS[:2] if quick else DEFAULT_STEPS
+    steps = (comma_list(steps_text, int, "--steps") if steps_text else DEFAULT_STEPS[:2] if quick
+             else DEFAULT_STEPS)
     if not steps or min(steps) < 1:
-        raise click.BadParameter(f"'{steps_text}': need one or more prefix lengths >= 1", param_hint="--steps")
+        raise click.BadParameter(f"'{steps_text}': need one or more prefix lengths >= 1",
+                                 param_hint="--steps")
     widths = comma_list(width_text, int, "--width") if width_text else [None]
     if width_text and (not widths or min(widths) < 8):
         raise click.BadParameter(f"'{width_text}': need one or more widths >= 8", param_hint="--width")

@@ -13,10 +13,10 @@ from lesscli.cli.common import (
     threads_option,
 )
 
-TABLE_COLUMNS = ["model", "knob", "value", "seeds", "f1_single", "f1_single_std", "f1_single_effect", "f1_multiple",
-                 "f1_multiple_std", "f1_multiple_effect", "com_error_mm_single", "train_s", "train_s_ratio",
-                 "latency_ms", "latency_ms_ratio", "stream_ms", "stream_ms_ratio", "peak_train_mb",
-                 "peak_predict_mb", "note"]
+TABLE_COLUMNS = ["model", "knob", "value", "seeds", "f1_single", "f1_single_std", "f1_single_effect",
+                 "f1_multiple", "f1_multiple_std", "f1_multiple_effect", "com_error_mm_single", "train_s",
+                 "train_s_ratio", "latency_ms", "latency_ms_ratio", "stream_ms", "stream_ms_ratio",
+                 "peak_train_mb", "peak_predict_mb", "note"]
 MODEL_NAMES = ("less-taxel", "less", "global", "global-taxel", "forcemap")
 
 
@@ -46,19 +46,23 @@ def _check_knobs(knobs: tuple[str, ...], model: str) -> None:
         if knob not in KNOBS:
             raise click.BadParameter(f"unknown knob '{knob}'; one of {', '.join(KNOBS)}", param_hint="--knob")
         if knob not in knobs_for(model):
-            raise click.BadParameter(f"'{knob}' does not apply to {model}; its knobs: {', '.join(knobs_for(model))}",
+            raise click.BadParameter(f"'{knob}' does not apply to {model}; its knobs: "
+                                     f"{', '.join(knobs_for(model))}",
                                      param_hint="--knob")
 
 
 @click.command("tradeoff")
 @click.option("--model", type=click.Choice(MODEL_NAMES), default="less-taxel", show_default=True,
               help="The imager whose knobs are measured (forcemap: the classical imager).")
-@click.option("--quick", is_flag=True, help="The base and every prediction knob, 2 seeds (about 15 min on 2 cores); "
+@click.option("--quick", is_flag=True,
+              help="The base and every prediction knob, 2 seeds (about 15 min on 2 cores); "
                                             "without it every knob, 3 seeds.")
 @click.option("--knob", "knobs", multiple=True, metavar="NAME",
-              help="Vary only these knobs (repeatable; default: every knob of the plan that applies to the model).")
+              help="Vary only these knobs (repeatable; default: every knob of the plan that applies to the "
+                   "model).")
 @click.option("--values", "values", multiple=True, metavar="KNOB=V1,V2",
-              help="Values tried for a knob besides the base's, e.g. --values receptive_field=5,20 (repeatable).")
+              help="Values tried for a knob besides the base's, e.g. --values receptive_field=5,20 "
+                   "(repeatable).")
 @click.option("--seeds", type=click.IntRange(min=1), default=None,
               help="Training seeds per setting (default: 2 with --quick, else 3).")
 @click.option("--family", type=click.IntRange(min=4), default=None,
@@ -67,14 +71,15 @@ def _check_knobs(knobs: tuple[str, ...], model: str) -> None:
               help="Catalogue single inserts imaged, of the demo's 16 (two orientations each).")
 @click.option("--multiple", type=click.IntRange(min=1, max=10), default=None,
               help="Catalogue multiple-inclusion inserts imaged (default: all 10).")
-@click.option("--n-traj", type=click.IntRange(min=2), default=None, help="Pokes per scan simulated (default: 30).")
+@click.option("--n-traj", type=click.IntRange(min=2), default=None,
+              help="Pokes per scan simulated (default: 30).")
 @click.option("--epochs", type=click.IntRange(min=1), default=None,
               help="Self-supervised epochs of every setting (default: each setting's own).")
 @click.option("--image-epochs", type=click.IntRange(min=1), default=None,
               help="Imaging epochs of every setting (default: the demo's 40).")
 @click.option("--work-dir", type=click.Path(), default=None,
-              help="Keep the data, checkpoints and finished stages here; a rerun with the same folder resumes "
-                   "(default: a temporary folder).")
+              help="Keep the data, checkpoints and finished stages here; a rerun with the same folder "
+                   "resumes (default: a temporary folder).")
 @click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
               help="Figure: F1 on single and multiple against training time and against prediction latency, "
                    "with each Pareto front and the classical and average references.")
@@ -83,7 +88,7 @@ def _check_knobs(knobs: tuple[str, ...], model: str) -> None:
 @device_option()
 @threads_option()
 @seed_option()
-@format_option
+@format_option()
 def cli(model, quick, knobs, values, seeds, family, heldout, multiple, n_traj, epochs, image_epochs, work_dir,
         plot_path, knob_plot, device, threads, seed, fmt) -> None:
     """Vary one knob at a time around the model's base (less-taxel: the demo's settings on the demo's
@@ -127,7 +132,8 @@ def cli(model, quick, knobs, values, seeds, family, heldout, multiple, n_traj, e
 
         if plot_path:
             pareto_figure(rows, plot_path, time_key=("train_s", "latency_ms"),
-                          title=f"{model}: F1 against training time and prediction latency (one knob at a time)")
+                          title=f"{model}: F1 against training time and prediction latency (one knob at a "
+                                "time)")
         if knob_plot:
             line = [{**r, "x": r[KNOBS[knobs[0]].field]} for r in rows if r["knob"] in ("base", knobs[0])]
             line_figure(line, knob_plot, "x", ["f1_single", "f1_multiple"], knobs[0],

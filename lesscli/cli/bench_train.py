@@ -13,11 +13,13 @@ from lesscli.cli.common import config_resolved, device_option, format_option, se
               help="Sizes to run (repeatable).  [default: default and paper]")
 @click.option("--steps", type=int, default=None, help="Steps per scan.  [default: 1000; quick: 200]")
 @click.option("--batch-size", type=int, default=2, show_default=True, help="Scans per batch.")
-@click.option("--repeats", type=int, default=None, help="Timed repeats after one warm-up.  [default: 3; quick: 1]")
-@set_options("SSL sampling, e.g. ssl.k_input=8 ssl.k_query=8 (the paper's sweeps; repeatable).  [default: 16, 16]")
+@click.option("--repeats", type=int, default=None,
+              help="Timed repeats after one warm-up.  [default: 3; quick: 1]")
+@set_options("SSL sampling, e.g. ssl.k_input=8 ssl.k_query=8 (the paper's sweeps; repeatable).  [default: "
+             "16, 16]")
 @device_option()
 @threads_option()
-@format_option
+@format_option()
 def cli(quick: bool, sizes: tuple[str, ...], steps: int | None, batch_size: int, repeats: int | None,
         overrides: tuple[str, ...], device: str, threads: int | None, fmt: str | None) -> None:
     """Time a training step (forward + backward + Adam) and an inference forward.

@@ -1,4 +1,16 @@
-"""Shared CLI plumbing: verbosity, logging, progress bars, common options, name suggestions."""
+"""Shared CLI plumbing: verbosity, logging, progress bars, summaries, name suggestions, shared options.
+
+Each shared option is a factory, called where it decorates a command (``@format_option()``):
+``format_option()`` ``--format jsonl|json|table|markdown`` of records on stdout;
+``output_option()`` ``-o/--output PATH``, checked (and with ``lock`` held) before the command starts;
+``seed_option()`` ``--seed``; ``device_option()`` ``--device auto|cpu|cuda|cuda:N``;
+``threads_option()`` ``--threads N|auto`` (lesscli.threads); ``realtime_option()`` ``--realtime``;
+``orientations_option()`` ``--orientations LIST`` (:func:`orientation_list`);
+``labelling_options()`` ``--threshold``, ``--min-volume-mm3``, ``--smooth-mm``;
+``series_option()`` ``--series`` of a DICOM folder; ``set_options(help)`` ``--set KEY=VALUE`` and
+``--print-config``; ``renamed_option(old, ...)`` an option that still takes its old spelling for one
+release. Every command also takes ``-v`` and ``-q`` after its name (:func:`with_global_options`).
+"""
 
 from __future__ import annotations
 
@@ -97,7 +109,7 @@ def progress(iterable: Iterable | None = None, **kwargs):
     return PlainProgress(iterable, file=sys.stderr, **kwargs)
 
 
-def format_option(func):
+def format_option():
     """``--format jsonl|json|table|markdown`` (default: table on a terminal, JSON lines otherwise)."""
     return click.option(
         "--format",
@@ -105,7 +117,18 @@ def format_option(func):
         type=click.Choice(["jsonl", "json", "table", "markdown"]),
         default=None,
         help="Record format on stdout (default: table on a terminal, else JSON lines).",
-    )(func)
+    )
+
+
+def emit_summary(rows: list[dict], output: str | None, fmt: str | None) -> None:
+    """A command's summary records: on stdout, or, where stdout carries the output itself (``-o -``), on
+    stderr for people (silent with ``-q``)."""
+    from lesscli.io.records import emit_records
+
+    if output != "-":
+        emit_records(rows, fmt)
+    elif not STATE.quiet:
+        emit_records(rows, fmt, stream=sys.stderr)
 
 
 def check_known(names: Iterable[str], known, what: str, option: str) -> None:
@@ -116,15 +139,16 @@ def check_known(names: Iterable[str], known, what: str, option: str) -> None:
     for name in names:
         if name not in known:
             hint = closest(name, known)
-            raise click.BadParameter(f"unknown {what} '{name}'" + (f"; did you mean '{hint}'?" if hint else ""),
+            raise click.BadParameter(f"unknown {what} '{name}'"
+                                     + (f"; did you mean '{hint}'?" if hint else ""),
                                      param_hint=option)
 
 
-def series_option(func):
+def series_option():
     """``--series NUMBER|UID``: the series of a DICOM folder holding several (``mri-label``, ``info``)."""
     return click.option("--series", default=None, metavar="NUMBER|UID",
                         help="The series to read from a DICOM folder holding several (its SeriesNumber or "
-                             "SeriesInstanceUID).")(func)
+                             "SeriesInstanceUID).")
 
 
 def deprecated(old: str, new: str) -> None:
@@ -157,8 +181,9 @@ def renamed_option(old: str, *decls: str, **attrs):
             value = ctx.meta[key]
         return callback(ctx, param, value) if callback else value
 
-    alias = click.option(old, "_old_" + new.name, hidden=True, expose_value=False, default=None, type=new.type,
-                         multiple=new.multiple, callback=take_old, help=f"Old spelling of {spelled}.")
+    alias = click.option(old, "_old_" + new.name, hidden=True, expose_value=False, default=None,
+                         type=new.type, multiple=new.multiple, callback=take_old,
+                         help=f"Old spelling of {spelled}.")
     current = click.option(*decls, callback=take_new, **attrs)
 
     def decorate(func):
@@ -207,39 +232,44 @@ class ThreadsType(click.ParamType):
             self.fail(f"'{value}' is not a whole number >= 1 nor 'auto'", param, ctx)
 
 
-THROUGHPUT_THREADS = ("CPU threads for torch and BLAS: a number, or 'auto' to follow the machine's load (faster "
-                      "beside busy processes, not bit-identical). Default: OMP_NUM_THREADS if set, else the "
-                      "usable cores, whatever the load.")
-LATENCY_THREADS = ("CPU threads for torch and BLAS (default: one, more for large updates when cores are free; "
-                   "at most OMP_NUM_THREADS if set).")
+THROUGHPUT_THREADS = ("CPU threads for torch and BLAS: a number, or 'auto' to follow the machine's load "
+                      "(faster beside busy processes, not bit-identical). Default: OMP_NUM_THREADS if set, "
+                      "else the usable cores, whatever the load.")
+LATENCY_THREADS = ("CPU threads for torch and BLAS (default: one, more for large updates when cores are "
+                   "free; at most OMP_NUM_THREADS if set).")
 
 
 def threads_option(help: str = THROUGHPUT_THREADS):
-    """``--threads N|auto``: overrides the thread policy (lesscli.threads) on every command that does torch work."""
+    """``--threads N|auto``: overrides the thread policy (lesscli.threads) on every command that does torch
+    work."""
     return click.option("--threads", type=ThreadsType(), default=None, metavar="N|auto", help=help)
 
 
 def realtime_option():
-    """``--realtime``: latency-bound commands run under the real-time FIFO policy (lesscli.threads.set_realtime)."""
+    """``--realtime``: latency-bound commands run under the real-time FIFO policy
+    (lesscli.threads.set_realtime)."""
     return click.option("--realtime", is_flag=True,
-                        help="Run under the real-time FIFO scheduling policy, so that busy processes do not delay "
-                             "updates (Linux; needs root, CAP_SYS_NICE or `ulimit -r`).")
+                        help="Run under the real-time FIFO scheduling policy, so that busy processes do not "
+                             "delay updates (Linux; needs root, CAP_SYS_NICE or `ulimit -r`).")
 
 
-def labelling_options(func):
+def labelling_options():
     """``--threshold``, ``--min-volume-mm3`` and ``--smooth-mm``: the labelling rule of every command that
     labels images (``image predict``, ``stream``, ``guide``); each defaults to the model's (see
     infer.predict.labelling_rule)."""
-    func = click.option("--smooth-mm", "smooth_mm", type=click.FloatRange(min=0), default=None,
-                        help="Label from probabilities smoothed across each slice by a Gaussian of this standard "
-                             "deviation (mm; 0: none). Default: the model's, chosen on --val by image fit; else 0.")(func)
-    func = click.option("--min-volume-mm3", "min_volume_mm3", type=click.FloatRange(min=0), default=None,
-                        help="Drop inclusion regions smaller than this volume (mm^3; 0: keep all). Default: the "
-                             "model's, chosen on --val by image fit; else 0.")(func)
-    return click.option("--threshold", type=click.FloatRange(0, 1), default=None,
-                        help="Pillar/inclusion exactly where its probability exceeds this (hand-held setting: 0.8; "
-                             "below 0.5 also where it is not the likeliest class). Default: the model's, chosen "
-                             "on --val by image fit; else argmax.")(func)
+    def decorate(func):
+        func = click.option("--smooth-mm", "smooth_mm", type=click.FloatRange(min=0), default=None,
+                            help="Label from probabilities smoothed across each slice by a Gaussian of this "
+                                 "standard deviation (mm; 0: none). Default: the model's, chosen on --val by "
+                                 "image fit; else 0.")(func)
+        func = click.option("--min-volume-mm3", "min_volume_mm3", type=click.FloatRange(min=0), default=None,
+                            help="Drop inclusion regions smaller than this volume (mm^3; 0: keep all). "
+                                 "Default: the model's, chosen on --val by image fit; else 0.")(func)
+        return click.option("--threshold", type=click.FloatRange(0, 1), default=None,
+                            help="Pillar/inclusion exactly where its probability exceeds this (hand-held "
+                                 "setting: 0.8; below 0.5 also where it is not the likeliest class). "
+                                 "Default: the model's, chosen on --val by image fit; else argmax.")(func)
+    return decorate
 
 
 def device_option(help: str = "auto (CUDA when available, else CPU), cpu, cuda or cuda:N."):
@@ -341,6 +371,7 @@ def comma_list(text: str, cast: type, what: str) -> tuple:
 
 
 def seed_option(default: int = 0):
+    """``--seed``: the random seed of a command that draws (simulation, splits, benchmarks)."""
     return click.option("--seed", type=int, default=default, show_default=True, help="Random seed.")
 
 

@@ -18,7 +18,7 @@ from lesscli.data.archive import DEFAULT_BASE_URL
               help="Fetch only this file of the records (repeatable; default: every file).")
 @click.option("--retries", type=click.IntRange(min=0), default=5, show_default=True,
               help="Transfers tried again (resuming) after one breaks off.")
-@format_option
+@format_option()
 def cli(records: tuple[str, ...], out_dir: str, base_url: str, only: tuple[str, ...], retries: int,
         fmt: str | None) -> None:
     """Download the files of published records into DIR.
@@ -52,7 +52,8 @@ def cli(records: tuple[str, ...], out_dir: str, base_url: str, only: tuple[str, 
         for rid, remote in listed:
             if not only or remote.name in only:
                 if remote.md5 is None:
-                    LOG.warning("%s: record %s publishes no checksum; only the size is checked", remote.name, rid)
+                    LOG.warning("%s: record %s publishes no checksum; only the size is checked", remote.name,
+                                rid)
                 row = download(remote, os.path.join(out_dir, remote.name), progress, retries=retries)
                 LOG.info("%s: %s (%d bytes)", remote.name, row["status"], row["bytes"])
                 yield {"record": rid, **row}

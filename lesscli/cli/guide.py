@@ -17,7 +17,8 @@ from lesscli.cli.common import (
 @click.command("guide")
 @click.argument("model", type=click.Path())
 @click.argument("partial", type=click.Path())
-@click.option("--k", "k", type=click.IntRange(min=1), default=5, show_default=True, help="Touch locations to suggest.")
+@click.option("--k", "k", type=click.IntRange(min=1), default=5, show_default=True,
+              help="Touch locations to suggest.")
 @click.option("--scan", "scan_index", type=click.IntRange(min=0), default=None,
               help="Only this scan of PARTIAL (default: every scan).")
 @click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
@@ -32,12 +33,12 @@ from lesscli.cli.common import (
               help="Phantom octagon across flats (default: the scan's label footprint, else 60 mm).")
 @click.option("--score", default="entropy", show_default=True,
               help="Uncertainty to cover: 'entropy' (all classes) or 'inclusion' (inclusion vs the rest).")
-@labelling_options
+@labelling_options()
 @device_option()
 @threads_option(LATENCY_THREADS)
-@format_option
-def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margin_mm, width_mm, score, threshold,
-        min_volume_mm3, smooth_mm, device, threads, fmt) -> None:
+@format_option()
+def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margin_mm, width_mm, score,
+        threshold, min_volume_mm3, smooth_mm, device, threads, fmt) -> None:
     """Suggest the next K touches (x, y mm) for each scan of the partial scan set PARTIAL.
 
     The partial scan is imaged with MODEL; touches go where the most entropy lies within a touch's
@@ -66,12 +67,14 @@ def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margi
     if plot_path and len(chosen) != 1:
         raise click.UsageError(f"--plot draws one scan; {partial} has {scans.n_scans}: pick one with --scan")
     longest = max(np.diff(scans.scan_step_offsets())[chosen], default=1)
-    apply_threads("latency", lambda: update_work(imager) * longest, threads)   # one full pass over a partial scan
+    # one full pass over a partial scan
+    apply_threads("latency", lambda: update_work(imager) * longest, threads)
     opts = GuideOptions(k, radius_mm, exclusion_mm, margin_mm, score)
     rows = []
     for s in chosen:
         g = guide_scan(imager, ckpt, scans, s, opts, width_mm, threshold, min_volume_mm3, smooth_mm)
-        rows += [{"scan": s, "insert": str(scans.scan_insert[s]), "steps": len(g.touches_xy_mm), **r} for r in g.rows]
+        rows += [{"scan": s, "insert": str(scans.scan_insert[s]), "steps": len(g.touches_xy_mm), **r}
+                 for r in g.rows]
         if plot_path:
             _plot(plot_path, g, str(scans.scan_insert[s]))
     emit_records(rows, fmt)

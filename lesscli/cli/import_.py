@@ -29,10 +29,10 @@ from lesscli.cli.common import LOG, format_option, output_option, parse_shard
 @click.option("--shard", default=None, help="Import only files i, i+n, ... of the sorted list (i/n).")
 @click.option("--on-error", type=click.Choice(["fail", "skip"]), default="fail", show_default=True,
               help="A broken file stops the import, or is reported and skipped.")
-@format_option
-def cli(root: str, output: str, every: int, trajectories: int | None, hand_held: bool, calibration: str | None,
-        labels_dir: str | None, mri_scan: int, top_slice: str, counts_per_newton: float | None, shard: str | None,
-        on_error: str, fmt: str | None) -> None:
+@format_option()
+def cli(root: str, output: str, every: int, trajectories: int | None, hand_held: bool,
+        calibration: str | None, labels_dir: str | None, mri_scan: int, top_slice: str,
+        counts_per_newton: float | None, shard: str | None, on_error: str, fmt: str | None) -> None:
     """Import ROOT (one HDF5 file per scan, labels in ROOT/mri_images_3D) with the published preprocessing.
 
     ROOT is the dataset folder or a zip archive of it (as published), read in place without
@@ -45,11 +45,8 @@ def cli(root: str, output: str, every: int, trajectories: int | None, hand_held:
 
     Example: less import dataset_poke.zip -o raw.npz --on-error skip
     """
-    import sys
-
-    from lesscli.cli.common import progress
+    from lesscli.cli.common import emit_summary, progress
     from lesscli.data.published import ImportOptions, import_published
-    from lesscli.io.records import emit_records
     from lesscli.io.scans import append_history, save_scans
 
     shard_ix = parse_shard(shard)
@@ -67,4 +64,4 @@ def cli(root: str, output: str, every: int, trajectories: int | None, hand_held:
     scans.meta = append_history(scans.meta, shard=f"{shard_ix[0]}/{shard_ix[1]}")
     save_scans(output, scans)
     LOG.info("%s: %d scans, %d trajectories, %d steps", output, scans.n_scans, scans.n_traj, scans.n_steps)
-    emit_records(rows, fmt, stream=sys.stderr if output == "-" else sys.stdout)
+    emit_summary(rows, output, fmt)

@@ -11,8 +11,8 @@ from lesscli.cli.common import format_option, series_option
 @click.argument("paths", type=click.Path(), metavar="FILE...", nargs=-1, required=True)
 @click.option("--full-history", is_flag=True,
               help="Show history entries as stored (time, output file) instead of the summary.")
-@series_option
-@format_option
+@series_option()
+@format_option()
 def cli(paths: tuple[str, ...], full_history: bool, series: str | None, fmt: str | None) -> None:
     """Describe a file: a scan set (counts, shapes, units, sensor, label geometry, history), a
     prediction file (scans, grids, model, labelled voxels, entropy), a checkpoint (model, parameters,

@@ -87,7 +87,7 @@ IDS_HELP = "LIFT,ROTATOR servo ids (default 1,2)."
 @click.option("--baud", type=int, default=None, help=BAUD_HELP)
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help=CONFIG_HELP)
 @click.option("--ids", callback=_parse_ids, help=IDS_HELP)
-@format_option
+@format_option()
 @click.pass_context
 def cli(ctx, port, baud, config_path, ids, fmt) -> None:
     """Scissor lift: home, raise, lower, rotate the insert, cycle through orientations; or emulate it.
@@ -110,7 +110,7 @@ def _pass_options(func):
     run = click.option("--config", "sub_config", type=click.Path(dir_okay=False), help=CONFIG_HELP)(run)
     run = click.option("--baud", "sub_baud", type=int, default=None, help=BAUD_HELP)(run)
     run = click.option("--port", "sub_port", default=None, help=PORT_HELP)(run)
-    return format_option(run)
+    return format_option()(run)
 
 
 def _terminated(signum, frame) -> None:
@@ -188,12 +188,13 @@ def _exec_runner(template: str):
         try:
             proc = subprocess.run(argv, check=False, stdout=subprocess.PIPE, env=env)
         except OSError as exc:
-            raise LessError(f"cycle stopped at orientation {k}: cannot run '{argv[0]}': {exc.strerror}") from None
+            raise LessError(f"cycle stopped at orientation {k}: cannot run '{argv[0]}': "
+                            f"{exc.strerror}") from None
         if proc.stdout:
             click.echo(proc.stdout.decode(errors="replace"), err=True, nl=False)
         if proc.returncode != 0:
-            raise LessError(f"cycle stopped at orientation {k}: --exec command exited with {proc.returncode}: "
-                            f"{shlex.join(argv)}")
+            raise LessError(f"cycle stopped at orientation {k}: --exec command exited with "
+                            f"{proc.returncode}: {shlex.join(argv)}")
 
     return run
 
@@ -201,8 +202,8 @@ def _exec_runner(template: str):
 @cli.command()
 @orientations_option(help="Orientations to visit in order, e.g. 0-7 or 0,2,4.")
 @click.option("--exec", "exec_", default=None,
-              help="Command run at each orientation once raised; '{orientation}' is replaced (its stdout goes "
-                   "to stderr). A failure stops the cycle.")
+              help="Command run at each orientation once raised; '{orientation}' is replaced (its stdout "
+                   "goes to stderr). A failure stops the cycle.")
 @_pass_options
 def cycle(opts: _Options, orientations: list[int], exec_: str | None) -> None:
     """For each orientation: lower, rotate, raise, then run --exec."""
@@ -234,9 +235,9 @@ def torque_off(opts: _Options) -> None:
 @cli.command()
 @click.option("--link", type=click.Path(), help="Also make this symlink to the pty (removed on exit).")
 @click.option("--fault", "faults", multiple=True, metavar="NAME[:ID[:N[:COUNT]]]",
-              help="Inject a fault (no-reply, bad-crc, overload, overheating, stall, power-cycle) on servo ID "
-                   "(default: the lift) at its N-th Goal_Position write (default 1; 0 = at start); COUNT limits "
-                   "no-reply/bad-crc to that many replies. Repeatable.")
+              help="Inject a fault (no-reply, bad-crc, overload, overheating, stall, power-cycle) on servo "
+                   "ID (default: the lift) at its N-th Goal_Position write (default 1; 0 = at start); COUNT "
+                   "limits no-reply/bad-crc to that many replies. Repeatable.")
 @click.option("--time-scale", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
               help="Simulated seconds per wall-clock second (e.g. 100 makes moves take milliseconds).")
 @click.option("--log", "log_path", type=click.Path(dir_okay=False), callback=checked_output(),
@@ -256,7 +257,8 @@ def emulate(opts: _Options, link: str | None, faults: tuple[str, ...], time_scal
         except ValueError as exc:
             raise click.BadParameter(str(exc), param_hint="--fault") from None
         if servo_id not in {s.servo_id for s in servos}:
-            raise click.BadParameter(f"'{spec}': no servo {servo_id} on the emulated bus", param_hint="--fault")
+            raise click.BadParameter(f"'{spec}': no servo {servo_id} on the emulated bus",
+                                     param_hint="--fault")
         armed.append((servo_id, fault))
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     with contextlib.ExitStack() as stack:

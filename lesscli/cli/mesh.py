@@ -49,7 +49,7 @@ def load_volume(path: str, scan: int, truth: bool):
               help="Taubin smoothing passes (volume-preserving).")
 @click.option("--faces", type=click.IntRange(min=4), default=None,
               help="Decimate each class surface to about this many faces.")
-@format_option
+@format_option()
 def cli(source: str, output: str, scan: int, truth: bool, classes: str, smooth: int, faces: int | None,
         fmt: str | None) -> None:
     """Surfaces of each class by marching cubes, in phantom-frame millimetres.

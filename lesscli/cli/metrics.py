@@ -13,8 +13,9 @@ SCAN_COLUMNS = ("file", "model", "scan", "insert", "orientation", "f1_3d", "com_
                 "diameter_error_mm_3d", "volume_error_mm3", "f1_2d", "com_error_mm_2d", "arse_2d",
                 "diameter_error_mm_2d", "area_error_mm2")
 FILE_TABLE_KEYS = ("file", "model")   # identity columns of the per-file table
-SUMMARY_METRICS = ("f1_micro_3d", "f1_3d", "com_error_mm_3d", "arse_3d", "diameter_error_mm_3d", "volume_error_mm3",
-                   "f1_micro_2d", "f1_2d", "com_error_mm_2d", "arse_2d", "diameter_error_mm_2d", "area_error_mm2")
+SUMMARY_METRICS = ("f1_micro_3d", "f1_3d", "com_error_mm_3d", "arse_3d", "diameter_error_mm_3d",
+                   "volume_error_mm3", "f1_micro_2d", "f1_2d", "com_error_mm_2d", "arse_2d",
+                   "diameter_error_mm_2d", "area_error_mm2")
 
 
 def _split_keys(values: tuple[str, ...]) -> tuple[str, ...] | None:
@@ -28,7 +29,8 @@ def _check_usage(preds, truth_path, pred_nifti, baseline_from, threshold) -> Non
     if not preds and not truth_path:
         raise click.UsageError("give prediction files, or --truth REF.nii.gz --pred SEG.nii.gz")
     if baseline_from and not preds:
-        raise click.UsageError("--baseline-from needs prediction files (it scores the baseline on their truths)")
+        raise click.UsageError("--baseline-from needs prediction files (it scores the baseline on their "
+                               "truths)")
     if threshold is not None and not preds:
         raise click.UsageError("--threshold needs prediction files with probabilities")
 
@@ -78,15 +80,15 @@ def _emit_tables(report, fmt: str, summary_only: bool, show: tuple[str, ...]) ->
               help="Re-label from the probabilities: pillar/inclusion only above this probability.")
 @click.option("--baseline-from", "baseline_from", type=click.Path(), default=None,
               help="Training scan set with labels: add the average-prediction baseline (model 'average').")
-@click.option("--diameter-points", type=click.Choice(["centres", "corners"]), default="centres", show_default=True,
-              help="Diameter between pixel centres (the paper) or pixel corners.")
+@click.option("--diameter-points", type=click.Choice(["centres", "corners"]), default="centres",
+              show_default=True, help="Diameter between pixel centres (the paper) or pixel corners.")
 @click.option("--group-by", "group_by", multiple=True, metavar="KEY[,KEY]",
               help="Group summaries by these keys (set, seed, model, dim, insert, any meta key).")
 @click.option("--summary-only", is_flag=True, help="Only the per-file and group summaries.")
 @click.option("--show", multiple=True, metavar="METRIC[,METRIC]",
               help="The metrics a table shows, in this order (default: every one; implies --format table "
                    "unless markdown is asked for; JSON formats keep every metric).")
-@format_option
+@format_option()
 def cli(preds, truth_path, pred_nifti, cls, threshold, baseline_from, diameter_points, group_by, summary_only,
         show, fmt) -> None:
     """Score predictions against their truth: F1/precision/recall, centroid error (mm), ARSE,

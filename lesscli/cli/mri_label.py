@@ -25,7 +25,8 @@ def _triple(text: str, what: str, cast=float) -> tuple:
     except ValueError:
         values = ()
     if len(values) != 3 or not all(v > 0 for v in values):
-        raise click.BadParameter(f"'{text}': expected three positive numbers separated by commas", param_hint=what)
+        raise click.BadParameter(f"'{text}': expected three positive numbers separated by commas",
+                                 param_hint=what)
     return values
 
 
@@ -63,8 +64,8 @@ def _synth(name: str, output: str, truth_out: str | None, spacing: str | None, c
 
 
 def _label(scan_path: str, output: str, spacing: str | None, series: str | None, params, grid: str,
-           grid_shape: str, grid_spacing: str, orientations: list[int], report: bool, qc: str | None, strict: bool,
-           fmt: str | None) -> None:
+           grid_shape: str, grid_spacing: str, orientations: list[int], report: bool, qc: str | None,
+           strict: bool, fmt: str | None) -> None:
     from lesscli.errors import DataError
     from lesscli.io.atomic import atomic_group
     from lesscli.io.records import emit_records
@@ -82,8 +83,8 @@ def _label(scan_path: str, output: str, spacing: str | None, series: str | None,
     with atomic_group():                 # the labels and the --plot figure appear together, or none of them
         rows += _write_labels(scan, seg, output, scan_path, grid, grid_shape, grid_spacing, orientations)
         if qc:
-            rep.save_qc(qc, seg.corrected, seg.labels, seg.spacing_mm, title=f"{scan_path}: blue insert, orange "
-                        "outline pillar, red inclusion")
+            rep.save_qc(qc, seg.corrected, seg.labels, seg.spacing_mm,
+                        title=f"{scan_path}: blue insert, orange " "outline pillar, red inclusion")
     if report:
         rows += rep.shape_rows(seg.inclusion_shapes, scan.affine)
         rows += rep.base_rows(seg.base_surface, seg.spacing_mm, seg.labels.shape, scan.affine)
@@ -106,7 +107,8 @@ def _write_labels(scan, seg, output: str, scan_path: str, grid: str, grid_shape:
     from lesscli.mri.frame import find_frame, resample, up_hint_from
 
     rows = []
-    frame = find_frame(seg.labels, scan.affine, up_hint_from(seg.labels, seg.silicone, scan.affine), scan_path)
+    frame = find_frame(seg.labels, scan.affine, up_hint_from(seg.labels, seg.silicone, scan.affine),
+                       scan_path)
     shape, gspacing = _triple(grid_shape, "--grid-shape", int), _triple(grid_spacing, "--grid-spacing-mm")
     for i, (k, path) in enumerate(zip(orientations, _orientation_paths(output, orientations))):
         vol = resample(seg.labels, scan.affine, frame, shape, gspacing, k, f"{scan_path}_{k}")
@@ -121,8 +123,9 @@ def _write_labels(scan, seg, output: str, scan_path: str, grid: str, grid_shape:
 @click.command("mri-label")
 @click.argument("scan", type=click.Path(), required=False)
 @output_option(help="Output labels (.nii.gz/.nii; .npy for a numpy scan). With --synth: the synthetic scan.")
-@click.option("--spacing-mm", "spacing", default=None, help="dz,dy,dx voxel size for .npy/.npz scans (and --synth).")
-@series_option
+@click.option("--spacing-mm", "spacing", default=None,
+              help="dz,dy,dx voxel size for .npy/.npz scans (and --synth).")
+@series_option()
 @click.option("--pillar-max-diameter-mm", type=click.FloatRange(min=0.1), default=4.5, show_default=True,
               help="Thickest pillar; thicker silicone bodies are inclusions.")
 @click.option("--pillar-diameter-mm", type=click.FloatRange(min=0.0, min_open=True), default=None,
@@ -134,36 +137,42 @@ def _write_labels(scan, seg, output: str, scan_path: str, grid: str, grid_shape:
               help="Gaussian denoising sigma (default 0.6 x the finest voxel size).")
 @click.option("--bias-degree", type=click.IntRange(min=0, max=6), default=3, show_default=True,
               help="Polynomial degree of the log bias field corrected (0: no correction).")
-@click.option("--inclusion-shape", type=click.Choice(["auto", "image", "ball"]), default="auto", show_default=True,
-              help="Each inclusion as its fitted blurred ball (ball), as the scan's own surface (image), or the "
-                   "ball where it fits the scan within its noise, else the surface (auto).")
+@click.option("--inclusion-shape", type=click.Choice(["auto", "image", "ball"]), default="auto",
+              show_default=True,
+              help="Each inclusion as its fitted blurred ball (ball), as the scan's own surface (image), or "
+                   "the ball where it fits the scan within its noise, else the surface (auto).")
 @click.option("--grid", type=click.Choice(["scan", "phantom"]), default="scan", show_default=True,
-              help="scan: labels on the input grid with its affine; phantom: the toolkit grid in the phantom frame.")
+              help="scan: labels on the input grid with its affine; phantom: the toolkit grid in the phantom "
+                   "frame.")
 @click.option("--grid-shape", default="26,128,128", show_default=True, help="D,H,W of the phantom grid.")
-@click.option("--grid-spacing-mm", default="0.9,0.4774,0.4774", show_default=True, help="dz,dy,dx of the phantom grid.")
+@click.option("--grid-spacing-mm", default="0.9,0.4774,0.4774", show_default=True,
+              help="dz,dy,dx of the phantom grid.")
 @click.option("--orientations", default="0", show_default=True, metavar="LIST", callback=_orientations,
               help="With --grid phantom: orientations k (x 45 deg), e.g. 0-7 writes OUT_0 ... OUT_7; one "
                    "orientation keeps the name OUT.")
-@click.option("--report", is_flag=True, help="Print class volumes, inclusions, frame and warnings as records.")
+@click.option("--report", is_flag=True,
+              help="Print class volumes, inclusions, frame and warnings as records.")
 @renamed_option("--qc", "--plot", "qc", type=click.Path(dir_okay=False), default=None,
-                help="PNG: the three orthogonal planes through each inclusion, labels overlaid, pillar outlined.")
-@click.option("--strict", is_flag=True, help="Treat warnings (no inclusion, pillar not connected, ...) as errors.")
+                help="PNG: the three orthogonal planes through each inclusion, labels overlaid, pillar "
+                     "outlined.")
+@click.option("--strict", is_flag=True,
+              help="Treat warnings (no inclusion, pillar not connected, ...) as errors.")
 @click.option("--synth", "synth", default=None, metavar="INSERT",
-              help="Instead of labelling: write a synthetic MRI of a catalogue insert (e.g. St12C13) or of the "
-                   "first phantom in a .toml/.json file to -o, and its true labels to --truth-out.")
+              help="Instead of labelling: write a synthetic MRI of a catalogue insert (e.g. St12C13) or of "
+                   "the first phantom in a .toml/.json file to -o, and its true labels to --truth-out.")
 @click.option("--truth-out", type=click.Path(), default=None, callback=checked_output(),
               help="With --synth: where to write the true labels (NIfTI).")
-@click.option("--contrast", type=click.Choice(sorted(CONTRASTS)), default="silicone-darker", show_default=True,
-              help="With --synth: which tissue is brighter.")
+@click.option("--contrast", type=click.Choice(sorted(CONTRASTS)), default="silicone-darker",
+              show_default=True, help="With --synth: which tissue is brighter.")
 @click.option("--noise", type=click.FloatRange(min=0.0), default=0.04, show_default=True,
               help="With --synth: Rician noise sigma relative to the brighter tissue.")
 @click.option("--bias", type=click.FloatRange(min=0.0), default=0.25, show_default=True,
               help="With --synth: peak |log| of the multiplicative bias field.")
 @seed_option()
-@format_option
-def cli(scan, output, spacing, series, pillar_max_diameter_mm, pillar_diameter_mm, skin_max_thickness_mm, smooth_mm,
-        bias_degree, inclusion_shape, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict, synth,
-        truth_out, contrast, noise, bias, seed, fmt) -> None:
+@format_option()
+def cli(scan, output, spacing, series, pillar_max_diameter_mm, pillar_diameter_mm, skin_max_thickness_mm,
+        smooth_mm, bias_degree, inclusion_shape, grid, grid_shape, grid_spacing_mm, orientations, report, qc,
+        strict, synth, truth_out, contrast, noise, bias, seed, fmt) -> None:
     """Label an MRI scan (NIfTI, DICOM folder, or .npy/.npz with --spacing-mm) into 0 background,
     1 insert (hydrogel and skin), 2 pillar, 3 inclusion; either tissue may be the brighter one.
 
@@ -197,5 +206,5 @@ def cli(scan, output, spacing, series, pillar_max_diameter_mm, pillar_diameter_m
                                inclusion_shape, pillar_diameter_mm)
     except ValueError as e:
         raise click.BadParameter(str(e), param_hint="--pillar-diameter-mm") from None
-    _label(scan, output, spacing, series, params, grid, grid_shape, grid_spacing_mm, orientations, report, qc, strict,
-           fmt)
+    _label(scan, output, spacing, series, params, grid, grid_shape, grid_spacing_mm, orientations, report, qc,
+           strict, fmt)

@@ -24,7 +24,8 @@ def _levels(text: str, what: str) -> list[float]:
               help="Position noise sigmas (x, y, z), mm.")
 @click.option("--ang-rad", default="0,0.02,0.05,0.1,0.2", show_default=True,
               help="Angle noise sigmas (roll, pitch, yaw), rad.")
-@click.option("--repeats", type=click.IntRange(min=1), default=3, show_default=True, help="Noise draws per cell.")
+@click.option("--repeats", type=click.IntRange(min=1), default=3, show_default=True,
+              help="Noise draws per cell.")
 @seed_option()
 @click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_figure,
               help="Figure (.png, .pdf or .svg): the metric vs position noise, one line per angle level.")
@@ -36,7 +37,7 @@ def _levels(text: str, what: str) -> list[float]:
 @click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True,
               help="Scans imaged together (memory against speed).")
 @device_option()
-@format_option
+@format_option()
 def cli(model, data, pos_mm, ang_rad, repeats, seed, plot_path, metric, threshold, grow, batch_size, device,
         fmt) -> None:
     """Re-predict DATA with i.i.d. Gaussian noise on the pad poses and score the inclusion class.
@@ -47,7 +48,8 @@ def cli(model, data, pos_mm, ang_rad, repeats, seed, plot_path, metric, threshol
     cell is computed once). One record per cell: mean and std over repeats of the micro F1 over the
     set, the mean per-scan F1, centroid and diameter errors (3D metrics for a 3D model, 2D for 2D).
 
-    Example: less noise-sweep imager.pt split/test.npz --pos-mm 0,1,2 --ang-rad 0,0.1 --repeats 3 --plot noise.png
+    Example: less noise-sweep imager.pt split/test.npz --pos-mm 0,1,2 --ang-rad 0,0.1 --repeats 3
+    --plot noise.png
     """
     from lesscli.cli.common import progress
     from lesscli.data.compat import for_model

@@ -52,13 +52,15 @@ def _floats(text: str | None, what: str) -> tuple[float, float, float] | None:
               help="--set random: number of inserts [default: 32].")
 @click.option("--seed", type=click.IntRange(0), default=None, help="--set random: family seed [default: 0].")
 @click.option("--random", "random_pairs", multiple=True, metavar="KEY=VALUE",
-              help="--set random: a range or setting, e.g. --random diameter_mm=[8,12] (repeatable; keys as in "
-              "a scene's [phantoms.random]).")
-@click.option("--stl", "stl_insert", default=None, metavar="INSERT.stl", help="Voxelise a watertight insert mesh.")
+              help="--set random: a range or setting, e.g. --random diameter_mm=[8,12] (repeatable; keys as "
+                   "in a scene's [phantoms.random]).")
+@click.option("--stl", "stl_insert", default=None, metavar="INSERT.stl",
+              help="Voxelise a watertight insert mesh.")
 @click.option("--stl-inclusion", multiple=True, metavar="MESH.stl", help="Inclusion mesh (repeatable).")
 @click.option("--stl-pillar", multiple=True, metavar="MESH.stl", help="Pillar mesh (repeatable).")
 @click.option("--stl-frame", type=click.Choice(["auto", "phantom"]), default="auto", show_default=True,
-              help="auto: centre the insert's bounding box in x-y, top at z = 0; phantom: use file coordinates.")
+              help="auto: centre the insert's bounding box in x-y, top at z = 0; phantom: use file "
+                   "coordinates.")
 @click.option("--name", default=None, help="Insert name for --stl (default: the file name).")
 @output_option(help="Output folder.", folder=True)
 @orientations_option()
@@ -67,10 +69,12 @@ def _floats(text: str | None, what: str) -> tuple[float, float, float] | None:
 @renamed_option("--shape", "--grid-shape", "shape", default="26,128,128", show_default=True,
                 help="Label grid D,H,W (z, y, x).")
 @renamed_option("--spacing", "--spacing-mm", "spacing", default=None,
-                help="Voxel size dz,dy,dx mm [default: 0.9,0.4774,0.4774, in-plane scaled with the insert width].")
-@click.option("--mri", is_flag=True, help="Also write a synthetic MRI scan and its true labels per insert and "
-              "orientation to OUT/mri/ (lesscli.mri.synth; a few seconds each, use --limit/--names).")
-@format_option
+                help="Voxel size dz,dy,dx mm [default: 0.9,0.4774,0.4774, in-plane scaled with the insert "
+                     "width].")
+@click.option("--mri", is_flag=True,
+              help="Also write a synthetic MRI scan and its true labels per insert and orientation to "
+                   "OUT/mri/ (lesscli.mri.synth; a few seconds each, use --limit/--names).")
+@format_option()
 def cli(set_name, count, seed, random_pairs, stl_insert, stl_inclusion, stl_pillar, stl_frame, name, output,
         orientations, limit, names, shape, spacing, mri, fmt) -> None:
     """Write a NIfTI label volume and a JSON geometry spec per insert and orientation.

@@ -15,10 +15,12 @@ def cli() -> None:
 @cli.command("log")
 @click.argument("logs", nargs=-1, required=True, type=click.Path(dir_okay=False), metavar="RUN.log.jsonl...")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), callback=checked_figure,
-              help="Figure to write, in the format its extension names: .png, .pdf or .svg ('-': PNG on stdout).")
+              help="Figure to write, in the format its extension names: .png, .pdf or .svg ('-': PNG on "
+                   "stdout).")
 @click.option("--label", "labels", multiple=True, metavar="NAME",
-              help="Name of each run in the legend, in the order of the logs (default: the path without .log.jsonl).")
-@format_option
+              help="Name of each run in the legend, in the order of the logs (default: the path without "
+                   ".log.jsonl).")
+@format_option()
 def log_cmd(logs: tuple[str, ...], output: str, labels: tuple[str, ...], fmt: str | None) -> None:
     """Training and validation curves of one or more runs (the <stem>.log.jsonl beside a checkpoint).
 
@@ -30,9 +32,7 @@ def log_cmd(logs: tuple[str, ...], output: str, labels: tuple[str, ...], fmt: st
 
     Example: less plot log runs/rep_s0.log.jsonl runs/rep_s1.log.jsonl -o curves.pdf
     """
-    import sys
-
-    from lesscli.io.records import emit_records
+    from lesscli.cli.common import emit_summary
     from lesscli.plots.curves import plot_logs
 
-    emit_records(plot_logs(logs, output, labels), fmt, stream=sys.stderr if output == "-" else None)
+    emit_summary(plot_logs(logs, output, labels), output, fmt)

@@ -32,22 +32,25 @@ def cli() -> None:
 @click.option("--camera", "camera_path", type=click.Path(), required=True,
               help="cam.json: fx, fy, cx, cy, width, height, dist.")
 @output_option(help="Pose rows as JSON lines ('-' for stdout).")
-@click.option("--sensor-tag", type=int, default=1, show_default=True, help="Id of the tag on the sensor handle.")
+@click.option("--sensor-tag", type=int, default=1, show_default=True,
+              help="Id of the tag on the sensor handle.")
 @click.option("--global-tag", type=int, default=0, show_default=True, help="Id of the fixed reference tag.")
 @click.option("--tag-size-mm", type=float, default=31.0, show_default=True, help="Side of the black square.")
 @click.option("--tag-to-sensor", "tag_to_sensor", type=click.Path(), default=None,
               help="T.json: 4x4 T_Stag<-S in mm (default identity).")
-@click.option("--refine", type=click.Choice(["apriltag", "subpix", "none"]), default="apriltag", show_default=True,
-              help="The detector's corner refinement.")
+@click.option("--refine", type=click.Choice(["apriltag", "subpix", "none"]), default="apriltag",
+              show_default=True, help="The detector's corner refinement.")
 @click.option("--edge-fit/--no-edge-fit", default=True, show_default=True,
               help="Refine corners by fitting lines to each tag's outer edges.")
-@click.option("--global-mode", type=click.Choice(["static", "per-frame"]), default="static", show_default=True,
+@click.option("--global-mode", type=click.Choice(["static", "per-frame"]), default="static",
+              show_default=True,
               help="static: one PnP over the global tag's corners from all frames (fixed camera); "
                    "per-frame: solve it in every frame.")
 @click.option("--fps", type=float, default=None, callback=lambda ctx, param, v: _positive_rate(v),
               help="Frame rate when there is no timestamps.txt (or to override).")
-def track_cmd(frames: str, camera_path: str, output: str, sensor_tag: int, global_tag: int, tag_size_mm: float,
-              tag_to_sensor: str | None, refine: str, edge_fit: bool, global_mode: str, fps: float | None) -> None:
+def track_cmd(frames: str, camera_path: str, output: str, sensor_tag: int, global_tag: int,
+              tag_size_mm: float, tag_to_sensor: str | None, refine: str, edge_fit: bool, global_mode: str,
+              fps: float | None) -> None:
     """Sensor pose in the global tag's frame for every frame of FRAMES.
 
     FRAMES is a folder of images (sorted by name, times from timestamps.txt or --fps) or a video file.
@@ -85,15 +88,21 @@ def track_cmd(frames: str, camera_path: str, output: str, sensor_tag: int, globa
 @click.option("--camera", "camera_path", type=click.Path(), default=None,
               help="cam.json (default: 1280x720, f = 900 px).")
 @click.option("--trajectory", "trajectory", type=click.Path(), default=None,
-              help="traj.npz: time_s, T_cam_global, T_cam_sensor_tag (mm); default: a generated hand-held motion.")
+              help="traj.npz: time_s, T_cam_global, T_cam_sensor_tag (mm); default: a generated hand-held "
+                   "motion.")
 @output_option(help="Output folder for the frames, timestamps.txt, camera.json and truth.npz.", folder=True)
-@click.option("--frames", "n_frames", type=int, default=30, show_default=True, help="Frames of a generated motion.")
-@click.option("--step", type=int, default=1, show_default=True, help="Generated motion: every step-th 30 fps frame.")
-@click.option("--sensor-tag", type=int, default=1, show_default=True, help="Id of the tag drawn on the sensor handle.")
-@click.option("--global-tag", type=int, default=0, show_default=True, help="Id of the fixed reference tag drawn.")
+@click.option("--frames", "n_frames", type=int, default=30, show_default=True,
+              help="Frames of a generated motion.")
+@click.option("--step", type=int, default=1, show_default=True,
+              help="Generated motion: every step-th 30 fps frame.")
+@click.option("--sensor-tag", type=int, default=1, show_default=True,
+              help="Id of the tag drawn on the sensor handle.")
+@click.option("--global-tag", type=int, default=0, show_default=True,
+              help="Id of the fixed reference tag drawn.")
 @click.option("--tag-size-mm", type=float, default=31.0, show_default=True, help="Side of the black square.")
 @click.option("--blur-px", type=float, default=0.7, show_default=True, help="Gaussian blur sigma, px.")
-@click.option("--noise", "noise_gray", type=float, default=2.0, show_default=True, help="Noise sigma, grey levels.")
+@click.option("--noise", "noise_gray", type=float, default=2.0, show_default=True,
+              help="Noise sigma, grey levels.")
 @seed_option()
 def render_cmd(camera_path: str | None, trajectory: str | None, output: str, n_frames: int, step: int,
                sensor_tag: int, global_tag: int, tag_size_mm: float, blur_px: float, noise_gray: float,
@@ -133,7 +142,7 @@ def render_cmd(camera_path: str | None, trajectory: str | None, output: str, n_f
               help="Search the clock offset within +-this (0: clocks agree).")
 @click.option("--time-offset-s", type=float, default=None, help="A known clock offset (skips the search).")
 @click.option("--iterations", type=int, default=300, show_default=True, help="RANSAC iterations.")
-@format_option
+@format_option()
 @seed_option()
 def calibrate_cmd(estimated: str, robot: str, output: str, threshold_mm: float, max_offset_s: float,
                   time_offset_s: float | None, iterations: int, fmt: str | None, seed: int) -> None:
@@ -152,8 +161,8 @@ def calibrate_cmd(estimated: str, robot: str, output: str, threshold_mm: float, 
     cal = calibrate(load_stream(estimated), load_stream(robot), np.random.default_rng(seed), threshold_mm,
                     max_offset_s, time_offset_s, iterations)
     save_calibration(output, cal, seed=seed)
-    emit_records([{"output": output, "time_offset_s": cal.time_offset_s, "inlier_fraction": cal.inlier_fraction,
-                   "rmse_mm": cal.rmse_mm, "t_pos_mm": cal.t_pos,
+    emit_records([{"output": output, "time_offset_s": cal.time_offset_s,
+                   "inlier_fraction": cal.inlier_fraction, "rmse_mm": cal.rmse_mm, "t_pos_mm": cal.t_pos,
                    "r_pos_rotvec_rad": rotations.matrix_to_rotvec(cal.r_pos),
                    "R_ori_rotvec_rad": rotations.matrix_to_rotvec(cal.R_ori)}], fmt)
 
@@ -161,10 +170,11 @@ def calibrate_cmd(estimated: str, robot: str, output: str, threshold_mm: float, 
 @cli.command("accuracy")
 @click.argument("estimated", type=click.Path(), metavar="ESTIMATED")
 @click.argument("reference", type=click.Path(), metavar="ROBOT")
-@click.option("--calibration", type=click.Path(), default=None, help="Calibration .npz applied to ESTIMATED first.")
+@click.option("--calibration", type=click.Path(), default=None,
+              help="Calibration .npz applied to ESTIMATED first.")
 @click.option("--plot", "plot_path", type=click.Path(), default=None, callback=checked_output(),
               help="PNG of the per-axis errors over time.")
-@format_option
+@format_option()
 def accuracy_cmd(estimated: str, reference: str, calibration: str | None, plot_path: str | None,
                  fmt: str | None) -> None:
     """sigma_positional and sigma_angular (paper appendix), per-axis RMS and bias, medians and maxima.

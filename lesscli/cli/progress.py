@@ -126,10 +126,13 @@ class PlainProgress:
         if self.unit == "epoch":
             text = f"epoch {done}" + (f"/{total}" if total else "")
         elif self.scale:                 # sizes: 1.0 MiB/3.0 MiB
-            text = f"{done}{self.unit}" + (f"/{total}{self.unit} ({100 * self.n / self.total:.0f} %)" if total else "")
+            text = f"{done}{self.unit}" + (f"/{total}{self.unit} ({100 * self.n / self.total:.0f} %)"
+                                           if total else "")
         else:
-            unit = "steps" if self.unit == "it" else (self.unit if self.unit.endswith("s") else self.unit + "s")
-            text = (f"{done}/{total} {unit} ({100 * self.n / self.total:.0f} %)" if total else f"{done} {unit}")
+            unit = "steps" if self.unit == "it" else (self.unit if self.unit.endswith("s")
+                                                      else self.unit + "s")
+            text = (f"{done}/{total} {unit} ({100 * self.n / self.total:.0f} %)" if total
+                    else f"{done} {unit}")
         text += f", {_duration(elapsed)} elapsed"
         rate_n = self.n - self.start_n
         if self.total and 0 < rate_n and self.n < self.total:

@@ -33,7 +33,8 @@ def _render_one(preds, groups, chosen, tmp: str, output: str) -> list[dict]:
         if len(members) > 1:
             strip_figure(members, os.path.join(tmp, stem + "_steps.png"), _title(final) + " (over time)")
             rows.append({"scan": g, "insert": final.insert, "orientation": final.orientation, "kind": "strip",
-                         "steps": [m.steps for m in members], "figure": os.path.join(output, stem + "_steps.png")})
+                         "steps": [m.steps for m in members],
+                         "figure": os.path.join(output, stem + "_steps.png")})
     return rows
 
 
@@ -77,8 +78,9 @@ def _render_compare(paths, loaded, chosen, tmp: str, output: str) -> list[dict]:
 @click.argument("predictions", type=click.Path(), nargs=-1, required=True,
                 metavar="PRED.npz [PRED.npz ...]")
 @output_option(help="Output folder for the PNG files (created if missing).", folder=True)
-@click.option("--scan", "scans", type=int, multiple=True, help="Render only these scans (0-based; repeatable).")
-@format_option
+@click.option("--scan", "scans", type=int, multiple=True,
+              help="Render only these scans (0-based; repeatable).")
+@format_option()
 def cli(predictions: tuple[str, ...], output: str, scans: tuple[int, ...], fmt: str | None) -> None:
     """Per scan, truth | prediction | uncertainty side by side (top view and slices for 3D, colour
     legend, entropy colour bar), and for '--steps' predictions a strip of the image developing over
@@ -103,7 +105,8 @@ def cli(predictions: tuple[str, ...], output: str, scans: tuple[int, ...], fmt: 
     chosen = list(scans) or list(range(len(groups)))
     bad = [s for s in chosen if not 0 <= s < len(groups)]
     if bad:
-        raise DataError(f"{predictions[0]}: scan {bad[0]} does not exist (the file holds {len(groups)} scans)")
+        raise DataError(f"{predictions[0]}: scan {bad[0]} does not exist (the file holds {len(groups)} "
+                        "scans)")
     with atomic_dir(output) as tmp:
         if len(loaded) == 1:
             rows = _render_one(loaded[0].scans, groups, chosen, tmp, output)

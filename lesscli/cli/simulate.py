@@ -13,10 +13,11 @@ from lesscli.cli.common import ThreadsType, format_option, output_option, parse_
 @set_options("Override a scene value, e.g. --set motion.n_traj=10 --set contact.tier=winkler.")
 @click.option("--seed", type=int, default=None, help="Override the scene's seed.")
 @click.option("--jobs", type=ThreadsType(), default=None, metavar="N|auto",
-              help="Worker processes (over scans); default: the usable cores (at most one a scan); 'auto': the "
-                   "free cores (usable cores minus the load). The output is the same for any N.")
-@click.option("--shard", default=None, metavar="I/N", help="Simulate only shard I of N (0-based, contiguous).")
-@format_option
+              help="Worker processes (over scans); default: the usable cores (at most one a scan); 'auto': "
+                   "the free cores (usable cores minus the load). The output is the same for any N.")
+@click.option("--shard", default=None, metavar="I/N",
+              help="Simulate only shard I of N (0-based, contiguous).")
+@format_option()
 def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | None, jobs: int | str | None,
         shard: str | None, fmt: str | None) -> None:
     """Simulate the scans of SCENE.toml into a less.scans/1 scan set with label volumes.
@@ -31,11 +32,9 @@ def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | No
 
     Example: less simulate demo -o demo.npz --set motion.n_traj=20
     """
-    import sys
     import time
 
-    from lesscli.cli.common import config_resolved, progress
-    from lesscli.io.records import emit_records
+    from lesscli.cli.common import config_resolved, emit_summary, progress
     from lesscli.io.scans import append_history, save_scans
     from lesscli.scenes import resolve
     from lesscli.sim.scene import load_scene, scene_document
@@ -59,4 +58,4 @@ def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | No
     summary = {"output": output, "scans": scans.n_scans, "trajectories": scans.n_traj, "steps": scans.n_steps,
                "seed": scene.seed, "shard": f"{i_n[0]}/{i_n[1]}", "jobs": jobs, "threads": threads,
                "seconds": round(time.perf_counter() - t0, 2)}
-    emit_records([summary], fmt, stream=sys.stderr if output == "-" else sys.stdout)
+    emit_summary([summary], output, fmt)

@@ -17,7 +17,7 @@ from lesscli.cli.common import format_option, output_option, seed_option
               help="Share for validation (0: no val.npz).")
 @seed_option()
 @output_option(help="Output folder (train.npz, val.npz, test.npz).", folder=True)
-@format_option
+@format_option()
 def cli(path: str, by: str, test: float, val: float, seed: int, output: str, fmt: str | None) -> None:
     """Split a scan set into DIR/train.npz, DIR/val.npz (with --val) and DIR/test.npz.
 

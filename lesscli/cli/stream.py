@@ -33,16 +33,19 @@ LATENCY_PERCENTILES = (50, 90, 99)
 @click.option("--emit-every", type=click.IntRange(min=1), default=EMIT_DEFAULT, show_default=True,
               help="Write a record (and a monitor frame) every N samples, and at the end of each scan.")
 @renamed_option("--monitor", "-o", "--output", "monitor_dir", type=click.Path(), default=None,
-                callback=checked_output(folder=True), help="Write PNG frames (image | uncertainty | touches) here.")
+                callback=checked_output(folder=True),
+                help="Write PNG frames (image | uncertainty | touches) here.")
 @click.option("--on-error", type=click.Choice(["skip", "stop"]), default="skip", show_default=True,
-              help="Live input: a malformed line is reported with its line number and skipped, or stops the stream.")
-@labelling_options
-@click.option("--defer", is_flag=True, help="Re-decode patches only when a record is written (same images, faster).")
+              help="Live input: a malformed line is reported with its line number and skipped, or stops the "
+                   "stream.")
+@labelling_options()
+@click.option("--defer", is_flag=True,
+              help="Re-decode patches only when a record is written (same images, faster).")
 @device_option()
 @threads_option(LATENCY_THREADS)
 @realtime_option()
-def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, min_volume_mm3, smooth_mm, defer, device,
-        threads, realtime) -> None:
+def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, min_volume_mm3, smooth_mm, defer,
+        device, threads, realtime) -> None:
     """Image SOURCE incrementally with the imaging checkpoint MODEL.
 
     SOURCE is a scan set (each scan replayed from a fresh state, at --rate samples/s or as fast as

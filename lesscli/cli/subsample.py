@@ -17,7 +17,8 @@ from lesscli.cli.common import LOG, output_option, seed_option
               help="Truncate each trajectory to L steps after subsampling.")
 @seed_option()
 @output_option()
-def cli(path: str, every: int, trajectories: int | None, max_length: int | None, seed: int, output: str) -> None:
+def cli(path: str, every: int, trajectories: int | None, max_length: int | None, seed: int,
+        output: str) -> None:
     """Subsample a scan set (FILE: .npz, a folder of shards, or '-').
 
     Example: less subsample raw.npz --every 50 --trajectories 100 --seed 0 -o poke.npz

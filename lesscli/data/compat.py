@@ -1,9 +1,10 @@
-"""What a model was trained on, and whether a scan set fits it: units, sensor layout, pose frame, plausibility.
+"""What a model was trained on, and whether a scan set fits it: units, sensor layout, pose frame,
+plausibility.
 
 A checkpoint keeps the *data signature* of its training set (``norm_stats['data']``, written by
-:func:`lesscli.data.batching.compute_norm_stats`; ``config['data']`` of a force-map calibration): the force units, the
-pose units, the sensor's taxel layout and the pose frame its imager reads (``surface``: poses on the
-surface fitted from the contact onsets, :mod:`lesscli.data.surface`). :func:`for_model` checks a scan set
+:func:`lesscli.data.batching.compute_norm_stats`; ``config['data']`` of a force-map calibration): the force
+units, the pose units, the sensor's taxel layout and the pose frame its imager reads (``surface``: poses on
+the surface fitted from the contact onsets, :mod:`lesscli.data.surface`). :func:`for_model` checks a scan set
 against it, refusing any difference in one line naming both files, and hands back the scans in the
 model's frame. :func:`check_plausible` refuses values no tactile scan holds (poses in metres read as
 millimetres, degrees read as radians, forces in counts read as newtons), with the sensor's own force
@@ -30,7 +31,8 @@ def signature(scans, frame: str | None = None) -> dict:
     sensor = scans.meta.get("sensor") or {}
     xy = sensor.get("taxel_xy_mm")
     return {"force_units": str(units.get("force", "N")), "pose_units": list(units.get("pose", POSE_UNITS)),
-            "taxel_xy_mm": None if xy is None else np.asarray(xy, np.float64).reshape(-1, 2).round(6).tolist(),
+            "taxel_xy_mm": None if xy is None
+            else np.asarray(xy, np.float64).reshape(-1, 2).round(6).tolist(),
             "taxels": int(scans.n_taxels), "pose_frame": frame or scans.meta.get("pose_frame", "phantom"),
             "sensor": {k: sensor[k] for k in SENSOR_KEYS if sensor.get(k) is not None}}
 
@@ -88,11 +90,12 @@ def check_plausible(scans, name: str) -> None:
     pose = np.asarray(scans.pose, np.float64)
     far = np.abs(pose[:, :3]).max()
     if far > MAX_POSE_MM:
-        raise DataError(f"{name}: a pose lies {far:.4g} mm from the phantom's centre (more than {MAX_POSE_MM:g}); "
-                        "are the poses in metres or micrometres rather than mm?")
+        raise DataError(f"{name}: a pose lies {far:.4g} mm from the phantom's centre (more than "
+                        f"{MAX_POSE_MM:g}); are the poses in metres or micrometres rather than mm?")
     turn = np.abs(pose[:, 3:]).max()
     if turn > MAX_ANGLE_RAD:
-        raise DataError(f"{name}: an angle of {turn:.4g} rad (more than a full turn); are the angles in degrees?")
+        raise DataError(f"{name}: an angle of {turn:.4g} rad (more than a full turn); are the angles in "
+                        "degrees?")
     sensor = scans.meta.get("sensor") or {}
     top = float(sensor.get("max_force_n") or MAX_FORCE_N)
     if units.get("force", "N") == "counts":

@@ -25,7 +25,8 @@ OUTPUT_FLAGS = ("-o", "--output")
 
 def _is_joined_output(word: str) -> bool:
     """``--output=X``, ``-o=X`` or ``-oX``."""
-    return word.startswith(("--output=", "-o=")) or (word.startswith("-o") and not word.startswith("--") and len(word) > 2)
+    return word.startswith(("--output=", "-o=")) or (word.startswith("-o") and not word.startswith("--")
+                                                     and len(word) > 2)
 
 
 def _without_output(command: str) -> str:
@@ -68,7 +69,8 @@ def describe(scans: ScanSet, path: str, full_history: bool = False) -> list[dict
     labels = [{"name": v.name, "shape": list(v.shape), "spacing_mm": v.spacing_mm.tolist(),
                "origin_mm": v.origin_mm.tolist(),
                "class_voxels": np.bincount(v.data.ravel(), minlength=4).tolist()} for v in scans.labels]
-    per_scan = np.bincount(scans.traj_scan, minlength=scans.n_scans) if scans.n_traj else np.zeros(scans.n_scans)
+    per_scan = (np.bincount(scans.traj_scan, minlength=scans.n_scans) if scans.n_traj
+                else np.zeros(scans.n_scans))
     normal = scans.force[..., 2] if scans.n_steps else np.zeros(0)
     return [{
         "kind": "scan set", "schema": f"{scans.meta.get('schema')}/{scans.meta.get('version')}",
@@ -83,7 +85,8 @@ def describe(scans: ScanSet, path: str, full_history: bool = False) -> list[dict
         "xy_extent_mm": [_stats(scans.pose[:, 0]), _stats(scans.pose[:, 1])] if scans.n_steps else None,
         "primitives": sorted(set(scans.traj_attrs["primitive"].tolist()) - {""}),
         "label_volumes": labels,
-        "history": scans.meta.get("history", []) if full_history else history_summary(scans.meta.get("history", [])),
+        "history": scans.meta.get("history", []) if full_history
+        else history_summary(scans.meta.get("history", [])),
     }]
 
 
@@ -102,9 +105,9 @@ def describe_labels(volume: LabelVolume) -> list[dict]:
     and volume."""
     voxel_mm3 = float(np.prod(volume.spacing_mm))
     voxels = _class_voxels([volume.data])
-    return [{"kind": "label volume", "axes": ZYX, "shape": list(volume.shape), "spacing_mm": volume.spacing_mm.tolist(),
-             "origin_mm": volume.origin_mm.tolist(), "class_voxels": voxels,
-             "class_volume_mm3": {k: n * voxel_mm3 for k, n in voxels.items()}}]
+    return [{"kind": "label volume", "axes": ZYX, "shape": list(volume.shape),
+             "spacing_mm": volume.spacing_mm.tolist(), "origin_mm": volume.origin_mm.tolist(),
+             "class_voxels": voxels, "class_volume_mm3": {k: n * voxel_mm3 for k, n in voxels.items()}}]
 
 
 def world_axes(affine) -> list[int] | None:
@@ -126,16 +129,19 @@ def describe_image(scan) -> list[dict]:
     if runs is None:                       # not a 3D grid near the world axes: the file's own order
         axes, order, file_axes = "i, j, k (the file's order)", list(range(data.ndim)), None
     else:
-        axes, order, file_axes = ZYX, [runs.index(2), runs.index(1), runs.index(0)], ", ".join("xyz"[d] for d in runs)
+        axes, order, file_axes = (ZYX, [runs.index(2), runs.index(1), runs.index(0)],
+                                  ", ".join("xyz"[d] for d in runs))
     return [{"kind": "image volume", "format": scan.kind, "axes": axes, "file_axes": file_axes,
              "shape": [int(data.shape[i]) for i in order], "dtype": str(data.dtype),
-             "spacing_mm": [float(spacing[i]) for i in order] if spacing.size == len(order) else spacing.tolist(),
+             "spacing_mm": [float(spacing[i]) for i in order] if spacing.size == len(order)
+             else spacing.tolist(),
              "intensity": dict(zip(("min", "p1", "median", "p99", "max"), levels)),
              "non_finite_voxels": int(data.size - finite.size)}]
 
 
 def _holds_codes(data: np.ndarray) -> bool:
-    """Label codes 0..3 only (:func:`lesscli.io.labels.check_codes`); an MRI scan has more levels, or fractions."""
+    """Label codes 0..3 only (:func:`lesscli.io.labels.check_codes`); an MRI scan has more levels, or
+    fractions."""
     try:
         check_codes(data, "")
     except DataError:
@@ -160,7 +166,8 @@ def describe_predictions(preds, full_history: bool = False) -> list[dict]:
         "spacing_mm": sorted({tuple(float(v) for v in p.spacing_mm) for p in scans}),
         "steps": _stats(np.array([p.steps for p in scans], float)),
         "class_voxels": _class_voxels([p.label for p in scans]),
-        "entropy_mean_nats": float(np.mean([p.entropy.astype(np.float64).mean() for p in scans])) if scans else None,
+        "entropy_mean_nats": float(np.mean([p.entropy.astype(np.float64).mean() for p in scans])) if scans
+        else None,
         "meta": meta, "history": history if full_history else history_summary(history),
     }]
 
@@ -188,7 +195,8 @@ def describe_checkpoint(ckpt: dict, full_history: bool = False) -> list[dict]:
         "epochs": len(epochs), "best_epoch": extra.get("best_epoch"), "best_loss": extra.get("best_loss"),
         "last_epoch": {k: v for k, v in epochs[-1].items() if k not in ("best", "step")} if epochs else None,
         "settings": settings, "grid": config.get("grid"),
-        "labelling": {k: image[k] for k in ("threshold", "min_volume_mm3", "smooth_mm") if k in image} or None,
+        "labelling": {k: image[k] for k in ("threshold", "min_volume_mm3", "smooth_mm") if k in image}
+        or None,
         "image": config.get("image"),
         "force_units": sig.get("force_units") or norm.get("force_units"), "pose_frame": sig.get("pose_frame"),
         "sensor": _sensor_line(sig), "training_steps": norm.get("n_steps"),

@@ -38,7 +38,8 @@ def target_volume(label: LabelVolume, dim: int, slice_index: int = AUTO_SLICE) -
         return label
     k = inclusion_slice(label.data) if slice_index == AUTO_SLICE else int(slice_index)
     if not 0 <= k < label.data.shape[0]:
-        raise DataError(f"{label.name or 'label volume'}: slice {k} is outside its {label.data.shape[0]} slices")
+        raise DataError(f"{label.name or 'label volume'}: slice {k} is outside its {label.data.shape[0]} "
+                        "slices")
     origin = label.origin_mm.copy()
     origin[0] += k * label.spacing_mm[0]
     return LabelVolume(label.data[k:k + 1], origin, label.spacing_mm, label.name)
@@ -63,10 +64,12 @@ def training_targets(scans: ScanSet, dim: int, slice_index: int = AUTO_SLICE,
         this = grid_of(vol)
         if grid is None:
             grid = this
-        elif this.shape != grid.shape or not np.allclose(this.spacing_mm, grid.spacing_mm, atol=GEOMETRY_ATOL_MM) \
+        elif this.shape != grid.shape or not np.allclose(this.spacing_mm, grid.spacing_mm,
+                                                         atol=GEOMETRY_ATOL_MM) \
                 or not np.allclose(this.origin_mm[1:], grid.origin_mm[1:], atol=GEOMETRY_ATOL_MM):
-            raise DataError(f"{name}: scan {s} has label grid {this.shape} at {this.spacing_mm} mm, but scan 0 has "
-                            f"{grid.shape} at {grid.spacing_mm} mm; imaging needs one label grid per set")
+            raise DataError(f"{name}: scan {s} has label grid {this.shape} at {this.spacing_mm} mm, but scan "
+                            f"0 has {grid.shape} at {grid.spacing_mm} mm; imaging needs one label grid per "
+                            "set")
         targets.append(vol.data)
     if grid is None:
         raise DataError(f"{name}: no scans to train on")
@@ -76,7 +79,8 @@ def training_targets(scans: ScanSet, dim: int, slice_index: int = AUTO_SLICE,
 class ImageDataset(ScanDataset):
     """ScanDataset items plus ``target`` (D, H, W) long codes."""
 
-    def __init__(self, scans: ScanSet, norm_stats: dict, targets: list[np.ndarray], name: str = "scan set") -> None:
+    def __init__(self, scans: ScanSet, norm_stats: dict, targets: list[np.ndarray],
+                 name: str = "scan set") -> None:
         super().__init__(scans, norm_stats, name)
         self.targets = targets
 

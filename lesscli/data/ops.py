@@ -26,14 +26,16 @@ def pick_trajectories(scans: ScanSet, per_scan: int, rng: np.random.Generator) -
     toff = scans.scan_traj_offsets()
     for s in range(scans.n_scans):
         count = int(toff[s + 1] - toff[s])
-        chosen = rng.choice(count, size=min(per_scan, count), replace=False) if count else np.zeros(0, np.int64)
+        chosen = (rng.choice(count, size=min(per_scan, count), replace=False) if count
+                  else np.zeros(0, np.int64))
         keep[toff[s] + chosen] = True
     return keep
 
 
 def subsample(scans: ScanSet, every: int = 1, trajectories: int | None = None, max_length: int | None = None,
               rng: np.random.Generator | None = None) -> ScanSet:
-    """Keep ``trajectories`` per scan (seeded), then every ``every``-th step of each, then the first ``max_length``.
+    """Keep ``trajectories`` per scan (seeded), then every ``every``-th step of each, then the first
+    ``max_length``.
 
     Args:
         scans: input scan set.
@@ -46,7 +48,8 @@ def subsample(scans: ScanSet, every: int = 1, trajectories: int | None = None, m
         A new ScanSet; ``meta['sample_rate_hz']`` divided by ``every``. Scans keep their place even
         when they lose every trajectory.
     """
-    if every < 1 or (trajectories is not None and trajectories < 1) or (max_length is not None and max_length < 1):
+    if every < 1 or (trajectories is not None and trajectories < 1) or (max_length is not None
+                                                                        and max_length < 1):
         raise ValueError("every, trajectories and max_length must be >= 1")
     out = scans
     if trajectories is not None:
@@ -98,7 +101,8 @@ def split(scans: ScanSet, by: str, test: float, val: float, rng: np.random.Gener
     n_test, n_val = _counts(len(keys), test, val)
     if n_test + n_val >= len(keys):
         raise DataError(f"{name}: {len(keys)} {by}(s) cannot fill train, "
-                        f"{'val, ' if val else ''}test without sharing one (need at least {n_test + n_val + 1})")
+                        f"{'val, ' if val else ''}test without sharing one (need at least "
+                        f"{n_test + n_val + 1})")
     order = rng.permutation(len(keys))
     assign = np.empty(len(keys), np.int64)
     assign[order[:n_test]] = 2

@@ -1,25 +1,12 @@
 """Per-trajectory preprocessing of the published recordings (pure numpy, no file access).
 
-The steps reproduce the published pipeline (``REFERENCE.md``, "Their per-trajectory preprocessing"):
-
-1. drop trajectories with fewer than ``MIN_SAMPLES`` sensor or robot samples; subtract each stream's
-   first timestamp; keep the overlap of the two time spans;
-2. onset: the first robot sample whose vertical speed over the next ``ONSET_WINDOW_S`` exceeds
-   ``ONSET_SPEED_MM_S`` (:func:`onset_index`); drop the trajectory if there is none; drop (never
-   truncate) trajectories with more than ``max_steps`` sensor samples from the onset;
-3. positions interpolated linearly and rotations by SLERP to the sensor timestamps;
-4. recentring on the file's reference pose ``p <- (p - t_ref) R_ref``, ``R <- R_ref^T R``, then
-   Euler angles (:func:`lesscli.geometry.rotations.matrix_to_euler`), metres -> millimetres;
-5. force baseline removal: the first kept force sample is subtracted.
-
-Conventions fixed here (the published text leaves them open; each is tested with hand values):
-
-- the onset speed of sample i is ``(z(t_i + w) - z(t_i)) / w`` with ``z`` linearly interpolated on
-  the robot stream (a forward window, so the trajectory starts when the pad starts to move);
-- the force baseline is the first sample *after* onset trimming (the pad is still in the air);
-- label rotation (:func:`rotate_label`) is a rotation of the label content by ``-45 deg x k`` in the
-  image plane with x along columns and y along rows (standard counter-clockwise-positive sense in
-  that x-y plane), about the canvas centre, nearest neighbour, background outside.
+:func:`preprocess` reproduces the published pipeline (``REFERENCE.md``, "Their per-trajectory
+preprocessing"): trim to the two streams' overlap, cut at the motion onset, interpolate the robot to the
+sensor's timestamps, recentre on the file's reference pose and remove the force baseline. Where the
+published text leaves a convention open, the choice is fixed here and tested with hand values: the
+onset uses a forward speed window (:func:`onset_index`), the baseline is the first sample after the
+onset trim (the pad is still in the air), and :func:`rotate_label` turns label content
+counter-clockwise-positive with x along columns and y along rows.
 """
 
 from __future__ import annotations
@@ -90,7 +77,8 @@ def onset_index(time_s: np.ndarray, z_mm: np.ndarray, window_s: float = ONSET_WI
     return int(hits[0]) if hits.size else None
 
 
-def recentre(pos: np.ndarray, rot: np.ndarray, t_ref: np.ndarray, rot_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def recentre(pos: np.ndarray, rot: np.ndarray, t_ref: np.ndarray,
+             rot_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Express poses in the reference frame: ``p <- (p - t_ref) R_ref``, ``R <- R_ref^T R``.
 
     Args:
@@ -166,7 +154,18 @@ def dedupe_times(time_s: np.ndarray) -> np.ndarray:
 
 def preprocess(stream: Stream, t_ref_m: np.ndarray, rot_ref: np.ndarray,
                max_steps: int = MAX_STEPS_ROBOT) -> tuple[Processed | None, str]:
-    """Run steps 1-5 on one trajectory.
+    """Preprocess one trajectory, in five steps.
+
+    1. drop trajectories with fewer than ``MIN_SAMPLES`` sensor or robot samples; subtract each stream's
+       first timestamp; keep the overlap of the two time spans;
+    2. onset: the first robot sample whose vertical speed over the next ``ONSET_WINDOW_S`` exceeds
+       ``ONSET_SPEED_MM_S`` (:func:`onset_index`, ``z`` linearly interpolated on the robot stream); drop
+       the trajectory if there is none; drop (never truncate) trajectories with more than ``max_steps``
+       sensor samples from the onset;
+    3. positions interpolated linearly and rotations by SLERP to the sensor timestamps;
+    4. recentring on the file's reference pose ``p <- (p - t_ref) R_ref``, ``R <- R_ref^T R``, then
+       Euler angles (:func:`lesscli.geometry.rotations.matrix_to_euler`), metres -> millimetres;
+    5. force baseline removal: the first kept force sample is subtracted.
 
     Args:
         stream: the raw recording; timestamps must already be checked non-decreasing.
@@ -182,7 +181,8 @@ def preprocess(stream: Stream, t_ref_m: np.ndarray, rot_ref: np.ndarray,
     ts = np.asarray(stream.sensor_t_s, np.float64) - stream.sensor_t_s[0]
     keep = dedupe_times(np.asarray(stream.robot_t_s, np.float64))
     tr = np.asarray(stream.robot_t_s, np.float64)[keep] - stream.robot_t_s[0]
-    pos_m, rot = np.asarray(stream.robot_pos_m, np.float64)[keep], np.asarray(stream.robot_rot, np.float64)[keep]
+    pos_m, rot = (np.asarray(stream.robot_pos_m, np.float64)[keep],
+                  np.asarray(stream.robot_rot, np.float64)[keep])
     end_s = min(ts[-1], tr[-1])
     in_robot = tr <= end_s
     if in_robot.sum() < 2:

@@ -2,26 +2,13 @@
 
 One HDF5 file per scan, ``<root>/<trial>/<phantom>_<insert>_<orientation>.hdf5``; 3D labels in
 ``<root>/mri_images_3D/<insert_lower>_<n>.npy``. Each trajectory goes through
-:func:`lesscli.data.preprocess.preprocess`; each file becomes one scan.
-
-Frames. Poses are recentred on each file's reference pose and kept in that right-handed frame
-(x, y in the surface plane, z up, mm). The published label canvas has its x axis flipped with
-respect to the recorded positions (``x_canvas = -x_pose``). We mirror the *label* along x (column
-axis) instead of negating pose x: the poses, Euler angles and the sensor's own axes then stay a
-rigid motion of the robot's right-handed frame, consistent with the simulator; negating x would
-mirror the world and require flipping shear forces, pitch, yaw and the taxel layout too. Since the
-label for orientation k is rotated by -45 deg x k on the canvas, after the mirror it is rotated by
-+45 deg x k about z in the pose frame, the sense the simulator uses for ``Phantom.rotated(k)``.
-
-Depth. Label slice spacing is 0.9 mm and the top surface sits at z = 0 (origin convention of
-``lesscli.io.labels``); which end of the published volume is the top is not documented, so it is an
-option (``top_slice``: "last", the default, keeps the stored order with the last slice at z = 0;
-"first" flips the stack).
-
-Units. Positions metres -> mm; forces stay raw sensor counts (``meta.units.force = "counts"``),
-baseline-removed, or become newtons with a stated calibration (``counts_per_newton``, kept in
-``meta.sensor.counts_per_n``). Trajectory attributes: ``force`` is the target force (N), ``angle`` the yaw in
-degrees (stored as ``yaw_rad``), ``dx``/``dy`` grid offsets in metres (stored as mm).
+:func:`lesscli.data.preprocess.preprocess`; each file becomes one scan. Poses stay in each file's
+recentred right-handed frame (x, y in the surface plane, z up, mm). The published label canvas has x
+flipped against the recorded positions, so the *label* is mirrored (:func:`label_volume`): negating pose
+x instead would mirror the world and need shear forces, pitch, yaw and the taxel layout flipped too.
+Which end of the published volume is the top is not documented, so it is an option (``top_slice``).
+Forces stay raw sensor counts, baseline-removed, or become newtons with a stated calibration
+(``counts_per_newton``, kept in ``meta.sensor.counts_per_n``).
 """
 
 from __future__ import annotations
@@ -119,8 +106,10 @@ def read_stream(group, where: str, pose_group: str) -> pp.Stream:
         raise DataError(f"{where}: '{pose_group}/ee_position' has shape {pos.shape}, expected (M, 3)")
     rot = _dataset(group, f"{pose_group}/ee_rotation", where).astype(np.float64)
     if rot.shape not in ((len(pos), 3, 3), (len(pos), 9)):
-        raise DataError(f"{where}: '{pose_group}/ee_rotation' has shape {rot.shape}, expected ({len(pos)}, 3, 3)")
-    t_r = _timestamps(_dataset(group, f"{pose_group}/timestamps", where), len(pos), f"{pose_group}/timestamps", where)
+        raise DataError(f"{where}: '{pose_group}/ee_rotation' has shape {rot.shape}, expected ({len(pos)}, "
+                        "3, 3)")
+    t_r = _timestamps(_dataset(group, f"{pose_group}/timestamps", where), len(pos),
+                      f"{pose_group}/timestamps", where)
     return pp.Stream(t_s, _finite(data, "xela/data", where).reshape(-1, SENSOR_TAXELS, 3), t_r,
                      _finite(pos, f"{pose_group}/ee_position", where),
                      _finite(rot, f"{pose_group}/ee_rotation", where).reshape(-1, 3, 3))
@@ -136,8 +125,10 @@ def _attr_str(attrs, key: str) -> str:
 
 
 def traj_attributes(attrs) -> dict:
-    """Group attributes -> TRAJ_ATTRS values (target force N, yaw rad, dx/dy mm, primitive)."""
-    return {"target_force_n": _attr_float(attrs, "force"), "yaw_rad": _attr_float(attrs, "angle", np.pi / 180),
+    """Group attributes -> TRAJ_ATTRS values: ``force`` the target force (N), ``angle`` the yaw (degrees ->
+    rad), ``dx``/``dy`` grid offsets (m -> mm), ``primitive``."""
+    return {"target_force_n": _attr_float(attrs, "force"),
+            "yaw_rad": _attr_float(attrs, "angle", np.pi / 180),
             "dx_mm": _attr_float(attrs, "dx", pp.M_TO_MM), "dy_mm": _attr_float(attrs, "dy", pp.M_TO_MM),
             "primitive": _attr_str(attrs, "primitive")}
 
@@ -156,11 +147,13 @@ def _reference_pose(h5, path: str) -> tuple[np.ndarray, np.ndarray]:
     except KeyError as exc:
         raise DataError(f"{path}: missing file attribute {exc} (reference pose)") from None
     except ValueError:
-        raise DataError(f"{path}: file attributes 'position' (3,) / 'orientation' (9,) have wrong sizes") from None
+        raise DataError(f"{path}: file attributes 'position' (3,) / 'orientation' (9,) have wrong "
+                        "sizes") from None
     return t_ref, rot_ref
 
 
-# ---------------------------------------------------------------------------------------------- calibration, labels
+# ---------------------------------------------------------------------------------------------- calibration,
+# labels
 
 def load_calibration(source: FolderSource | ZipSource, rel: str) -> dict:
     """``est_to_robot_calibration.npz`` -> {'r_pos' (3,3), 't_pos' (3,), 'R_ori' (3,3)}."""
@@ -195,18 +188,23 @@ def find_calibration(source: FolderSource | ZipSource, rel: str, opts: ImportOpt
                     "dataset root; pass --calibration)")
 
 
-def label_volume(raw: np.ndarray, insert: str, orientation: int, name: str, top_slice: str = "last") -> LabelVolume:
+def label_volume(raw: np.ndarray, insert: str, orientation: int, name: str,
+                 top_slice: str = "last") -> LabelVolume:
     """A published (D, H, W) label -> a LabelVolume in the pose frame for ``orientation``.
 
     Raw codes are mapped to 0..3, rotated by -45 deg x orientation on the canvas, mirrored along x
-    (canvas x = -pose x) and placed on the grid centred at x = y = 0 with the top slice at z = 0.
+    (canvas x = -pose x; after the mirror the label is turned by +45 deg x orientation about z in the pose
+    frame, the sense of the simulator's ``Phantom.rotated(k)``) and placed on the grid centred at x = y = 0
+    with the top slice at z = 0, 0.9 mm apart (``top_slice``: "last" keeps the stored order with the last
+    slice at z = 0, "first" flips the stack).
     """
     if raw.ndim != 3:
         raise DataError(f"{name}: label has shape {raw.shape}, expected (D, H, W)")
     if raw.shape[1:] != LABEL_INPLANE:
         raise DataError(f"{name}: label is {' x '.join(map(str, raw.shape))}, but the published layout is "
                         f"D x {LABEL_INPLANE[0]} x {LABEL_INPLANE[1]} (spacing {SPACING_MM[1]} mm in-plane); "
-                        "a resampled or cropped label would get the wrong field of view, use the original file")
+                        "a resampled or cropped label would get the wrong field of view, use the original "
+                        "file")
     data = pp.rotate_label(pp.map_label_codes(raw, name), -pp.ORIENTATION_STEP_DEG * orientation)
     data = data[:, :, ::-1]
     if top_slice == "first":
@@ -227,7 +225,8 @@ def find_label(source: FolderSource | ZipSource, insert: str, orientation: int,
     labels, folder = (source, f"{LABEL_DIR}/") if not opts.labels_dir else (
         FolderSource(opts.labels_dir) if os.path.isdir(opts.labels_dir) else None, "")
     pattern = re.compile(rf"^{re.escape(folder.lower())}{re.escape(insert.lower())}_(\d+)\.npy$")
-    found = sorted((int(m[1]), f) for f in (labels.files() if labels else []) if (m := pattern.match(f.lower())))
+    found = sorted((int(m[1]), f) for f in (labels.files() if labels else [])
+                   if (m := pattern.match(f.lower())))
     chosen = [f for n, f in found if n == opts.mri_scan] or [f for _n, f in found[:1]]
     volume = None
     if chosen:
@@ -243,8 +242,10 @@ def _dropped() -> dict:
     return {"short": 0, "no_onset": 0, "too_long": 0}
 
 
-def import_file(source: FolderSource | ZipSource, rel: str, opts: ImportOptions) -> tuple[ScanSet | None, dict]:
-    """One HDF5 scan file (``rel`` in ``source``) -> (a one-scan ScanSet or None when nothing survives, its record).
+def import_file(source: FolderSource | ZipSource, rel: str,
+                opts: ImportOptions) -> tuple[ScanSet | None, dict]:
+    """One HDF5 scan file (``rel`` in ``source``) -> (a one-scan ScanSet or None when nothing survives, its
+    record).
 
     Raises DataError naming the file (and trajectory) when the file is broken.
     """
@@ -293,7 +294,8 @@ def _read_traj(h5, name: str, path: str, pose_group: str, calib: dict | None, t_
     except (KeyError, TypeError, ValueError, OSError, AttributeError) as exc:
         raise DataError(f"{path}: {name}: unreadable ({type(exc).__name__}: {exc})") from None
     if calib is not None:
-        stream.robot_pos_m, stream.robot_rot = pp.calibrate_estimate(stream.robot_pos_m, stream.robot_rot, calib)
+        stream.robot_pos_m, stream.robot_rot = pp.calibrate_estimate(stream.robot_pos_m, stream.robot_rot,
+                                                                     calib)
     out, reason = pp.preprocess(stream, t_ref, rot_ref, max_steps)
     return (reason if out is None else out), traj_attrs
 
@@ -303,7 +305,8 @@ def _one_scan(trajs: list[pp.Processed], attrs: list[dict], insert: str, orienta
     trajs = [pp.Processed(t.pose[::every], t.force[::every], t.time_s[::every]) for t in trajs]
     lengths = np.array([len(t.pose) for t in trajs], np.int64)
     traj_attrs = {key: np.array([a[key] for a in attrs]) for key in attrs[0]}
-    traj_attrs = {k: (v.astype(str) if k == "primitive" else v.astype(np.float32)) for k, v in traj_attrs.items()}
+    traj_attrs = {k: (v.astype(str) if k == "primitive" else v.astype(np.float32)) for k,
+                  v in traj_attrs.items()}
     return ScanSet(
         pose=np.concatenate([t.pose for t in trajs]), force=np.concatenate([t.force for t in trajs]),
         time_s=np.concatenate([t.time_s for t in trajs]),
@@ -317,7 +320,8 @@ def _one_scan(trajs: list[pp.Processed], attrs: list[dict], insert: str, orienta
 def import_meta(every: int, hand_held: bool, counts_per_newton: float | None = None) -> dict:
     """``meta`` of an imported scan set: counts as force unit (newtons with a calibration, recorded in
     ``sensor.counts_per_n``), 100 Hz / every, how it was made."""
-    sensor, units, force = xela_uscu(), "counts", "raw sensor counts, first sample of each trajectory subtracted"
+    sensor, units, force = (xela_uscu(), "counts",
+                            "raw sensor counts, first sample of each trajectory subtracted")
     if counts_per_newton:
         sensor, units = {**sensor, "counts_per_n": float(counts_per_newton)}, "N"
         force = f"newtons: raw sensor counts / {counts_per_newton:g} counts per N, first sample subtracted"
@@ -328,7 +332,8 @@ def import_meta(every: int, hand_held: bool, counts_per_newton: float | None = N
 
 
 def import_published(root: str, opts: ImportOptions, shard: tuple[int, int] = (0, 1), on_error: str = "fail",
-                     progress: Callable | None = None, report: Callable[[dict], None] | None = None) -> ScanSet:
+                     progress: Callable | None = None,
+                     report: Callable[[dict], None] | None = None) -> ScanSet:
     """Import every scan file of shard ``i/n`` of the dataset at ``root`` into one scan set.
 
     Args:

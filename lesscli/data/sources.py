@@ -66,7 +66,8 @@ class FolderSource:
 
     def __init__(self, root: str) -> None:
         if not os.path.isdir(root):
-            raise DataError(f"{root}: not a directory or zip archive (expected the root of the published dataset)")
+            raise DataError(f"{root}: not a directory or zip archive (expected the root of the published "
+                            "dataset)")
         self.root = root
         self._files: list[str] | None = None
 
@@ -79,7 +80,8 @@ class FolderSource:
         if self._files is None:
             found = []
             for folder, _dirs, names in os.walk(self.root):
-                found += [os.path.relpath(os.path.join(folder, n), self.root).replace(os.sep, "/") for n in names]
+                found += [os.path.relpath(os.path.join(folder, n), self.root).replace(os.sep, "/")
+                          for n in names]
             self._files = sorted(found)
         return self._files
 
@@ -128,7 +130,8 @@ class ZipSource:
         self._fh.seek(info.header_offset)
         header = self._fh.read(LOCAL_HEADER_BYTES)
         if len(header) != LOCAL_HEADER_BYTES or header[:4] != LOCAL_HEADER_MAGIC:
-            raise DataError(f"{self.where(rel)}: damaged zip archive (no local header at {info.header_offset})")
+            raise DataError(f"{self.where(rel)}: damaged zip archive (no local header at "
+                            f"{info.header_offset})")
         name_len, extra_len = struct.unpack("<HH", header[26:30])
         start = info.header_offset + LOCAL_HEADER_BYTES + name_len + extra_len
         return io.BufferedReader(MemberView(self._fh, start, info.file_size), buffer_size=1 << 16)

@@ -2,33 +2,13 @@
 
 On a rig the phantom's top is not at the pose frame's zero: the phantom's height, the cast's thickness
 and the calibration put it a millimetre or two away, and a little tilted. Every imager therefore takes
-its poses in the *surface frame* this module finds from the scan itself:
-
-1. **Onset.** Per trajectory, the total normal force ``N`` (sum of axis 2 over the taxels, less the
-   trajectory's first sample: trajectories start out of contact, as the published preprocessing trims
-   them) is compared with the onset level ``N0 = max(ONSET_SIGMAS * noise_n * sqrt(T), ONSET_SHARE *
-   max N)``, with ``noise_n`` the sensor's white noise per taxel (``meta['sensor']['noise_n']``, in the
-   scan set's force units; ``DEFAULT_NOISE_N`` newtons when the sensor file does not say) and T taxels.
-   The first step above ``N0`` is the onset step; the contact height is where the force, extrapolated
-   linearly through that step and the next deeper one of the loading branch, reaches zero (clamped
-   between the onset step and the step before it), read at the pad's lowest corner (a tilted pad
-   touches with its lowest point first). Sparse (subsampled) scans keep working: the extrapolation does
-   not need the step before contact to lie close to the surface.
-2. **Surface.** Per scan, a plane ``h(x, y) = a + b x + c y`` is fitted to the onsets by least squares,
-   repeated ``TRIM_ROUNDS`` times without the onsets more than ``TRIM_SIGMAS`` robust spreads off it (a
-   touch that slid in, or started in contact, does not move it); with fewer than ``PLANE_MIN_ONSETS``
-   onsets, or onsets spread over less than ``PLANE_MIN_SPAN_MM``, or a fitted slope above
-   ``MAX_SLOPE``, the surface is flat at the onsets' median. A scan without any onset keeps the frame's
-   zero.
-3. **Frame.** Each pose's z becomes its height above that plane, ``z - h(x, y)``, and roll and pitch are
-   corrected by the plane's slope to first order, so every taxel's depth below the surface is right for
-   a tilted top too.
-
-Every step of the rule is equivariant to a shift of z: a scan recorded with its surface at z = +2 mm has
-the same surface-frame poses as the same scan at z = 0. The onset level decides which touches count;
-the onset height carries a bias of a fraction of a millimetre (the force is already above zero where
-it is first seen), the same for training and imaging, so models learn it. :class:`OnlineSurface` keeps
-the same rule for a live stream, from the touches seen so far.
+its poses in the *surface frame* found from the scan itself: per trajectory the contact onset, where the
+total normal force passes a noise-scaled level (:func:`trajectory_onset`); per scan a robust plane
+through the onsets (:func:`fit_surface`); each pose's z becomes its height above that plane, with roll
+and pitch corrected by its slope (:func:`to_surface`). Every step is equivariant to a shift of z. The
+onset height carries a bias of a fraction of a millimetre (the force is already above zero where it is
+first seen), the same for training and imaging, so models learn it. :class:`OnlineSurface` keeps the
+same rule for a live stream, from the touches seen so far.
 """
 
 from __future__ import annotations
@@ -65,7 +45,8 @@ class Surface:
         return self.a_mm + self.b * np.asarray(x_mm, np.float64) + self.c * np.asarray(y_mm, np.float64)
 
     def to_dict(self) -> dict:
-        return {"a_mm": round(self.a_mm, 4), "b": round(self.b, 5), "c": round(self.c, 5), "onsets": self.onsets}
+        return {"a_mm": round(self.a_mm, 4), "b": round(self.b, 5), "c": round(self.c, 5),
+                "onsets": self.onsets}
 
 
 def pad_half_size(sensor: dict) -> tuple[float, float]:
@@ -88,13 +69,24 @@ def lowest_point(pose: np.ndarray, half: tuple[float, float]) -> np.ndarray:
 
 
 def onset_level(normal: np.ndarray, taxels: int, noise_n: float) -> float:
-    """The force a trajectory's total normal force must pass to count as contact (see the module)."""
+    """The force a trajectory's total normal force must pass to count as contact.
+
+    ``max(ONSET_SIGMAS * noise_n * sqrt(T), ONSET_SHARE * max N)``, with ``noise_n`` the sensor's white
+    noise per taxel in the scan set's force units (:func:`sensor_noise_n`) and T taxels.
+    """
     peak = float(normal.max()) if len(normal) else 0.0
     return max(ONSET_SIGMAS * noise_n * np.sqrt(taxels), ONSET_SHARE * peak)
 
 
 def trajectory_onset(low: np.ndarray, normal: np.ndarray, level: float) -> np.ndarray | None:
     """(3,) x, y, z of the contact onset of one trajectory, or None when the force never passes ``level``.
+
+    The first step above the level is the onset step; the contact height is where the force, extrapolated
+    linearly through that step and the next deeper one of the loading branch, reaches zero (clamped between
+    the onset step and the step before it), read at the pad's lowest corner (a tilted pad touches with its
+    lowest point first). Sparse (subsampled) scans keep working: the extrapolation does not need the step
+    before contact to lie close to the surface. Trajectories start out of contact (as the published
+    preprocessing trims them), so the normal force is taken less its first sample.
 
     Args:
         low: (n, 3) lowest pad point per step.
@@ -115,7 +107,13 @@ def trajectory_onset(low: np.ndarray, normal: np.ndarray, level: float) -> np.nd
 
 
 def fit_surface(onsets: np.ndarray) -> Surface:
-    """A robust plane (or flat surface) through (n, 3) onset points; see the module for the rule."""
+    """A robust plane (or flat surface) through (n, 3) onset points.
+
+    ``h(x, y) = a + b x + c y`` by least squares, refitted ``TRIM_ROUNDS`` times without the onsets more
+    than ``TRIM_SIGMAS`` robust spreads off it (a touch that slid in, or started in contact, does not move
+    it). With fewer than ``PLANE_MIN_ONSETS`` onsets, onsets spread over less than ``PLANE_MIN_SPAN_MM``, or
+    a slope above ``MAX_SLOPE``, the surface is flat at the onsets' median; no onset keeps the frame's zero.
+    """
     onsets = np.asarray(onsets, np.float64).reshape(-1, 3)
     n = len(onsets)
     if n == 0:
@@ -137,11 +135,13 @@ def fit_surface(onsets: np.ndarray) -> Surface:
     if max(abs(coef[1]), abs(coef[2])) > MAX_SLOPE:
         return flat
     centre = onsets[:, :2].mean(axis=0)
-    return Surface(float(coef[0] - coef[1] * centre[0] - coef[2] * centre[1]), float(coef[1]), float(coef[2]), n)
+    return Surface(float(coef[0] - coef[1] * centre[0] - coef[2] * centre[1]), float(coef[1]), float(coef[2]),
+                   n)
 
 
 def to_surface(pose: np.ndarray, surf: Surface) -> np.ndarray:
-    """(n, 6) poses -> the same poses in the frame of ``surf`` (z above it, roll/pitch to its slope)."""
+    """(n, 6) poses -> the same poses in the frame of ``surf``: z above it, roll and pitch corrected by its
+    slope to first order, so every taxel's depth below the surface is right for a tilted top too."""
     pose = np.asarray(pose, np.float64).reshape(-1, 6)
     out = pose.copy()
     out[:, 2] = pose[:, 2] - surf.height_mm(pose[:, 0], pose[:, 1])
@@ -237,7 +237,8 @@ class OnlineSurface:
     def _close(self) -> None:
         if len(self._low) >= 2:
             normal = np.asarray(self._normal) - self._normal[0]
-            onset = trajectory_onset(np.asarray(self._low), normal, onset_level(normal, self.taxels, self.noise_n))
+            onset = trajectory_onset(np.asarray(self._low), normal,
+                                     onset_level(normal, self.taxels, self.noise_n))
             if onset is not None:
                 self.onsets.append(onset)
                 self.surface = fit_surface(np.asarray(self.onsets))
@@ -252,10 +253,12 @@ class OnlineSurface:
         normal = float(np.asarray(force, np.float64).reshape(self.taxels, 3)[:, 2].sum())
         if self._normal and normal - self._normal[0] > self.noise_level:
             if not self._touching and not self.onsets:
-                self.surface = Surface(float(low[2]), 0.0, 0.0, 0)        # provisional: the first touch's onset
+                # provisional: the first touch's onset
+                self.surface = Surface(float(low[2]), 0.0, 0.0, 0)
             self._touching = True
         elif self._touching:
-            self._close()                                                    # lifted off: this sample starts the next
+            # lifted off: this sample starts the next
+            self._close()
         self._low.append(low)
         self._normal.append(normal)
         return to_surface(pose, self.surface)[0]

@@ -76,7 +76,8 @@ class DynamixelBus:
         ServoError: the port is missing, busy, or the baud rate is unsupported.
     """
 
-    def __init__(self, port: str, baud: int = DEFAULT_BAUD, retries: int = 1, latency_ms: float = 0.0) -> None:
+    def __init__(self, port: str, baud: int = DEFAULT_BAUD, retries: int = 1,
+                 latency_ms: float = 0.0) -> None:
         import dynamixel_sdk as sdk
         import serial
 
@@ -105,7 +106,8 @@ class DynamixelBus:
         sdk = self._sdk
         where = f"{self.port}: servo {servo_id}: {what}"
         if result == sdk.COMM_RX_TIMEOUT:
-            raise ServoError(f"{where}: no reply (timeout; check id, wiring, power and baud rate)", "no-reply")
+            raise ServoError(f"{where}: no reply (timeout; check id, wiring, power and baud rate)",
+                             "no-reply")
         if result == sdk.COMM_RX_CORRUPT:
             raise ServoError(f"{where}: corrupted status packet (CRC mismatch)", "corrupt")
         if result != sdk.COMM_SUCCESS:
@@ -144,14 +146,16 @@ class DynamixelBus:
     def read(self, servo_id: int, register: str) -> int:
         """Value of ``register`` (signed registers decoded as two's complement)."""
         reg = p.REGISTERS[register]
-        data = self._call(servo_id, f"READ {register}", self._packets.readTxRx, servo_id, reg.address, reg.size)
+        data = self._call(servo_id, f"READ {register}", self._packets.readTxRx, servo_id, reg.address,
+                          reg.size)
         return p.unpack_value(bytes(data), reg.signed)
 
     def write(self, servo_id: int, register: str, value: int) -> None:
         """Write ``value`` to ``register`` and check the status packet."""
         reg = p.REGISTERS[register]
         data = list(p.pack_value(value, reg.size))
-        self._call(servo_id, f"WRITE {register}={value}", self._write_rx, servo_id, reg.address, reg.size, data)
+        self._call(servo_id, f"WRITE {register}={value}", self._write_rx, servo_id, reg.address, reg.size,
+                   data)
 
     def _write_rx(self, port, servo_id, address, size, data):
         result, error = self._packets.writeTxRx(port, servo_id, address, size, data)

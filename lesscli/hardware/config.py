@@ -5,40 +5,7 @@ Geometry: ``stages`` stacked scissor pairs with arms of ``arm_length_mm`` (pin t
 ``offset_mm + stages * sqrt(L^2 - x^2)``. Screw ticks count from the lower mechanical stop (the homing
 zero, at ``stop_height_mm``); ``direction`` is +1 when positive ticks raise the platform, -1 otherwise.
 
-Example ``lift.toml`` (every key optional; defaults shown)::
-
-    [bus]
-    port = "/dev/ttyUSB0"    # --port wins
-    baud = 57600
-    retries = 1
-    latency_ms = 0.0         # extra reply timeout on top of the SDK's
-    [lift]
-    id = 1
-    velocity = 100           # Profile_Velocity, units of 0.229 rev/min
-    homing_velocity = 40     # Goal_Velocity while homing against the lower stop
-    tolerance_ticks = 20
-    [rotator]
-    id = 2
-    velocity = 60
-    zero_ticks = 0           # orientation 0; orientation k is zero_ticks + 512 k
-    [geometry]
-    arm_length_mm = 100.0
-    stages = 2
-    lead_mm = 2.0
-    offset_mm = 20.0
-    stop_height_mm = 30.0
-    direction = 1
-    [limits]
-    min_height_mm = 32.0
-    max_height_mm = 100.0
-    lowered_height_mm = 35.0
-    raised_height_mm = 95.0
-    [timing]
-    poll_s = 0.02
-    stall_s = 0.5
-    timeout_factor = 2.0
-    timeout_margin_s = 2.0
-    homing_timeout_s = 120.0
+Every key of ``lift.toml``, with its default: docs/guide/lift.md.
 """
 
 from __future__ import annotations
@@ -93,7 +60,7 @@ class ScissorGeometry:
 
 @dataclass(frozen=True)
 class LiftConfig:
-    """Everything ``ScissorLift`` needs; see the module docstring for the TOML layout and units."""
+    """Everything ``ScissorLift`` needs; docs/guide/lift.md gives the TOML layout and units."""
 
     port: str | None = None
     baud: int = 57600
@@ -133,8 +100,10 @@ class LiftConfig:
             problems.append(f"heights must lie in [offset_mm, {g.top_height_mm:g}) (arms' reach)")
         if g.direction not in (1, -1) or g.lead_mm <= 0 or g.stages < 1 or g.arm_length_mm <= 0:
             problems.append("need direction = 1 or -1, lead_mm > 0, stages >= 1, arm_length_mm > 0")
-        if not 0 <= self.rotator_zero_ticks <= TICKS_PER_TURN - 1 - (ORIENTATIONS - 1) * TICKS_PER_ORIENTATION:
-            problems.append("[rotator] zero_ticks must be in 0..511 so that orientation 7 stays within one turn")
+        if not 0 <= self.rotator_zero_ticks <= TICKS_PER_TURN - 1 - (ORIENTATIONS
+                                                                     - 1) * TICKS_PER_ORIENTATION:
+            problems.append("[rotator] zero_ticks must be in 0..511 so that orientation 7 stays within one "
+                            "turn")
         if self.lift_id == self.rotator_id:
             problems.append(f"lift and rotator share id {self.lift_id}")
         if min(self.lift_velocity, self.homing_velocity, self.rotator_velocity) <= 0:

@@ -54,9 +54,11 @@ def lift_servos(config: LiftConfig, start_height_mm: float | None = None) -> lis
     and a rotator somewhere between orientations, as after an unknown previous run.
     """
     g = config.geometry
-    height = start_height_mm if start_height_mm is not None else 0.5 * (config.min_height_mm + config.max_height_mm)
+    height = start_height_mm if start_height_mm is not None else 0.5 * (config.min_height_mm
+                                                                        + config.max_height_mm)
     stop = {"stop_low": 0.0} if g.direction > 0 else {"stop_high": 0.0}
-    lift = EmulatedServo(config.lift_id, MODEL_XM430_W350, true_ticks=g.ticks_for_height(height), mode=4, **stop)
+    lift = EmulatedServo(config.lift_id, MODEL_XM430_W350, true_ticks=g.ticks_for_height(height), mode=4,
+                         **stop)
     rotator = EmulatedServo(config.rotator_id, MODEL_XL430_W250, true_ticks=config.rotator_zero_ticks + 300.0)
     return [lift, rotator]
 

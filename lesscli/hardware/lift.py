@@ -125,7 +125,8 @@ class ScissorLift:
     def homed(self, lift: Snapshot | None = None) -> bool:
         """True when the lift servo was homed since its last power-up."""
         lift = lift or self.snapshot(self.config.lift_id)
-        return lift.led == HOMED_MARK and self.bus.read(self.config.lift_id, "Operating_Mode") == MODE_EXTENDED
+        return lift.led == HOMED_MARK and self.bus.read(self.config.lift_id,
+                                                        "Operating_Mode") == MODE_EXTENDED
 
     def height_mm(self, ticks: int) -> float:
         return self.config.geometry.height_for_ticks(ticks)
@@ -144,12 +145,14 @@ class ScissorLift:
 
     def _record(self, event: str, lift: Snapshot, rot: Snapshot, homed: bool) -> dict:
         errors = {f"servo {sid}": p.hardware_error_text(s.hardware_error)
-                  for sid, s in ((self.config.lift_id, lift), (self.config.rotator_id, rot)) if s.hardware_error}
+                  for sid,
+                  s in ((self.config.lift_id, lift), (self.config.rotator_id, rot)) if s.hardware_error}
         return {
             "time_s": round(self.clock() - self.t0, 4), "event": event, "port": self.bus.port, "homed": homed,
             "height_mm": round(self.height_mm(lift.position), 3) if homed else None,
             "lift_ticks": lift.position,
-            "rotator_deg": round((rot.position - self.config.rotator_zero_ticks) * 360.0 / p.TICKS_PER_TURN, 3),
+            "rotator_deg": round((rot.position - self.config.rotator_zero_ticks) * 360.0 / p.TICKS_PER_TURN,
+                                 3),
             "orientation": self.orientation(rot.position), "moving": lift.moving or rot.moving,
             "torque": [lift.torque, rot.torque], "errors": errors,
         }
@@ -162,21 +165,23 @@ class ScissorLift:
         """Raise LiftFault for a hardware error or an unexpected torque drop (power cycle)."""
         if snap.hardware_error:
             text = p.hardware_error_text(snap.hardware_error)
-            raise LiftFault(f"{self._where(servo_id)}: Hardware_Error_Status=0x{snap.hardware_error:02X}: {text}; "
-                            "torque is off, 'less lift home' reboots and re-homes", text.split(",")[0])
+            raise LiftFault(f"{self._where(servo_id)}: Hardware_Error_Status=0x{snap.hardware_error:02X}: "
+                            f"{text}; torque is off, 'less lift home' reboots and re-homes",
+                            text.split(",")[0])
         if expect_torque and not snap.torque:
             lost = servo_id == self.config.lift_id and snap.led != HOMED_MARK
             detail = "homing mark lost, multi-turn count gone" if lost else "no hardware error reported"
-            raise LiftFault(f"{self._where(servo_id)}: Torque_Enable dropped mid-move: power cycle ({detail}); "
-                            "run 'less lift home'", "power cycle")
+            raise LiftFault(f"{self._where(servo_id)}: Torque_Enable dropped mid-move: power cycle "
+                            f"({detail}); run 'less lift home'", "power cycle")
 
     # -- commands -----------------------------------------------------------------------------------
     def require_homed(self) -> Snapshot:
         lift = self.snapshot(self.config.lift_id)
         self._check(self.config.lift_id, lift, expect_torque=False)
         if not self.homed(lift):
-            raise LiftFault(f"{self._where(self.config.lift_id)}: not homed since the last power-up (power cycle "
-                            "or reboot cleared the homing mark in LED): run 'less lift home' first", "not homed")
+            raise LiftFault(f"{self._where(self.config.lift_id)}: not homed since the last power-up (power "
+                            "cycle or reboot cleared the homing mark in LED): run 'less lift home' first",
+                            "not homed")
         return lift
 
     def move_to_height(self, height_mm: float) -> None:
@@ -210,8 +215,9 @@ class ScissorLift:
         lift = self.require_homed()
         height = self.height_mm(lift.position)
         if height > cfg.lowered_height_mm + self._tolerance_mm():
-            raise LiftFault(f"{self._where(cfg.lift_id)}: insert is in the shell (height {height:.1f} mm > lowered "
-                            f"{cfg.lowered_height_mm:g} mm): run 'less lift lower' before rotating", "not lowered")
+            raise LiftFault(f"{self._where(cfg.lift_id)}: insert is in the shell (height {height:.1f} mm > "
+                            f"lowered {cfg.lowered_height_mm:g} mm): run 'less lift lower' before rotating",
+                            "not lowered")
         rot = self.snapshot(cfg.rotator_id)
         self._check(cfg.rotator_id, rot, expect_torque=False)
         self._drive(cfg.rotator_id, cfg.rotator_goal(orientation), cfg.rotator_velocity)
@@ -270,10 +276,12 @@ class ScissorLift:
                 return self._verify(servo_id, goal)
             if still_s > cfg.stall_s and not snap.moving:
                 raise LiftFault(f"{self._where(servo_id)}: position error: stopped at Present_Position "
-                                f"{snap.position}, {error:+d} ticks from Goal_Position {goal}", "position error")
+                                f"{snap.position}, {error:+d} ticks from Goal_Position {goal}",
+                                "position error")
             if still_s > cfg.stall_s:
                 raise LiftFault(f"{self._where(servo_id)}: stall: Present_Position stuck at {snap.position} "
-                                f"({error:+d} ticks from Goal_Position {goal}) for {cfg.stall_s:g} s", "stall")
+                                f"({error:+d} ticks from Goal_Position {goal}) for {cfg.stall_s:g} s",
+                                "stall")
             if now > deadline:
                 raise LiftFault(f"{self._where(servo_id)}: stall: Goal_Position {goal} not reached in time "
                                 f"(Present_Position {snap.position})", "stall")
@@ -284,7 +292,8 @@ class ScissorLift:
         self._check(servo_id, snap)
         if abs(snap.position - goal) > self.config.tolerance_ticks:
             raise LiftFault(f"{self._where(servo_id)}: position error: Present_Position {snap.position} vs "
-                            f"Goal_Position {goal} (tolerance {self.config.tolerance_ticks})", "position error")
+                            f"Goal_Position {goal} (tolerance {self.config.tolerance_ticks})",
+                            "position error")
         self._telemetry(servo_id, snap, "arrived")
         return snap
 

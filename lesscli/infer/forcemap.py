@@ -1,29 +1,12 @@
 """Classical force-map imager: the reference every learned imaging result is reported against.
 
-Per poke, the deepest step (most negative pad z) gives each taxel a stiffness sample: its normal
-force over its own indentation depth (``-z`` of the taxel centre in the scan's surface frame, fitted
-from its contact onsets by :mod:`lesscli.data.surface`; N/mm; taxels shallower than
-``EPS_DEPTH_MM`` are skipped, so grazing or absent contact adds nothing), placed at the taxel's x-y
-in the phantom frame. Smoothing is normalised convolution onto a grid of ``GRID_MM`` cells
-(Gaussian-weighted average sum(w v) / sum(w)); cells with little weight are not covered, and
-covered cells softer than ``CONTACT_FRAC`` of the median are off the insert. Over the remaining
-contact area a quadratic trend in x-y is fitted to the samples by least squares (the free edge of
-the insert is softer), each taxel is flat-fielded by its median ratio to the trend, and the trend,
-fitted again, is subtracted before the residuals are smoothed. Each region of that map above
-``threshold`` robust spreads is one inclusion, centred at its excess-weighted centroid, sized and
-placed in depth by the calibrated rules; no region, no inclusion.
-
-Calibration (:func:`calibrate`) fits only what a classical pipeline calibrates, on the training
-label volumes (each connected inclusion component one inclusion, its centroid and its
-volume-equivalent diameter): the smoothing width and the threshold (grid search for the best
-micro inclusion F1 on the training scans), a size rule (the mean diameter, or a line in the square
-root of the region area when that scores better), a depth rule (least-squares line of the centre's
-depth in the diameter; the mean depth when all diameters agree) and the class prior: per depth,
-the training frequencies of background/insert/pillar over all voxels and over the touched voxels
-(x-y in the contact area). Prediction uses the touched table where the scan touched and the
-overall one elsewhere, so untouched voxels stay uncertain and a larger insert (the ``large`` set)
-is insert wherever it was touched. The inclusion probability is a logistic in the signed distance
-to the nearest sphere surface, ``EDGE_VOXELS`` in-plane voxels wide. numpy and scipy only.
+Per poke, the deepest step gives each taxel a stiffness sample (normal force over its own indentation in
+the scan's surface frame, :mod:`lesscli.data.surface`; N/mm) at its x-y. The samples are flat-fielded
+and detrended over the contact area and smoothed onto a grid of ``GRID_MM`` cells (or the calibration's own)
+(:func:`stiffness_map`); each region above ``threshold`` robust spreads is one inclusion, sized and placed in
+depth by calibrated rules (:func:`detect`, :func:`spheres`). :func:`calibrate` fits only what a classical
+pipeline calibrates, on the training label volumes: the smoothing width, the threshold, the size and depth
+rules and the class prior per depth (:func:`scan_probs`). numpy and scipy only.
 """
 
 from __future__ import annotations
@@ -151,6 +134,10 @@ def _smooth(cells: np.ndarray, values: np.ndarray, shape: tuple, sig: float) -> 
 def stiffness_map(touches: Touches, sigma_mm: float, cell_mm: float = GRID_MM) -> StiffnessMap | None:
     """Smoothed stiffness, its contact area and the detrended map; None without samples.
 
+    Smoothing is normalised convolution (Gaussian-weighted average sum(w v) / sum(w)); cells with little
+    weight are not covered, and covered cells softer than ``CONTACT_FRAC`` of the median are off the
+    insert (the contact area).
+
     The quadratic trend is fitted to the samples inside the contact area; each taxel is flat-fielded
     by its median ratio to that trend (per-taxel gain, the pad's own pressure profile), the trend is
     fitted again and subtracted from every sample before the residuals are smoothed, so a purely
@@ -221,7 +208,13 @@ def touched_xy(fmap: StiffnessMap | None, shape, origin_mm, spacing_mm) -> np.nd
 
 
 def scan_probs(cal: Calibration, touches: Touches, shape, origin_mm, spacing_mm) -> np.ndarray:
-    """Class probabilities (4, D, H, W) float32 of one scan on a label grid (see the module docstring)."""
+    """Class probabilities (4, D, H, W) float32 of one scan on a label grid.
+
+    The touched prior where the scan touched and the overall one elsewhere, so untouched voxels stay
+    uncertain and a larger insert (the ``large`` set) is insert wherever it was touched. The inclusion
+    probability is a logistic in the signed distance to the nearest sphere surface, ``EDGE_VOXELS``
+    in-plane voxels wide.
+    """
     origin_mm, spacing_mm = np.asarray(origin_mm, np.float64), np.asarray(spacing_mm, np.float64)
     fmap = stiffness_map(touches, cal.sigma_mm, cal.grid_mm)
     sd = signed_distance_mm(spheres(detect(fmap, cal.threshold), cal), shape, origin_mm, spacing_mm)
@@ -285,7 +278,15 @@ def _size_rules(regions: list[np.ndarray], truths: list, mean_mm: float) -> list
 def calibrate(touches: list[Touches], labels: list[LabelVolume], targets: list[LabelVolume],
               name: str = "scan set", sigmas_mm: tuple[float, ...] = SIGMAS_MM,
               grid_mm: float = GRID_MM) -> tuple[Calibration, float]:
-    """Fit a :class:`Calibration` on training scans (see the module docstring).
+    """Fit a :class:`Calibration` on training scans.
+
+    Each connected inclusion component of a label is one inclusion (its centroid, its volume-equivalent
+    diameter). Fitted: the smoothing width (of ``sigmas_mm``) and the threshold (grid search for the best
+    micro inclusion F1), a size rule (the mean diameter, or a line in the square root of the region area
+    when that scores better), a depth rule (least-squares line of the centre's depth in the diameter; the
+    mean depth when all diameters agree) and the class prior: per depth, the frequencies of
+    background/insert/pillar over all voxels and over the touched voxels (x-y in the contact area), all on
+    a force map of ``grid_mm`` cells.
 
     Args:
         touches: per scan, its stiffness samples.
@@ -316,7 +317,8 @@ def calibrate(touches: list[Touches], labels: list[LabelVolume], targets: list[L
                 f1 = _micro_f1(regions, cand, targets)
                 if f1 > best_f1:
                     best, best_f1 = cand, f1
-    best.prior_z_mm, best.prior = _class_prior([stiffness_map(t, best.sigma_mm, grid_mm) for t in touches], targets)
+    best.prior_z_mm, best.prior = _class_prior([stiffness_map(t, best.sigma_mm, grid_mm) for t in touches],
+                                               targets)
     return best, best_f1
 
 

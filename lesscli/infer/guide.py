@@ -70,7 +70,8 @@ def pixel_centres_mm(grid: ImageGrid) -> tuple[np.ndarray, np.ndarray]:
 
 
 def octagon_mask(grid: ImageGrid, width_mm: float, margin_mm: float) -> np.ndarray:
-    """(H, W) bool: pixel centres inside the phantom octagon (``width_mm`` across flats) shrunk by a margin."""
+    """(H, W) bool: pixel centres inside the phantom octagon (``width_mm`` across flats) shrunk by a
+    margin."""
     from lesscli.phantom.geometry import Phantom
 
     inner = width_mm - 2.0 * margin_mm
@@ -81,7 +82,8 @@ def octagon_mask(grid: ImageGrid, width_mm: float, margin_mm: float) -> np.ndarr
 
 
 def footprint_mask(labels: np.ndarray, grid: ImageGrid, margin_mm: float) -> np.ndarray:
-    """(H, W) bool: columns where the label volume (D, H, W) has any non-background voxel, eroded by a margin."""
+    """(H, W) bool: columns where the label volume (D, H, W) has any non-background voxel, eroded by a
+    margin."""
     from scipy import ndimage
 
     body = (labels != 0).any(axis=0)
@@ -188,7 +190,8 @@ def guide_scan(imager, ckpt: dict, scans, s: int, opts: GuideOptions, width_mm: 
     else:
         allowed = octagon_mask(grid, width_mm or DEFAULT_WIDTH_MM, opts.margin_mm)
     probs = stream.probs()
-    ent = stream.entropy() if opts.score == "entropy" else lookup(UNCERTAINTY, opts.score, "guide score")(probs)
+    ent = stream.entropy() if opts.score == "entropy" else lookup(UNCERTAINTY, opts.score,
+                                                                  "guide score")(probs)
     rows = suggest_touches(ent, grid, allowed, opts, stream.radius_mm)
     labelling = labelling_rule(image_cfg, threshold, min_volume_mm3, smooth_mm)
     return Guidance(rows, labelling.labels(probs, grid.spacing_mm), ent, allowed, grid,

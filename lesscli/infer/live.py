@@ -50,7 +50,8 @@ def parse_live_line(text: str | bytes, force_dim: int, after_t: float | None = N
         raise ValueError(f"missing {' and '.join(repr(k) for k in missing)}")
     pose = _numbers(obj["pose"], "pose").reshape(-1)
     if pose.shape[0] != POSE_DIM:
-        raise ValueError(f"'pose' has {pose.shape[0]} values, expected {POSE_DIM} (x, y, z mm, roll, pitch, yaw rad)")
+        raise ValueError(f"'pose' has {pose.shape[0]} values, expected {POSE_DIM} (x, y, z mm, roll, pitch, "
+                         "yaw rad)")
     force = _numbers(obj["force"], "force").reshape(-1)
     if force.shape[0] != force_dim:
         raise ValueError(f"'force' has {force.shape[0]} values, the model expects {force_dim} (taxels x 3)")

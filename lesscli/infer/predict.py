@@ -38,7 +38,7 @@ TURNS = (1, 2, 4)                # predictions averaged over the scan turned by 
 GRID_CENTRE_TOL = 1e-3           # a label grid centred on the insert's axis to this share of a pixel
 
 
-@dataclass
+@dataclass(kw_only=True)
 class PredictOptions:
     """How to predict.
 
@@ -87,7 +87,8 @@ def load_imager(path: str, map_location: str | torch.device = "cpu",
                         "make one with 'less image fit'")
     check_image_config(cfg["image"], path)
     try:
-        imager = Imager(build_encoder(cfg["encoder"]), build_decoder(cfg["decoder"]), grid_from_dict(cfg["grid"]))
+        imager = Imager(build_encoder(cfg["encoder"]), build_decoder(cfg["decoder"]),
+                        grid_from_dict(cfg["grid"]))
     except LessError as exc:
         raise DataError(f"{path}: {exc}") from None
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
@@ -95,7 +96,8 @@ def load_imager(path: str, map_location: str | torch.device = "cpu",
     try:
         imager.load_state_dict(ckpt["model_state"])
     except RuntimeError as exc:
-        raise DataError(f"{path}: weights do not match the model config ({str(exc).splitlines()[0]})") from None
+        raise DataError(f"{path}: weights do not match the model config "
+                        f"({str(exc).splitlines()[0]})") from None
     return imager.to(map_location).eval(), ckpt
 
 
@@ -123,7 +125,8 @@ def labelling_rule(image_cfg: dict, threshold: float | None = None, min_volume_m
     on validation data by ``image fit``), else argmax, no region rule, no smoothing (a model fitted
     before a part existed labels as it did then)."""
     return Labelling(threshold if threshold is not None else image_cfg.get("threshold"),
-                     float(min_volume_mm3 if min_volume_mm3 is not None else image_cfg.get("min_volume_mm3") or 0.0),
+                     float(min_volume_mm3 if min_volume_mm3 is not None else image_cfg.get("min_volume_mm3")
+                           or 0.0),
                      float(smooth_mm if smooth_mm is not None else image_cfg.get("smooth_mm") or 0.0))
 
 
@@ -138,13 +141,15 @@ def scans_for_model(path: str, ckpt: dict, model_name: str = "the model") -> Sca
 def prefix_lengths(n_steps: int, steps: int | None = None, every: int | None = None) -> list[int]:
     """Prefix lengths to image: evenly spaced ``steps`` of them, every ``every``-th, or just ``n_steps``."""
     if steps:
-        return sorted({max(1, math.ceil(n_steps * i / steps)) for i in range(1, steps + 1)}) if n_steps else [0]
+        return sorted({max(1, math.ceil(n_steps * i / steps))
+                       for i in range(1, steps + 1)}) if n_steps else [0]
     if every:
         return [*range(every, n_steps, every), n_steps] if n_steps else [0]
     return [n_steps]
 
 
-def scan_grid(scans: ScanSet, s: int, dim: int, slice_index: int, default: ImageGrid) -> tuple[ImageGrid, np.ndarray | None]:
+def scan_grid(scans: ScanSet, s: int, dim: int, slice_index: int,
+              default: ImageGrid) -> tuple[ImageGrid, np.ndarray | None]:
     """Output grid and truth (D, H, W) of scan ``s``; the training grid and None without a label."""
     label = scans.label_of(s)
     if label is None:
@@ -198,7 +203,8 @@ def check_turnable(grid: ImageGrid, where: str) -> None:
                         f"{h} x {w} pixels of {dy:g} x {dx:g} mm from ({oy:g}, {ox:g}) mm")
 
 
-CONTACT_SHARE = 0.1             # a step touches where its total force exceeds this share of the scan's largest
+# a step touches where its total force exceeds this share of the scan's largest
+CONTACT_SHARE = 0.1
 MAX_TOUCH_MARKS = 2000          # touches stored per prediction (evenly thinned beyond)
 
 
@@ -228,8 +234,9 @@ def _scan_prediction(scans: ScanSet, s: int, probs: np.ndarray, grid: ImageGrid,
                           touch_xy_mm=touch_points(scans, s, steps))
 
 
-def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, device: torch.device | str = "cpu",
-            name: str = "scan set", progress: Callable = lambda it, **_: it) -> PredictionSet:
+def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions,
+            device: torch.device | str = "cpu", name: str = "scan set", progress: Callable = lambda it,
+            **_: it) -> PredictionSet:
     """Predict every scan of ``scans`` (see the module docstring)."""
     device = torch.device(device)
     cfg = ckpt["config"]
@@ -255,11 +262,12 @@ def predict(imager: Imager, ckpt: dict, scans: ScanSet, opts: PredictOptions, de
             out = predict_scan(imager, turned_data[s], lengths, grid, opts.batch_size, device)
             mean = [m + np.rot90(p, k=q, axes=(-2, -1)) / len(quarters) for m, p in zip(mean, out)]
         for k, probs in zip(lengths, mean):
-            preds.append(_scan_prediction(scans, s, np.ascontiguousarray(probs, dtype=np.float32), grid, truth, k,
-                                          labelling))
+            preds.append(_scan_prediction(scans, s, np.ascontiguousarray(probs, dtype=np.float32), grid,
+                                          truth, k, labelling))
     meta = {"dim": dim, **labelling.to_dict(), "turns": int(opts.turns), "model": cfg["encoder"]["name"],
             "decoder": cfg["decoder"]["name"], "width": cfg["decoder"].get("width"), "grown": bool(opts.grow),
-            "particles": int(getattr(imager.encoder, "n_particles", 1)), "seed": cfg.get("train", {}).get("seed")}
+            "particles": int(getattr(imager.encoder, "n_particles", 1)),
+            "seed": cfg.get("train", {}).get("seed")}
     return PredictionSet(preds, meta)
 
 
@@ -269,8 +277,8 @@ def predict_forcemap(ckpt: dict, scans: ScanSet, opts: PredictOptions, path: str
     :func:`predict` uses; ``path`` names the checkpoint in errors, ``name`` the scan set."""
     cfg = ckpt["config"]
     if opts.turns != 1:
-        raise LessError(f"{path}: --turns averages a learned imager's readings of the turned scan; the force map "
-                        "places each touch in the insert's frame, so turning it changes nothing")
+        raise LessError(f"{path}: --turns averages a learned imager's readings of the turned scan; the force "
+                        "map places each touch in the insert's frame, so turning it changes nothing")
     cal = forcemap.calibration_from_dict(cfg.get("forcemap") or {}, path)
     try:
         dim, default = int(cfg["image"]["dim"]), grid_from_dict(cfg["grid"])

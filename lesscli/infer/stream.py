@@ -1,40 +1,19 @@
 """Incremental (streaming) imaging: one (pose, force) sample at a time, same result as batch prediction.
 
-:class:`StreamingImager` keeps, per particle, the GRU hidden state and the number of in-field steps
-it has seen. A new sample
-
-1. is normalised exactly like :class:`lesscli.data.batching.ScanDataset` (float64 ``(f - mean) / std``
-   then float32) and its pose cast to float32;
-2. is tested against every particle's receptive field with the encoder's own rule
-   (:func:`lesscli.models.particles.in_field`: pad x-y strictly inside the disc);
-3. advances only those particles: their x-y is centred on the particle, encoded by the force-location
-   encoder, and one step of the shared GRU cell (as batch evaluation steps it) runs from their stored
-   hidden state;
-4. re-decodes only their patches (the decoder's evaluation path, see
-   :mod:`lesscli.models.patch_decoder`), adds each new patch to and subtracts its old one from the
-   summed logit canvas (one slice per particle: the patch's part on the image grid), so only the
-   pixels under those patches change. With the decoder's ``stitch="mean"`` a coverage count of the
-   seen patches per pixel is kept too, and the image is the sum divided by it. With the decoder's
-   neighbour context (``context=k``) the particles whose context reads an advanced one are re-decoded
-   too (up to k^2 times as many patches per update).
-
-**Step cap.** The batch encoder keeps each particle's *earliest* ``max_steps_per_particle`` in-field
-steps and drops later ones. The stream does the same: a particle whose count has reached the cap ignores
-every later sample (its state, patch and pixels stay as they are), so the equivalence with batch
-prediction holds for every prefix, with or without a cap.
-
-**Numerics.** The canvas is float64 (float32 patches enter it exactly), so thousands of add-and-subtract
-updates do not drift; :meth:`StreamingImager.logits` returns float32. Batch prediction
-sums float32 patches once; the two agree to float32 rounding (~1e-6 for logits of order 10).
-
-Decoders without per-particle patches (the GLOBAL baseline) fall back to decoding the whole image
-after each advancing sample; the result is still exact, just not local.
+:class:`StreamingImager` keeps, per particle, the GRU hidden state and the number of in-field steps it
+has seen. A new sample is normalised as in training, tested against every receptive field with the
+encoder's own rule, and advances only the particles it reaches (one step of the shared GRU cell, as batch
+evaluation steps it); only their patches are re-decoded and swapped on the summed logit canvas
+(:class:`PatchCanvas`), so only the pixels under them change. A particle whose count reached
+``max_steps_per_particle`` ignores later samples, as the batch encoder keeps the earliest steps, so the
+equivalence holds for every prefix. The canvas is float64, so thousands of add-and-subtract updates do
+not drift; stream and batch agree to float32 rounding. Decoders without per-particle patches (the GLOBAL
+baseline) decode the whole image after each advancing sample (:class:`WholeImage`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -42,6 +21,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from lesscli.errors import DataError
+from lesscli.models.encoders import ParticleStates
 from lesscli.models.encoding import POSE_DIM
 from lesscli.models.global_decoder import GlobalDecoder
 from lesscli.models.particles import in_field
@@ -57,20 +37,14 @@ from lesscli.models.patch_decoder import (
 UNCERTAIN_SHARE = 0.5
 
 
-@dataclass
-class _States:
-    """Duck-typed ParticleStates for the decoders: z (B, P, d_z), xy_mm (P, 2), seen (B, P)."""
-
-    z: Tensor
-    xy_mm: Tensor
-    seen: Tensor
-
-
 class PatchCanvas:
     """Summed per-particle logit patches on the image grid, updated one particle set at a time.
 
     Each particle's patch is placed by :func:`place_patches`' rule; only its part on the grid is added
-    (a patch wholly off the grid adds nothing), so the canvas is the image itself.
+    (a patch wholly off the grid adds nothing), so the canvas is the image itself. With the decoder's
+    ``stitch="mean"`` a count of the seen patches per pixel is kept too and the image is the sum divided by
+    it; with its neighbour context (``context=k``) the particles whose context reads an advanced one are
+    re-decoded too (up to k^2 times as many patches per update).
 
     Args:
         decoder: the imaging model's PatchDecoder.
@@ -116,7 +90,8 @@ class PatchCanvas:
         if self.decoder.context:
             particles = self.within_context(particles, seen)
             z = self.decoder.with_context(hidden[None], seen[None])[0, particles]
-        new = resample_patches(self.decoder.patches(z[None], channels_last=True), self.size)[0]  # (k, C, D, ph, pw)
+        # (k, C, D, ph, pw)
+        new = resample_patches(self.decoder.patches(z[None], channels_last=True), self.size)[0]
         for j, p in enumerate(particles.tolist()):
             if self.place[p] is None:
                 continue
@@ -146,7 +121,8 @@ class PatchCanvas:
 class WholeImage:
     """Fallback for decoders without local patches: decode the whole image after each update."""
 
-    def __init__(self, decoder: torch.nn.Module, xy_mm: Tensor, grid: ImageGrid, device: torch.device) -> None:
+    def __init__(self, decoder: torch.nn.Module, xy_mm: Tensor, grid: ImageGrid,
+                 device: torch.device) -> None:
         self.decoder, self.xy_mm, self.grid = decoder, xy_mm, grid
         self._logits: Tensor | None = None
 
@@ -154,7 +130,8 @@ class WholeImage:
         self._logits = None
 
     def update(self, particles: Tensor, z: Tensor, hidden: Tensor, seen: Tensor) -> None:
-        self._logits = self.decoder(_States(hidden[None], self.xy_mm, seen[None]), self.grid)[0]
+        self._logits = self.decoder(ParticleStates(z=hidden[None], xy_mm=self.xy_mm, seen=seen[None]),
+                                    self.grid)[0]
 
     def logits(self) -> Tensor:
         return self._logits
@@ -181,7 +158,8 @@ def update_work(imager: torch.nn.Module) -> int:
             decoder.patches(torch.zeros(1, 1, decoder.inp.in_features))
         per_patch = counter.get_total_flops()
     encoder = 2 * sum(p.numel() for p in imager.encoder.parameters())
-    reach = getattr(decoder, "context", 0) or 1             # a context re-decodes the advanced ones' neighbours
+    # a context re-decodes the advanced ones' neighbours
+    reach = getattr(decoder, "context", 0) or 1
     decoded = (math.sqrt(PARTICLES_PER_TOUCH) + reach - 1) ** 2
     return round(PARTICLES_PER_TOUCH * encoder + decoded * per_patch)
 
@@ -245,7 +223,8 @@ class StreamingImager:
         """Raw force (T, 3) or (T * 3,) in sensor units -> (T * 3,) float32 normalised, as in training."""
         flat = np.asarray(force, np.float64).reshape(-1)
         if flat.shape[0] != self.force_dim:
-            raise DataError(f"force has {flat.shape[0]} values, the model expects {self.force_dim} (taxels x 3)")
+            raise DataError(f"force has {flat.shape[0]} values, the model expects {self.force_dim} (taxels x "
+                            "3)")
         return torch.from_numpy(((flat - self.mean) / self.std).astype(np.float32)).to(self.device)
 
     def push(self, pose: np.ndarray, force: np.ndarray) -> Tensor:
@@ -254,9 +233,11 @@ class StreamingImager:
         Returns:
             (k,) long indices of the particles the sample advanced (empty: outside every field or capped).
         """
-        pose_t = torch.from_numpy(np.ascontiguousarray(np.asarray(pose).reshape(-1), np.float32)).to(self.device)
+        pose_t = torch.from_numpy(np.ascontiguousarray(np.asarray(pose).reshape(-1),
+                                                       np.float32)).to(self.device)
         if pose_t.shape[0] != POSE_DIM:
-            raise DataError(f"pose has {pose_t.shape[0]} values, expected {POSE_DIM} (x, y, z mm, roll, pitch, yaw rad)")
+            raise DataError(f"pose has {pose_t.shape[0]} values, expected {POSE_DIM} (x, y, z mm, roll, "
+                            "pitch, yaw rad)")
         return self.push_normalised(pose_t, self.normalise(force))
 
     @torch.no_grad()
@@ -302,8 +283,8 @@ class StreamingImager:
 
         n = int(pose.shape[0])
         flat = normalise_forces(force, self.mean, self.std)
-        item = {"pose": torch.from_numpy(np.ascontiguousarray(pose, np.float32)), "force": torch.from_numpy(flat),
-                "scan_index": 0}
+        item = {"pose": torch.from_numpy(np.ascontiguousarray(pose, np.float32)),
+                "force": torch.from_numpy(flat), "scan_index": 0}
         batch = collate([item]).to(self.device)
         self.reset()
         states = self.encoder(batch)

@@ -134,14 +134,16 @@ def atomic_dir(path: str) -> Iterator[str]:
     check_output(path, folder=True)
     parent = os.path.dirname(os.path.abspath(path))
     try:
-        tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(os.path.abspath(path))}.", suffix=".part", dir=parent)
+        tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(os.path.abspath(path))}.", suffix=".part",
+                               dir=parent)
     except OSError as exc:
         raise (write_failure(exc, path, parent) or exc) from None
     deferred = False
     try:
         yield tmp
         deferred = _publish_or_defer(path, lambda: _publish_dir(tmp, path),
-                                     lambda: shutil.rmtree(tmp, ignore_errors=True), (tmp, os.path.abspath(path)))
+                                     lambda: shutil.rmtree(tmp, ignore_errors=True),
+                                     (tmp, os.path.abspath(path)))
     except BaseException as exc:
         failure = write_failure(exc, path, tmp, os.path.abspath(path))
         if failure is not None:
@@ -250,8 +252,8 @@ def acquire_output_lock(path: str) -> int | None:
         except BlockingIOError:
             other = _pid_in(fd)
             os.close(fd)
-            raise BusyError(f"{path}: another less run (process {other}) is writing it (lock {lock}); wait for "
-                            "it to end or choose another output") from None
+            raise BusyError(f"{path}: another less run (process {other}) is writing it (lock {lock}); wait "
+                            "for it to end or choose another output") from None
         try:
             same = os.stat(lock).st_ino == os.fstat(fd).st_ino   # not a lock file its last holder removed
         except FileNotFoundError:

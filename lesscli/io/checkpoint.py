@@ -10,9 +10,9 @@ A checkpoint is a dict of tensors and plain Python values::
      "extra": {...}}
 
 Any checkpoint whose ``config["encoder"]`` is an encoder config and whose model state holds the
-encoder under the prefix ``encoder.`` can be opened with ``lesscli.train.representation.load_representation`` (pretraining
-writes such files; an imaging model that keeps its encoder as the submodule ``encoder`` and copies
-the representation's ``config["encoder"]`` does too).
+encoder under the prefix ``encoder.`` can be opened with ``lesscli.train.representation.load_representation``
+(pretraining writes such files; an imaging model that keeps its encoder as the submodule ``encoder`` and
+copies the representation's ``config["encoder"]`` does too).
 """
 
 from __future__ import annotations
@@ -81,7 +81,8 @@ def check_checkpoint(ckpt, path: str) -> None:
         raise DataError(f"{path}: checkpoint version {version} is newer than this toolkit ({VERSION})")
     for key, kind in (("model_state", dict), ("config", dict), ("norm_stats", dict), ("history", list)):
         if not isinstance(ckpt.get(key), kind):
-            raise DataError(f"{path}: checkpoint '{key}' must be a {kind.__name__}, got {type(ckpt.get(key)).__name__}")
+            raise DataError(f"{path}: checkpoint '{key}' must be a {kind.__name__}, got "
+                            f"{type(ckpt.get(key)).__name__}")
     if not all(isinstance(v, torch.Tensor) for v in ckpt["model_state"].values()):
         raise DataError(f"{path}: checkpoint 'model_state' must map names to tensors")
     _check_finite_weights(ckpt["model_state"], path)
@@ -97,8 +98,9 @@ def _check_finite_weights(state: dict, path: str) -> None:
         if tensor.is_floating_point() or tensor.is_complex():
             bad = int((~torch.isfinite(tensor)).sum())
             if bad:
-                raise DataError(f"{path}: weight '{name}' holds NaN or inf ({bad} of {tensor.numel()} values); "
-                                "the checkpoint is broken (a diverged run?): train again or use another one")
+                raise DataError(f"{path}: weight '{name}' holds NaN or inf ({bad} of {tensor.numel()} "
+                                "values); the checkpoint is broken (a diverged run?): train again or use "
+                                "another one")
 
 
 def _check_norm_stats(stats: dict, path: str) -> None:

@@ -14,7 +14,8 @@ import numpy as np
 from lesscli.errors import DataError
 
 NUMBER_KINDS = "biuf"  # numpy dtype kinds that hold plain numbers (bool, int, uint, float)
-JSON_KINDS = {list: "array", str: "string", int: "number", float: "number", bool: "boolean", type(None): "null"}
+JSON_KINDS = {list: "array", str: "string", int: "number", float: "number", bool: "boolean",
+              type(None): "null"}
 
 
 def require(arrays: dict, key: str, name: str, what: str) -> np.ndarray:
@@ -75,7 +76,8 @@ def finite(arr: np.ndarray, key: str, name: str, unit: str = "step", dtype=None)
 def positive(arr: np.ndarray, key: str, name: str, unit: str) -> None:
     """Every value finite and > 0 (e.g. voxel spacing); names the first bad ``unit``."""
     finite(arr, key, name, unit)
-    bad = ~(arr.reshape(len(arr), int(np.prod(arr.shape[1:]))) > 0).all(axis=1) if arr.ndim else np.array([not arr > 0])
+    bad = (~(arr.reshape(len(arr), int(np.prod(arr.shape[1:]))) > 0).all(axis=1) if arr.ndim
+           else np.array([not arr > 0]))
     if bad.any():
         raise DataError(f"{name}: '{key}' must be positive, {unit} {int(np.flatnonzero(bad)[0])} is not")
 
@@ -91,7 +93,8 @@ def json_object(arrays: dict, key: str, name: str, what: str) -> dict:
     """Parse the JSON object stored as a string scalar under ``key``."""
     raw = require(arrays, key, name, what)
     if raw.ndim != 0 or raw.dtype.kind not in "US":
-        raise DataError(f"{name}: '{key}' must be one JSON string, got a {raw.dtype} array of shape {raw.shape}")
+        raise DataError(f"{name}: '{key}' must be one JSON string, got a {raw.dtype} array of shape "
+                        f"{raw.shape}")
     try:
         value = json.loads(str(raw[()]))
     except (json.JSONDecodeError, ValueError):

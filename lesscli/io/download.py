@@ -105,7 +105,8 @@ class _RunningMd5:
         self.bytes += len(chunk)
 
 
-def _transfer(remote: RemoteFile, part: str, bar, timeout_s: float, md5: _RunningMd5) -> tuple[int | None, bool]:
+def _transfer(remote: RemoteFile, part: str, bar, timeout_s: float,
+              md5: _RunningMd5) -> tuple[int | None, bool]:
     """One GET from the end of ``part``: append what arrives (and hash it into ``md5``). Returns the total
     size when the server tells it, and whether the bytes continued what ``part`` held (a 206 answer to a
     range from a non-zero offset) rather than starting the file over (200: the whole file re-sent).
@@ -121,7 +122,8 @@ def _transfer(remote: RemoteFile, part: str, bar, timeout_s: float, md5: _Runnin
         if resp.status == 206:
             match = _CONTENT_RANGE.match(resp.headers.get("Content-Range", ""))
             if not match or int(match[1]) != offset:
-                raise http.client.HTTPException(f"unexpected Content-Range {resp.headers.get('Content-Range')!r}")
+                raise http.client.HTTPException("unexpected Content-Range "
+                                                f"{resp.headers.get('Content-Range')!r}")
             total = int(match[2]) if match[2] != "*" else None
         else:                                        # 200: the whole file from the start
             offset = 0
@@ -156,8 +158,8 @@ def _verify(remote: RemoteFile, part: str, md5: _RunningMd5, pieces: int) -> str
                       "starts from zero) may give the published file")
         else:                # one whole transfer: fetching again will most likely give the same bytes
             advice = ("the server sent these bytes in one whole transfer, so fetching again will most likely "
-                      "give the same: the file on the server differs from its record (check the record id and "
-                      "--base-url, or tell the archive)")
+                      "give the same: the file on the server differs from its record (check the record id "
+                      "and --base-url, or tell the archive)")
         raise DownloadError(f"{remote.name}: checksum mismatch (md5 {digest}, published {remote.md5}) from "
                             f"{remote.url}; the download was deleted; {advice}")
     return digest
@@ -223,4 +225,5 @@ def download(remote: RemoteFile, dest: str, progress: Callable, retries: int = R
     digest = _verify(remote, part, md5, pieces)
     os.replace(part, dest)
     return {**record, "bytes": os.path.getsize(dest), "md5": digest,
-            "status": "resumed" if pieces > 1 else "downloaded", "seconds": round(time.perf_counter() - t0, 3)}
+            "status": "resumed" if pieces > 1 else "downloaded",
+            "seconds": round(time.perf_counter() - t0, 3)}

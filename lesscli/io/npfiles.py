@@ -48,7 +48,8 @@ def check_magic(head: bytes, name: str, what: str, npz: bool = True) -> None:
 
 
 def unreadable(name: str, what: str, exc: Exception) -> DataError:
-    """The error for a .npy/.npz that numpy cannot read: pickled objects refused, else truncated or corrupt."""
+    """The error for a .npy/.npz that numpy cannot read: pickled objects refused, else truncated or
+    corrupt."""
     if isinstance(exc, ValueError) and ("allow_pickle" in str(exc) or "Object arrays" in str(exc)):
         return DataError(f"{name}: holds a pickled Python object; a {what} must be a plain array "
                          "(refusing to unpickle)")

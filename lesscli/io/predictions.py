@@ -2,8 +2,26 @@
 
 Every prediction is a volume (C, D, H, W); a 2D prediction is a volume of depth 1 whose geometry
 places it at its slice (``meta['dim'] == 2``). Volumes may differ in shape between scans (e.g.
-the ``large`` set), so arrays are stored flat with a shape table, like label volumes.
+the ``large`` set), so arrays are stored flat with a shape table, like label volumes (the keys:
+:data:`KEYS`). Files written before the optional keys existed tell a scan's prefixes by their order
+(consecutive predictions of one insert and orientation with rising steps: :func:`scan_numbers`).
+"""
 
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lesscli.errors import DataError
+from lesscli.io import checks
+from lesscli.io.atomic import atomic_path
+from lesscli.io.labels import INCLUSION, N_CLASSES, PILLAR, LabelVolume, check_codes
+from lesscli.io.npfiles import read_npz, write_npz
+
+# The format's keys, as docs/reference/formats.md prints them (tools/gen_reference.py).
+KEYS = """\
 =================  ===============  ==================================================
 key                shape            meaning
 =================  ===============  ==================================================
@@ -25,23 +43,7 @@ scan_index         (S,) i64         optional: which scan of the imaged set each 
 touch_count        (S,) i64         optional, with ``touch_xy_mm``: touches stored per prediction
 touch_xy_mm        (sum, 2) f32     x, y (mm) of the pad's centre at the steps it saw in contact
 =================  ===============  ==================================================
-
-Files written before the optional keys existed tell a scan's prefixes by their order (consecutive
-predictions of one insert and orientation with rising steps: :func:`scan_numbers`).
 """
-
-from __future__ import annotations
-
-import json
-from dataclasses import dataclass, field
-
-import numpy as np
-
-from lesscli.errors import DataError
-from lesscli.io import checks
-from lesscli.io.atomic import atomic_path
-from lesscli.io.labels import INCLUSION, N_CLASSES, PILLAR, LabelVolume, check_codes
-from lesscli.io.npfiles import read_npz, write_npz
 
 SCHEMA, VERSION = "less.pred", 1
 EPS_LOG = 1e-12  # floor inside log(p) for the entropy of float16-rounded probabilities
@@ -81,7 +83,8 @@ def labels_from_probs(probs: np.ndarray, threshold: float | None = None, min_vol
 
 
 def thresholded(probs: np.ndarray, threshold: float | None, tissue: np.ndarray) -> np.ndarray:
-    """The threshold step of :func:`labels_from_probs`; ``tissue`` is the likelier of background and insert."""
+    """The threshold step of :func:`labels_from_probs`; ``tissue`` is the likelier of background and
+    insert."""
     if threshold is None:
         return probs.argmax(axis=0).astype(np.uint8)
     thin = np.where(probs[INCLUSION] >= probs[PILLAR], INCLUSION, PILLAR).astype(np.uint8)
@@ -119,7 +122,8 @@ class Labelling:
         return labels_from_probs(probs, self.threshold, self.min_volume_mm3, spacing_mm, self.smooth_mm)
 
     def to_dict(self) -> dict:
-        return {"threshold": self.threshold, "min_volume_mm3": self.min_volume_mm3, "smooth_mm": self.smooth_mm}
+        return {"threshold": self.threshold, "min_volume_mm3": self.min_volume_mm3,
+                "smooth_mm": self.smooth_mm}
 
 
 def nothing_known(shape: tuple[int, ...]) -> np.ndarray:
@@ -148,7 +152,8 @@ class ScanPrediction:
     label: np.ndarray | None = None
     entropy: np.ndarray | None = None
     scan: int = -1                        # the scan of the imaged set (-1: not recorded)
-    touch_xy_mm: np.ndarray | None = None  # (T, 2) pad centres at the steps seen in contact; None: not recorded
+    # (T, 2) pad centres at the steps seen in contact; None: not recorded
+    touch_xy_mm: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.label is None:
@@ -157,7 +162,8 @@ class ScanPrediction:
             self.entropy = entropy(self.probs)
 
     def truth_volume(self) -> LabelVolume | None:
-        return None if self.truth is None else LabelVolume(self.truth, self.origin_mm, self.spacing_mm, self.insert)
+        return None if self.truth is None else LabelVolume(self.truth, self.origin_mm, self.spacing_mm,
+                                                           self.insert)
 
     def label_volume(self) -> LabelVolume:
         return LabelVolume(self.label, self.origin_mm, self.spacing_mm, self.insert)
@@ -187,7 +193,8 @@ def scan_numbers(preds: list[ScanPrediction]) -> list[int]:
     out: list[int] = []
     for i, p in enumerate(preds):
         prev = preds[i - 1] if i else None
-        same = prev is not None and (prev.insert, prev.orientation) == (p.insert, p.orientation) and p.steps > prev.steps
+        same = (prev is not None and (prev.insert, prev.orientation) == (p.insert, p.orientation)
+                and p.steps > prev.steps)
         out.append(out[-1] if same else (out[-1] + 1 if out else 0))
     return out
 
@@ -209,7 +216,8 @@ def _flat(arrays: list[np.ndarray], dtype) -> np.ndarray:
 def save_predictions(path: str, preds: PredictionSet) -> None:
     """Check (as :func:`load_predictions` does) and write atomically to ``path`` (``-`` = stdout)."""
     scans = preds.scans
-    meta = {"schema": SCHEMA, "version": VERSION, **{k: v for k, v in preds.meta.items() if k not in ("schema", "version")}}
+    meta = {"schema": SCHEMA, "version": VERSION,
+            **{k: v for k, v in preds.meta.items() if k not in ("schema", "version")}}
     arrays = {
         "probs_data": _flat([p.probs for p in scans], np.float16),
         "probs_shape": np.array([p.probs.shape for p in scans], np.int64).reshape(-1, 4),
@@ -257,7 +265,8 @@ def _check_probs(probs: np.ndarray, shapes: np.ndarray, name: str) -> None:
 
 def _checked_arrays(arrays: dict, name: str) -> dict:
     """Every key of a prediction file, type-, shape- and value-checked (see the module docstring)."""
-    shapes = checks.numbers(checks.require(arrays, "probs_shape", name, WHAT), "probs_shape", name, integer=True)
+    shapes = checks.numbers(checks.require(arrays, "probs_shape", name, WHAT), "probs_shape", name,
+                            integer=True)
     checks.shape(shapes, "probs_shape", name, (None, 4), "(S, 4): C, D, H, W of each scan")
     if shapes.size and (shapes.min() < 1 or (shapes[:, 0] != N_CLASSES).any()):
         raise DataError(f"{name}: 'probs_shape' must give {N_CLASSES} classes and at least 1 voxel per axis")
@@ -279,7 +288,8 @@ def _checked_arrays(arrays: dict, name: str) -> dict:
     for key, size in sizes.items():
         arr = checks.numbers(checks.require(arrays, key, name, WHAT), key, name)
         if arr.ndim != 1 or arr.size != size:
-            raise DataError(f"{name}: '{key}' has {arr.size} values, 'probs_shape' and 'has_truth' need {size}")
+            raise DataError(f"{name}: '{key}' has {arr.size} values, 'probs_shape' and 'has_truth' need "
+                            f"{size}")
         out[key] = arr
     _check_probs(out["probs_data"], shapes, name)
     for key in ("label_data", "truth_data"):
@@ -292,7 +302,8 @@ def _checked_arrays(arrays: dict, name: str) -> dict:
 
 
 def _checked_optional(arrays: dict, name: str, n: int) -> dict:
-    """The optional keys (module docstring), when there: ``scan_index`` and ``touch_count`` / ``touch_xy_mm``."""
+    """The optional keys (module docstring), when there: ``scan_index`` and ``touch_count`` /
+    ``touch_xy_mm``."""
     out = {}
     if "scan_index" in arrays:
         index = checks.numbers(arrays["scan_index"], "scan_index", name, integer=True)
@@ -301,16 +312,18 @@ def _checked_optional(arrays: dict, name: str, n: int) -> dict:
             raise DataError(f"{name}: 'scan_index' must count scans from 0 upwards, in order")
         out["scan_index"] = index
     if ("touch_count" in arrays) != ("touch_xy_mm" in arrays):
-        have, lack = ("touch_count", "touch_xy_mm") if "touch_count" in arrays else ("touch_xy_mm", "touch_count")
+        have, lack = (("touch_count", "touch_xy_mm") if "touch_count" in arrays
+                      else ("touch_xy_mm", "touch_count"))
         raise DataError(f"{name}: '{have}' without '{lack}'; the touches need both")
     if "touch_count" in arrays:
         count = checks.numbers(arrays["touch_count"], "touch_count", name, integer=True)
         checks.shape(count, "touch_count", name, (n,), f"({n},): one entry per prediction")
         if n and count.min() < 0:
-            raise DataError(f"{name}: 'touch_count' must be >= 0 (touches per prediction), found {int(count.min())}")
+            raise DataError(f"{name}: 'touch_count' must be >= 0 (touches per prediction), found "
+                            f"{int(count.min())}")
         xy = checks.numbers(arrays["touch_xy_mm"], "touch_xy_mm", name)
-        checks.shape(xy, "touch_xy_mm", name, (int(count.sum()), 2), f"({int(count.sum())}, 2): 'touch_count' "
-                     "says how many x, y pairs")
+        checks.shape(xy, "touch_xy_mm", name, (int(count.sum()), 2),
+                     f"({int(count.sum())}, 2): 'touch_count' " "says how many x, y pairs")
         checks.finite(xy, "touch_xy_mm", name, "touch")
         out["touch_count"], out["touch_xy_mm"] = count, xy
     return out
@@ -327,7 +340,8 @@ def from_arrays(arrays: dict, name: str) -> PredictionSet:
     a = _checked_arrays(arrays, name)
     shapes = a["probs_shape"]
     vox = shapes[:, 1:].prod(axis=1)
-    probs_off, vox_off = np.concatenate([[0], np.cumsum(shapes.prod(axis=1))]), np.concatenate([[0], np.cumsum(vox)])
+    probs_off, vox_off = (np.concatenate([[0], np.cumsum(shapes.prod(axis=1))]),
+                          np.concatenate([[0], np.cumsum(vox)]))
     truth_off = np.concatenate([[0], np.cumsum(np.where(a["has_truth"] > 0, vox, 0))])
     touch_off = np.concatenate([[0], np.cumsum(a["touch_count"])]) if "touch_count" in a else None
     scans = []

@@ -35,7 +35,8 @@ def dumps(record: Mapping) -> str:
     return json.dumps(to_jsonable(record), allow_nan=False, separators=(", ", ": "))
 
 
-CELL_ITEMS_WIDTH = 60    # a table's list or mapping cell is cut to its first items within this many characters
+# a table's list or mapping cell is cut to its first items within this many characters
+CELL_ITEMS_WIDTH = 60
 TABLE_WIDTH = 120        # a one-record table wider than this is written as one "key  value" line per column
 
 
@@ -51,8 +52,8 @@ def _rounded(value: Any) -> Any:
 
 
 def _short(value: Any, width: int) -> str:
-    """``value`` (plain JSON) as JSON in about ``width`` characters: a list or mapping cut after the items that
-    fit, saying how many there are in all, each item itself cut to the room left (the first to nearly all
+    """``value`` (plain JSON) as JSON in about ``width`` characters: a list or mapping cut after the items
+    that fit, saying how many there are in all, each item itself cut to the room left (the first to nearly all
     of it); a string cut with "...". A table is read by people, and a split's hundred insert names would
     make every row a screen wide; JSON lines and JSON keep every item."""
     whole = json.dumps(value)
@@ -99,9 +100,10 @@ def _columns(rows: list[Mapping], columns: list[str] | None) -> list[str]:
 
 
 def format_table(rows: list[Mapping], columns: list[str] | None = None, markdown: bool = False) -> str:
-    """Aligned text table (or GitHub markdown table) of ``rows``, long lists and mappings cut (:func:`_short`).
-    One record wider than ``TABLE_WIDTH`` is written down the page instead, left-aligned: a column "key" of
-    its keys and one "value" of their cells, as wide as the keys leave (``less info`` of a scan set). A
+    """Aligned text table (or GitHub markdown table) of ``rows``, long lists and mappings cut
+    (:func:`_short`). One record wider than ``TABLE_WIDTH`` is written down the page instead, left-aligned: a
+    column "key" of its keys and one "value" of their cells, as wide as the keys leave (``less info`` of a
+    scan set). A
     markdown table keeps its columns: a document's tables are read across, and its viewer scrolls."""
     cols = _columns(rows, columns)
     cells = [[_cell(row.get(c)) for c in cols] for row in rows]
@@ -133,7 +135,8 @@ def resolve_format(fmt: str | None, stream: IO | None = None) -> str:
 
 
 def emit_records(
-    rows: Iterable[Mapping], fmt: str | None = None, stream: IO | None = None, columns: list[str] | None = None
+    rows: Iterable[Mapping], fmt: str | None = None, stream: IO | None = None,
+    columns: list[str] | None = None
 ) -> None:
     """Write records to ``stream`` (stdout) as JSON lines, a JSON array, a table or markdown.
 
@@ -156,7 +159,8 @@ def emit_records(
         kinds = [list(run) for _kind, run in groupby(rows, key=lambda r: r.get("row"))]
         if columns is not None or len(kinds) == 1:
             kinds = [rows]
-        stream.write("\n\n".join(format_table(run, columns, markdown=fmt == "markdown") for run in kinds) + "\n")
+        stream.write("\n\n".join(format_table(run, columns, markdown=fmt == "markdown") for run in kinds)
+                     + "\n")
     stream.flush()
 
 

@@ -1,30 +1,8 @@
 """The scan-set format ``less.scans/1``: one reader, one writer, one validator.
 
 A scan set is a ``.npz`` (loaded with ``allow_pickle=False``) holding ragged trajectories as flat
-arrays plus offsets:
-
-=====================  ===========  =========================================================
-key                    shape        meaning
-=====================  ===========  =========================================================
-pose                   (N, 6) f32   x, y, z mm, roll, pitch, yaw rad of the pad, phantom frame
-force                  (N, T, 3) f32 per-taxel force (newtons, or sensor counts: meta units)
-time_s                 (N,) f64     time since the trajectory's first step, s
-traj_offsets           (R+1,) i64   steps of trajectory r are [offsets[r], offsets[r+1])
-traj_scan              (R,) i64     scan index of each trajectory (non-decreasing)
-traj_<attr>            (R,)         per-trajectory attributes (TRAJ_ATTRS), NaN/'' = unknown
-scan_insert            (S,) str     insert name (e.g. St12C13)
-scan_orientation       (S,) i64     insert rotation, multiples of 45 degrees (0..7)
-scan_label             (S,) i64     index into the label volumes, -1 when none
-label_data             (sum,) u8    label volumes, flattened and concatenated
-label_shape            (L, 3) i64   (D, H, W) of each volume
-label_origin_mm        (L, 3) f64   z, y, x of voxel [0,0,0] (see lesscli.io.labels)
-label_spacing_mm       (L, 3) f64   dz, dy, dx
-label_name             (L,) str
-meta                   () str       JSON: schema, version, units, sensor, sample_rate_hz, history
-=====================  ===========  =========================================================
-
-A scan's trajectories are contiguous, so scan s covers one contiguous range of steps: the model
-sees a scan as its trajectories concatenated in time.
+arrays plus offsets (the keys: :data:`KEYS`). A scan's trajectories are contiguous, so scan s covers
+one contiguous range of steps: the model sees a scan as its trajectories concatenated in time.
 """
 
 from __future__ import annotations
@@ -46,6 +24,29 @@ from lesscli.io import checks
 from lesscli.io.atomic import atomic_path
 from lesscli.io.labels import LabelVolume, check_codes
 from lesscli.io.npfiles import read_npz, write_npz
+
+# The format's keys, as docs/reference/formats.md prints them (tools/gen_reference.py).
+KEYS = """\
+=====================  ===========  =========================================================
+key                    shape        meaning
+=====================  ===========  =========================================================
+pose                   (N, 6) f32   x, y, z mm, roll, pitch, yaw rad of the pad, phantom frame
+force                  (N, T, 3) f32 per-taxel force (newtons, or sensor counts: meta units)
+time_s                 (N,) f64     time since the trajectory's first step, s
+traj_offsets           (R+1,) i64   steps of trajectory r are [offsets[r], offsets[r+1])
+traj_scan              (R,) i64     scan index of each trajectory (non-decreasing)
+traj_<attr>            (R,)         per-trajectory attributes (TRAJ_ATTRS), NaN/'' = unknown
+scan_insert            (S,) str     insert name (e.g. St12C13)
+scan_orientation       (S,) i64     insert rotation, multiples of 45 degrees (0..7)
+scan_label             (S,) i64     index into the label volumes, -1 when none
+label_data             (sum,) u8    label volumes, flattened and concatenated
+label_shape            (L, 3) i64   (D, H, W) of each volume
+label_origin_mm        (L, 3) f64   z, y, x of voxel [0,0,0] (see lesscli.io.labels)
+label_spacing_mm       (L, 3) f64   dz, dy, dx
+label_name             (L,) str
+meta                   () str       JSON: schema, version, units, sensor, sample_rate_hz, history
+=====================  ===========  =========================================================
+"""
 
 SCHEMA, VERSION = "less.scans", 1
 TRAJ_ATTRS = {"target_force_n": np.float32, "yaw_rad": np.float32, "dx_mm": np.float32,
@@ -102,7 +103,8 @@ class ScanSet:
     def __post_init__(self) -> None:
         for key, kind in TRAJ_ATTRS.items():
             if key not in self.traj_attrs:
-                self.traj_attrs[key] = np.full(self.traj_scan.shape, "" if kind is str else np.nan).astype(kind)
+                self.traj_attrs[key] = np.full(self.traj_scan.shape,
+                                               "" if kind is str else np.nan).astype(kind)
 
     @property
     def n_steps(self) -> int:
@@ -177,7 +179,8 @@ class ScanSet:
         """Keep the given scan indices (in the given order); unused label volumes are dropped."""
         scans = np.asarray(scans, dtype=np.int64)
         toff = self.scan_traj_offsets()
-        trajs = np.concatenate([np.arange(toff[s], toff[s + 1]) for s in scans]) if len(scans) else np.zeros(0, np.int64)
+        trajs = (np.concatenate([np.arange(toff[s], toff[s + 1]) for s in scans]) if len(scans)
+                 else np.zeros(0, np.int64))
         lengths = self.traj_lengths()[trajs]
         steps = np.concatenate([np.arange(self.traj_offsets[t], self.traj_offsets[t + 1]) for t in trajs]) \
             if len(trajs) else np.zeros(0, np.int64)
@@ -214,16 +217,19 @@ def parse_meta(arrays: dict, name: str) -> dict:
 
 
 def _labels_from(arrays: dict, name: str) -> list[LabelVolume]:
-    shapes = checks.numbers(checks.require(arrays, "label_shape", name, WHAT), "label_shape", name, integer=True)
+    shapes = checks.numbers(checks.require(arrays, "label_shape", name, WHAT), "label_shape", name,
+                            integer=True)
     checks.shape(shapes, "label_shape", name, (None, 3), "(L, 3): D, H, W of each label volume")
     if shapes.size and shapes.min() < 1:
-        raise DataError(f"{name}: 'label_shape' must be at least 1 voxel on each axis, found {int(shapes.min())}")
+        raise DataError(f"{name}: 'label_shape' must be at least 1 voxel on each axis, found "
+                        f"{int(shapes.min())}")
     n = len(shapes)
     data = checks.require(arrays, "label_data", name, WHAT)
     checks.shape(data, "label_data", name, (None,), "(V,): the volumes flattened one after another")
     sizes = shapes.prod(axis=1)
     if data.shape[0] != sizes.sum():
-        raise DataError(f"{name}: 'label_data' has {data.size} values, 'label_shape' needs {int(sizes.sum())}")
+        raise DataError(f"{name}: 'label_data' has {data.size} values, 'label_shape' needs "
+                        f"{int(sizes.sum())}")
     check_codes(data, f"{name}: 'label_data'")
     offsets = np.concatenate([[0], np.cumsum(sizes)])
     geometry = {}
@@ -232,7 +238,8 @@ def _labels_from(arrays: dict, name: str) -> list[LabelVolume]:
         checks.shape(geometry[key], key, name, (n, 3), f"({n}, 3): z, y, x per label volume")
     checks.finite(geometry["label_origin_mm"], "label_origin_mm", name, "label volume")
     checks.positive(geometry["label_spacing_mm"], "label_spacing_mm", name, "label volume")
-    names = checks.text_array(arrays.get("label_name", np.array([""] * n)), "label_name", name, "volume names")
+    names = checks.text_array(arrays.get("label_name", np.array([""] * n)), "label_name", name,
+                              "volume names")
     checks.shape(names, "label_name", name, (n,), f"({n},)")
     return [LabelVolume(data[offsets[i]:offsets[i + 1]].reshape(shapes[i]), geometry["label_origin_mm"][i],
                         geometry["label_spacing_mm"][i], str(names[i])) for i in range(n)]
@@ -260,10 +267,13 @@ def _steps(arrays: dict, name: str, meta: dict) -> tuple[np.ndarray, np.ndarray,
 
 def _trajectories(arrays: dict, name: str, n: int, n_scans: int) -> tuple[np.ndarray, np.ndarray, dict]:
     """traj_offsets (R+1,), traj_scan (R,) and the per-trajectory attributes, checked."""
-    offsets = checks.numbers(checks.require(arrays, "traj_offsets", name, WHAT), "traj_offsets", name, integer=True)
-    if offsets.ndim != 1 or offsets.size < 1 or offsets[0] != 0 or offsets[-1] != n or np.any(np.diff(offsets) < 0):
+    offsets = checks.numbers(checks.require(arrays, "traj_offsets", name, WHAT), "traj_offsets", name,
+                             integer=True)
+    if (offsets.ndim != 1 or offsets.size < 1 or offsets[0] != 0 or offsets[-1] != n
+        or np.any(np.diff(offsets) < 0)):
         raise DataError(f"{name}: 'traj_offsets' must rise from 0 to the step count {n}")
-    traj_scan = checks.numbers(checks.require(arrays, "traj_scan", name, WHAT), "traj_scan", name, integer=True)
+    traj_scan = checks.numbers(checks.require(arrays, "traj_scan", name, WHAT), "traj_scan", name,
+                               integer=True)
     checks.shape(traj_scan, "traj_scan", name, (offsets.size - 1,), f"({offsets.size - 1},)")
     if traj_scan.size and (np.any(np.diff(traj_scan) < 0) or traj_scan[0] < 0 or traj_scan[-1] >= n_scans):
         raise DataError(f"{name}: 'traj_scan' must be non-decreasing scan indices in 0..{n_scans - 1}")
@@ -271,7 +281,8 @@ def _trajectories(arrays: dict, name: str, n: int, n_scans: int) -> tuple[np.nda
     for key, kind in TRAJ_ATTRS.items():
         arr = arrays.get(f"traj_{key}")
         if arr is None:
-            arr = np.full(traj_scan.shape, "" if kind is str else np.nan, dtype=object if kind is str else kind)
+            arr = np.full(traj_scan.shape, "" if kind is str else np.nan,
+                          dtype=object if kind is str else kind)
         elif kind is str:
             arr = checks.text_array(arr, f"traj_{key}", name, "names")
         else:
@@ -319,17 +330,18 @@ def to_arrays(scans: ScanSet) -> dict[str, np.ndarray]:
     """The ``.npz`` arrays of ``scans`` (inverse of ``validate``)."""
     labels = scans.labels
     arrays = {
-        "pose": scans.pose.astype(np.float32, copy=False), "force": scans.force.astype(np.float32, copy=False),
+        "pose": scans.pose.astype(np.float32, copy=False),
+        "force": scans.force.astype(np.float32, copy=False),
         "time_s": scans.time_s.astype(np.float64, copy=False),
         "traj_offsets": scans.traj_offsets.astype(np.int64, copy=False),
         "traj_scan": scans.traj_scan.astype(np.int64), "scan_insert": scans.scan_insert.astype(str),
-        "scan_orientation": scans.scan_orientation.astype(np.int64), "scan_label": scans.scan_label.astype(np.int64),
+        "scan_orientation": scans.scan_orientation.astype(np.int64),
+        "scan_label": scans.scan_label.astype(np.int64),
         "label_data": np.concatenate([v.data.ravel() for v in labels]) if labels else np.zeros(0, np.uint8),
         "label_shape": np.array([v.shape for v in labels], np.int64).reshape(-1, 3),
         "label_origin_mm": np.array([v.origin_mm for v in labels], np.float64).reshape(-1, 3),
         "label_spacing_mm": np.array([v.spacing_mm for v in labels], np.float64).reshape(-1, 3),
-        "label_name": np.array([v.name for v in labels], dtype=str),
-        "meta": np.array(json.dumps(scans.meta)),
+        "label_name": np.array([v.name for v in labels], dtype=str), "meta": np.array(json.dumps(scans.meta)),
     }
     for key, kind in TRAJ_ATTRS.items():
         default = np.full(scans.n_traj, "" if kind is str else np.nan)
@@ -383,8 +395,9 @@ def concat(parts: list[ScanSet], names: list[str] | None = None) -> ScanSet:
     def cat(attr: str) -> np.ndarray:
         return np.concatenate([getattr(p, attr) for p in parts])
 
-    return ScanSet(cat("pose"), cat("force"), cat("time_s"), np.concatenate(traj_offsets), np.concatenate(traj_scan),
-                   cat("scan_insert"), cat("scan_orientation"), np.concatenate(scan_label), labels,
+    return ScanSet(cat("pose"), cat("force"), cat("time_s"), np.concatenate(traj_offsets),
+                   np.concatenate(traj_scan), cat("scan_insert"), cat("scan_orientation"),
+                   np.concatenate(scan_label), labels,
                    {k: np.concatenate([p.traj_attrs[k] for p in parts]) for k in TRAJ_ATTRS},
                    {**first, "history": history, "sample_rate_hz": _common_rate(parts)})
 

@@ -113,7 +113,8 @@ GLTF_FROM_PHANTOM = np.array([[1e-3, 0, 0, 0], [0, 0, 1e-3, 0], [0, -1e-3, 0, 0]
 
 
 def export_meshes(meshes: list[ClassMesh], path: str, fmt: str) -> None:
-    """Write meshes to ``path`` (the caller makes it atomic): GLB as a scene with one named node per class, in glTF's metres
+    """Write meshes to ``path`` (the caller makes it atomic): GLB as a scene with one named node per class, in
+    glTF's metres
     with +Y up (:data:`GLTF_FROM_PHANTOM`: a 60 mm phantom opens 0.06 m wide); STL/PLY as one mesh in mm."""
     import trimesh
 
@@ -122,7 +123,8 @@ def export_meshes(meshes: list[ClassMesh], path: str, fmt: str) -> None:
     if fmt == "glb":
         scene = trimesh.Scene()
         for m in meshes:
-            scene.add_geometry(m.mesh.copy().apply_transform(GLTF_FROM_PHANTOM), node_name=m.name, geom_name=m.name)
+            scene.add_geometry(m.mesh.copy().apply_transform(GLTF_FROM_PHANTOM), node_name=m.name,
+                               geom_name=m.name)
         data = scene.export(file_type="glb")
     else:
         data = trimesh.util.concatenate([m.mesh for m in meshes]).export(file_type=fmt)

@@ -48,7 +48,8 @@ def _geometry(vol: LabelVolume, code: int, points: str) -> tuple[float, np.ndarr
         return None
     c3 = m.centroid_mm(mask, vol.origin_mm, vol.spacing_mm)
     c2 = m.centroid_mm(mask[k:k + 1], vol.origin_mm, vol.spacing_mm)[1:]
-    return m.diameter_mm(mask, vol.spacing_mm, points), c3, m.diameter_mm(mask[k:k + 1], vol.spacing_mm, points), c2
+    return (m.diameter_mm(mask, vol.spacing_mm, points), c3,
+            m.diameter_mm(mask[k:k + 1], vol.spacing_mm, points), c2)
 
 
 def average_baseline(volumes: Iterable[LabelVolume], cls: str = "inclusion",
@@ -102,8 +103,10 @@ def score_baseline(baseline: AverageBaseline, truth_labels: np.ndarray, origin_m
         tp, fp, fn = m.confusion(ball_mask(centre, d_pred, sub.shape, sub_origin, spacing_mm), sub)
         row.update({f"diameter_true_mm_{suffix}": d_true, f"diameter_pred_mm_{suffix}": d_pred,
                     f"diameter_error_mm_{suffix}": m.abs_diff(d_pred, d_true),
-                    f"com_error_mm_{suffix}": m.distance_mm(c_pred, None if c_true is None else c_true[axes]),
-                    f"tp_{suffix}": tp, f"fp_{suffix}": fp, f"fn_{suffix}": fn, f"f1_{suffix}": m.f1_from(tp, fp, fn)})
+                    f"com_error_mm_{suffix}": m.distance_mm(c_pred,
+                                                            None if c_true is None else c_true[axes]),
+                    f"tp_{suffix}": tp, f"fp_{suffix}": fp, f"fn_{suffix}": fn,
+                    f"f1_{suffix}": m.f1_from(tp, fp, fn)})
     return row
 
 

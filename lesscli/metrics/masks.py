@@ -4,25 +4,12 @@ Masks are (D, H, W) = (z, y, x) boolean arrays on a grid with ``origin_mm`` (z, 
 [0, 0, 0]'s centre) and ``spacing_mm`` (dz, dy, dx), as in :mod:`lesscli.io.labels`. A 2D mask is
 a depth-1 volume.
 
-Undefined values are ``None`` (written as JSON null), never 0 or a "perfect" score. Rules:
-
-==================  =====================  =====================  =====================
-metric              empty prediction       empty truth            both empty
-==================  =====================  =====================  =====================
-precision           None (no positives)    0 (all false pos.)     None
-recall              0 (all missed)         None (nothing to find) None
-F1 / Dice           0                      0                      None
-ARSE                2                      2                      None
-centroid error      None                   None                   None
-diameter error      None                   None                   None
-area/volume error   true size (pred 0)     predicted size         0
-==================  =====================  =====================  =====================
-
-F1 is ``2 TP / (2 TP + FP + FN)``, which equals the harmonic mean of precision and recall where
-both are defined and is 0 when exactly one mask is empty (a miss or a pure false alarm is a real
-error). The size of an empty mask is 0 mm^3, so size errors are always defined. A centroid or a
-diameter of nothing does not exist, so errors that need one are undefined and are counted as
-such by the summaries (``*_n``).
+Undefined values are ``None`` (written as JSON null), never 0 or a "perfect" score; each function
+states its rule for empty masks. F1 is ``2 TP / (2 TP + FP + FN)``: the harmonic mean of precision and
+recall where both are defined, and 0 when exactly one mask is empty (a miss or a pure false alarm is a
+real error). The size of an empty mask is 0 mm^3, so size errors are always defined; a centroid or a
+diameter of nothing does not exist, so errors that need one are undefined and are counted as such by
+the summaries (``*_n``).
 """
 
 from __future__ import annotations

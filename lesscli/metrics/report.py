@@ -80,8 +80,9 @@ def score_files(paths: Sequence[str], cls: str = "inclusion", threshold: float |
         skipped, prefixes = count_unscored(preds), count_prefixes(preds)
         scans = len(preds.scans) - prefixes
         if prefixes:
-            report.warnings.append(f"{path}: {len(preds.scans)} images of {scans} scans (prefixes from image predict "
-                                   "--steps/--every); each scan is scored once, on its whole sequence")
+            report.warnings.append(f"{path}: {len(preds.scans)} images of {scans} scans (prefixes from image "
+                                   "predict --steps/--every); each scan is scored once, on its whole "
+                                   "sequence")
         if skipped:
             report.warnings.append(f"{path}: {skipped} of {scans} scans have no truth and were skipped")
         report.scans.extend(rows)

@@ -39,7 +39,8 @@ def _scan_ident(i: int, scan: ScanPrediction) -> dict:
 
 
 def scan_labels(scan: ScanPrediction, threshold: float | None = None) -> np.ndarray:
-    """Predicted codes (D, H, W): the stored labels, or re-labelled from the probabilities at ``threshold``."""
+    """Predicted codes (D, H, W): the stored labels, or re-labelled from the probabilities at
+    ``threshold``."""
     return scan.label if threshold is None else labels_from_probs(scan.probs, threshold)
 
 
@@ -73,7 +74,8 @@ def score_prediction_set(preds: PredictionSet, name: str = "", cls: str = "inclu
 
 
 def whole_predictions(preds: PredictionSet) -> list[ScanPrediction]:
-    """The prediction of each scan's whole sequence, in scan order (prefixes left out; io.predictions.whole_scans)."""
+    """The prediction of each scan's whole sequence, in scan order (prefixes left out;
+    io.predictions.whole_scans)."""
     return [preds.scans[i] for i in whole_scans(preds.scans)]
 
 
@@ -99,7 +101,8 @@ def truth_fingerprint(preds: PredictionSet) -> str:
 
 def score_baseline_set(preds: PredictionSet, baseline: AverageBaseline, name: str = "",
                        cls: str = "inclusion", points: str = "centres", source: str = "") -> list[dict]:
-    """Rows of the average-prediction baseline (``model`` is :data:`BASELINE_MODEL`) on the truths of ``preds``."""
+    """Rows of the average-prediction baseline (``model`` is :data:`BASELINE_MODEL`) on the truths of
+    ``preds``."""
     ident = {"row": "scan", "file": name, "set": preds.meta.get("set"), "model": BASELINE_MODEL, "seed": None,
              "dim": preds.meta.get("dim"), "cls": cls, "threshold": None, "baseline_from": source}
     return [{**ident, **_scan_ident(i, scan),
@@ -112,7 +115,8 @@ def check_same_grid(pred: LabelVolume, truth: LabelVolume, pred_name: str, truth
     if pred.shape != truth.shape:
         raise DataError(f"{pred_name}: grid {pred.shape} does not match {truth_name} {truth.shape}; "
                          "resample one onto the other first")
-    for what, a, b in (("origin", pred.origin_mm, truth.origin_mm), ("spacing", pred.spacing_mm, truth.spacing_mm)):
+    for what, a, b in (("origin", pred.origin_mm, truth.origin_mm),
+                       ("spacing", pred.spacing_mm, truth.spacing_mm)):
         if not np.allclose(a, b, rtol=0.0, atol=GRID_TOL_MM):
             raise DataError(f"{pred_name}: voxel {what} {np.round(a, 4).tolist()} mm does not match "
                              f"{truth_name} {np.round(b, 4).tolist()} mm; resample one onto the other first")

@@ -26,7 +26,8 @@ METRICS_3D = ("f1_3d", "precision_3d", "recall_3d", "com_error_mm_3d", "arse_3d"
               "diameter_true_mm_3d", "diameter_pred_mm_3d", "volume_error_mm3", "volume_true_mm3",
               "volume_pred_mm3")
 METRICS_2D = ("f1_2d", "precision_2d", "recall_2d", "com_error_mm_2d", "arse_2d", "diameter_error_mm_2d",
-              "diameter_true_mm_2d", "diameter_pred_mm_2d", "area_error_mm2", "area_true_mm2", "area_pred_mm2")
+              "diameter_true_mm_2d", "diameter_pred_mm_2d", "area_error_mm2", "area_true_mm2",
+              "area_pred_mm2")
 MICRO = ("f1_micro_3d", "precision_micro_3d", "recall_micro_3d",
          "f1_micro_2d", "precision_micro_2d", "recall_micro_2d")
 METRIC_KEYS = METRICS_3D + METRICS_2D + MICRO

@@ -45,6 +45,31 @@ class ParticleStates:
 
 
 @dataclass
+class SeenRows:
+    """The receptive-field gather and its N seen (batch, particle) rows.
+
+    Attributes:
+        gathered: the gather over the whole (B, P) grid.
+        batch_index, particle_index: (N,) long, which (b, p) each row is.
+        step_index: (N, C) long, the step of each slot (see :class:`Gathered`).
+        pose: (N, C, 6) gathered poses, x-y centred on the particle.
+        mask: (N, C) bool, real steps.
+    """
+
+    gathered: Gathered
+    batch_index: Tensor
+    particle_index: Tensor
+    step_index: Tensor
+    pose: Tensor
+    mask: Tensor
+
+    @property
+    def count(self) -> Tensor:
+        """(N,) long, real steps per row."""
+        return self.gathered.count[self.batch_index, self.particle_index]
+
+
+@dataclass
 class ParticleSequence:
     """GRU outputs for the particles that saw something (N rows = seen (batch, particle) pairs).
 
@@ -57,7 +82,7 @@ class ParticleSequence:
         count: (N,) long, real steps per row (>= 1).
         shape: (B, P) of the full particle grid.
         xy_mm: (P, 2) particle positions.
-        gathered: the encoder's gather behind the rows (what :meth:`ParticleEncoder.states_at` reads).
+        rows: the encoder's gather behind the rows (what :meth:`ParticleEncoder.states_at` reads).
     """
 
     batch_index: Tensor
@@ -69,7 +94,7 @@ class ParticleSequence:
     count: Tensor
     shape: tuple[int, int]
     xy_mm: Tensor
-    gathered: tuple | None = None
+    rows: SeenRows | None = None
 
     def final_states(self) -> ParticleStates:
         """Scatter each row's state at its last real step into a (B, P, d_z) tensor."""
@@ -114,17 +139,20 @@ class ParticleEncoder(nn.Module):
     force_norm = "global"        # the force normalisation it is trained with by default (data.batching)
 
     def __init__(self, force_dim: int, dim: int = 128, spacing_mm: float = 6.0, grid_extent_mm: float = 60.0,
-                 receptive_field_mm: float = 10.0, max_steps_per_particle: int | None = None, n_freq: int = 16,
-                 grid_center_mm: tuple[float, float] = (0.0, 0.0), particles_per_axis: int | None = None) -> None:
+                 receptive_field_mm: float = 10.0, max_steps_per_particle: int | None = None,
+                 n_freq: int = 16, grid_center_mm: tuple[float, float] = (0.0, 0.0),
+                 particles_per_axis: int | None = None) -> None:
         super().__init__()
         if not receptive_field_mm > 0:
             raise ValueError(f"receptive_field_mm must be > 0, got {receptive_field_mm}")
         self.settings = {"force_dim": int(force_dim), "dim": int(dim), "spacing_mm": float(spacing_mm),
-                         "grid_extent_mm": float(grid_extent_mm), "receptive_field_mm": float(receptive_field_mm),
+                         "grid_extent_mm": float(grid_extent_mm),
+                         "receptive_field_mm": float(receptive_field_mm),
                          "max_steps_per_particle": None if max_steps_per_particle is None
                          else int(max_steps_per_particle),
                          "n_freq": int(n_freq), "grid_center_mm": [float(c) for c in grid_center_mm],
-                         "particles_per_axis": None if particles_per_axis is None else int(particles_per_axis)}
+                         "particles_per_axis": None if particles_per_axis is None
+                         else int(particles_per_axis)}
         self.dim = int(dim)
         self.force_dim = int(force_dim)
         self.receptive_field_mm = float(receptive_field_mm)
@@ -161,45 +189,48 @@ class ParticleEncoder(nn.Module):
     def n_particles(self) -> int:
         return int(self.xy_mm.shape[0])
 
-    def _gather(self, batch: Batch) -> tuple[Gathered, Tensor, Tensor, Tensor, Tensor, Tensor]:
-        """The receptive-field gather and, for the N seen (batch, particle) rows: batch index, particle
-        index, step indices (N, C), centred poses (N, C, 6) and real-step mask (N, C)."""
+    def _gather(self, batch: Batch) -> SeenRows:
+        """The receptive-field gather and its seen (batch, particle) rows, poses centred."""
         xy = self.xy_mm.to(batch.pose.dtype)
-        g = gather_receptive_field(batch.pose[..., :2], batch.valid, xy, self.receptive_field_mm, self.max_steps)
+        g = gather_receptive_field(batch.pose[..., :2], batch.valid, xy, self.receptive_field_mm,
+                                   self.max_steps)
         bi, pi = g.seen.nonzero(as_tuple=True)
         index = g.index[bi, pi]                                      # (N, C)
         shift = torch.zeros(pi.shape[0], 1, POSE_DIM, dtype=batch.pose.dtype, device=batch.pose.device)
         shift[:, 0, :2] = xy[pi]
-        return g, bi, pi, index, batch.pose[bi[:, None], index] - shift, g.mask[bi, pi]
+        return SeenRows(gathered=g, batch_index=bi, particle_index=pi, step_index=index,
+                        pose=batch.pose[bi[:, None], index] - shift, mask=g.mask[bi, pi])
 
-    def _folded_states(self, batch: Batch, gathered: tuple, last_only: bool, at: Tensor | None = None) -> Tensor:
-        """The ragged GRU over the folded input gates of ``gathered`` (:meth:`_gather`): (N, C, d_z) states,
+    def _folded_states(self, batch: Batch, rows: SeenRows, last_only: bool,
+                       at: Tensor | None = None) -> Tensor:
+        """The ragged GRU over the folded input gates of ``rows`` (:meth:`_gather`): (N, C, d_z) states,
         (N, d_z) with ``last_only``, or (N, k, d_z) after the slots ``at`` (N, k) (each row run only up to
         its last slot in ``at``)."""
-        g, bi, pi, index, pose, mask = gathered
-        count = g.count[bi, pi]
+        count, mask, index = rows.count, rows.mask, rows.step_index
         if at is not None and at.shape[0]:
             count = at.max(1).values + 1
             mask = torch.arange(mask.shape[1], device=mask.device) < count[:, None]
-        gates = self._input_gates(batch, pose[mask], bi[:, None].expand_as(index)[mask], index[mask])
+        scan = rows.batch_index[:, None].expand_as(index)
+        gates = self._input_gates(batch, rows.pose[mask], scan[mask], index[mask])
         return ragged_gru_from_gates(gates, count, self.gru, int(mask.shape[1]), last_only, at)
 
     def gather_sequence(self, batch: Batch) -> ParticleSequence:
         """Every seen particle's gathered steps, without states (``z`` None; see :meth:`states_at`)."""
-        gathered = self._gather(batch)
-        g, bi, pi, index, pose, mask = gathered
-        return ParticleSequence(batch_index=bi, particle_index=pi, z=None, pose=pose,
-                                force=batch.force[bi[:, None], index], mask=mask, count=g.count[bi, pi],
-                                shape=(int(g.count.shape[0]), int(g.count.shape[1])),
-                                xy_mm=self.xy_mm.to(batch.pose.dtype), gathered=gathered)
+        rows = self._gather(batch)
+        bi, g = rows.batch_index, rows.gathered
+        return ParticleSequence(batch_index=bi, particle_index=rows.particle_index, z=None, pose=rows.pose,
+                                force=batch.force[bi[:, None], rows.step_index], mask=rows.mask,
+                                count=rows.count, shape=(int(g.count.shape[0]), int(g.count.shape[1])),
+                                xy_mm=self.xy_mm.to(batch.pose.dtype), rows=rows)
 
     def states_at(self, batch: Batch, seq: ParticleSequence, at: Tensor | None = None) -> Tensor:
         """GRU states of :meth:`gather_sequence`'s rows: (N, C, d_z) after every slot, or (N, k, d_z) after
         the slots ``at`` (N, k), each below its row's count (the recurrence stops at a row's last one)."""
         if self._folds_inputs():
-            return self._folded_states(batch, seq.gathered, last_only=False, at=at)
+            return self._folded_states(batch, seq.rows, last_only=False, at=at)
         real = self.fle(seq.pose[seq.mask], seq.force[seq.mask])      # inputs of real steps only
-        z = self._run_gru(real.new_zeros(*seq.mask.shape, real.shape[-1]).index_put((seq.mask,), real), seq.count)
+        z = self._run_gru(real.new_zeros(*seq.mask.shape, real.shape[-1]).index_put((seq.mask,), real),
+                          seq.count)
         return z if at is None else z.gather(1, at[..., None].expand(-1, -1, z.shape[-1]))
 
     def encode_sequence(self, batch: Batch) -> ParticleSequence:
@@ -214,7 +245,8 @@ class ParticleEncoder(nn.Module):
             and type(self)._run_gru is ParticleEncoder._run_gru
 
     def _input_gates(self, batch: Batch, pose: Tensor, scan: Tensor, step: Tensor) -> Tensor:
-        """The GRU's input gates ``W_ih FLE(pose, force) + b_ih`` of S real steps, with the linear maps folded.
+        """The GRU's input gates ``W_ih FLE(pose, force) + b_ih`` of S real steps, with the linear maps
+        folded.
 
         ``W_ih (P phi(pose) + p + MLP(force))``: the pose part goes through the product ``W_ih P`` (3H x
         6 * 2 n_freq, much narrower than d_z), the force part is computed once per scan step and gathered
@@ -231,7 +263,8 @@ class ParticleEncoder(nn.Module):
         w, proj = self.gru.weight_ih_l0, self.fle.pose_encoding.proj
         per_step = self.fle.force_mlp(batch.force) @ w.t()                   # (B, L, 3H)
         bias = torch.addmv(self.gru.bias_ih_l0, w, proj.bias)
-        return torch.addmm(bias, self.fle.pose_encoding.features(pose), (w @ proj.weight).t()) + per_step[scan, step]
+        return torch.addmm(bias, self.fle.pose_encoding.features(pose),
+                           (w @ proj.weight).t()) + per_step[scan, step]
 
     def _run_gru(self, x: Tensor, count: Tensor) -> Tensor:
         """GRU over (N, C, dim) inputs, each row only up to its ``count`` real steps (inputs past it are
@@ -250,11 +283,11 @@ class ParticleEncoder(nn.Module):
         """Batch -> ParticleStates with z (B, P, d_z)."""
         if not self._folds_inputs():
             return self.encode_sequence(batch).final_states()
-        gathered = self._gather(batch)
-        g, bi, pi = gathered[:3]
-        last = self._folded_states(batch, gathered, last_only=True)
-        z = last.new_zeros(*g.count.shape, self.dim).index_put((bi, pi), last)
-        return ParticleStates(z=z, xy_mm=self.xy_mm.to(batch.pose.dtype), seen=g.seen)
+        rows = self._gather(batch)
+        last = self._folded_states(batch, rows, last_only=True)
+        seen_at = (rows.batch_index, rows.particle_index)
+        z = last.new_zeros(*rows.gathered.count.shape, self.dim).index_put(seen_at, last)
+        return ParticleStates(z=z, xy_mm=self.xy_mm.to(batch.pose.dtype), seen=rows.gathered.seen)
 
 
 class GlobalEncoder(ParticleEncoder):
@@ -275,7 +308,8 @@ class GlobalEncoder(ParticleEncoder):
                  n_freq: int = 16, **_ignored) -> None:
         super().__init__(force_dim, dim=dim, spacing_mm=1.0, grid_extent_mm=0.0, receptive_field_mm=math.inf,
                          max_steps_per_particle=max_steps_per_particle, n_freq=n_freq)
-        self.settings = {k: self.settings[k] for k in ("force_dim", "dim", "max_steps_per_particle", "n_freq")}
+        self.settings = {k: self.settings[k]
+                         for k in ("force_dim", "dim", "max_steps_per_particle", "n_freq")}
 
     def _grid(self) -> Tensor:
         return torch.zeros(1, 2)

@@ -35,8 +35,8 @@ class GlobalDecoder(nn.Module):
         context do not apply)."""
         return {"shape": [int(v) for v in grid.shape]}
 
-    def __init__(self, d_z: int, n_classes: int = 4, dim: int = 2, shape: tuple[int, int, int] = (1, 128, 128),
-                 width: int = 64) -> None:
+    def __init__(self, d_z: int, n_classes: int = 4, dim: int = 2,
+                 shape: tuple[int, int, int] = (1, 128, 128), width: int = 64) -> None:
         super().__init__()
         if dim not in (2, 3):
             raise ValueError(f"global decoder needs dim 2 or 3, got {dim}")

@@ -35,21 +35,24 @@ class GlobalTaxelEncoder(TaxelParticleEncoder):
     name = "global-taxel"
 
     def __init__(self, force_dim: int, taxel_xy_mm, dim: int = 128, grid_extent_mm: float = 60.0,
-                 map_pitch_mm: float = 2.5, map_contrast: str = "step", max_steps_per_particle: int | None = None,
-                 n_freq: int = 16, **_ignored) -> None:
+                 map_pitch_mm: float = 2.5, map_contrast: str = "step",
+                 max_steps_per_particle: int | None = None, n_freq: int = 16, **_ignored) -> None:
         if not grid_extent_mm > 0 or not map_pitch_mm > 0:
-            raise ValueError(f"global-taxel: grid_extent_mm and map_pitch_mm must be > 0, got {grid_extent_mm}, "
-                             f"{map_pitch_mm}")
+            raise ValueError("global-taxel: grid_extent_mm and map_pitch_mm must be > 0, got "
+                             f"{grid_extent_mm}, {map_pitch_mm}")
         cells = max(1, math.ceil(grid_extent_mm / map_pitch_mm))
         super().__init__(force_dim, taxel_xy_mm, map_cells=cells, map_pitch_mm=map_pitch_mm,
                          map_contrast=map_contrast, dim=dim, spacing_mm=1.0, grid_extent_mm=0.0,
-                         receptive_field_mm=math.inf, max_steps_per_particle=max_steps_per_particle, n_freq=n_freq)
-        keep = ("force_dim", "taxel_xy_mm", "dim", "map_pitch_mm", "map_contrast", "max_steps_per_particle", "n_freq")
+                         receptive_field_mm=math.inf, max_steps_per_particle=max_steps_per_particle,
+                         n_freq=n_freq)
+        keep = ("force_dim", "taxel_xy_mm", "dim", "map_pitch_mm", "map_contrast", "max_steps_per_particle",
+                "n_freq")
         self.settings = {**{k: self.settings[k] for k in keep}, "grid_extent_mm": float(grid_extent_mm)}
 
     def _grid(self) -> Tensor:
         return torch.zeros(1, 2)
 
-    def with_grid(self, extent_mm: float, center_xy_mm: tuple[float, float] | None = None) -> GlobalTaxelEncoder:
+    def with_grid(self, extent_mm: float,
+                  center_xy_mm: tuple[float, float] | None = None) -> GlobalTaxelEncoder:
         """One state whatever the phantom size (as GLOBAL): a copy of itself."""
         return copy.deepcopy(self)

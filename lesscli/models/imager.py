@@ -17,7 +17,8 @@ from lesscli.types import ImageGrid
 
 DECODERS: dict[str, type] = {"patch": PatchDecoder, "global": GlobalDecoder}
 # the decoder each encoder pairs with by default
-DEFAULT_DECODER: dict[str, str] = {"less": "patch", "less-taxel": "patch", "global": "global", "global-taxel": "global"}
+DEFAULT_DECODER: dict[str, str] = {"less": "patch", "less-taxel": "patch", "global": "global",
+                                   "global-taxel": "global"}
 
 
 def grid_to_dict(grid: ImageGrid) -> dict:

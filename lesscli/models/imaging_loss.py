@@ -7,24 +7,11 @@ Definitions (paper appendix "Imaging Class Imbalance"), with N voxels over the b
     L_focal = -1/N sum_v sum_c alpha_c y_vc (1 - p_vc)^gamma log p_vc
     L_dice  = 1 - 1/C sum_c (2 sum_v p_vc y_vc + eps) / (sum_v p_vc + sum_v y_vc + eps)
 
-Numerical rules this implementation adds to the published formulation:
-
-* Logits are upcast to float32 before the softmax and every sum (float16/bfloat16 inputs give the
-  float32 result of the same values); ``log p`` comes from ``log_softmax``, never ``log(softmax)``.
-* ``alpha_c`` is the inverse frequency of class c in the batch's truth, over the classes *present* in
-  the truth only, normalised to sum 1 (``alpha_power`` p generalises it to frequency^-p: 1 is the
-  paper's inverse frequency, 0.5 its square root, 0 uniform weights; with eta rescaling the focal term,
-  only these relative weights matter, and p = 1 makes background errors nearly free). An absent class gets alpha 0 (it has no true voxels, so its focal
-  term is 0 anyway) and cannot blow up the normalisation and collapse the other weights.
-* Sums run over the whole batch (batch and spatial axes together), like alpha. ``dice_per="scan"``
-  computes the Dice score of each label image/volume of the batch apart and averages them (scans and
-  classes alike): a small inclusion's over-marking then counts as much as a large one's, where the
-  batch sum lets the largest inclusion of the batch outweigh it. The focal term is unchanged.
-* Empty-class rule: a class absent from both the truth and the argmax prediction of the batch (a
-  class is predicted at a voxel where its probability equals the voxel's maximum) has a
-  Dice score of exactly 1 (the eps/eps limit of the formula at an empty prediction) and no gradient.
-  A class absent from the truth but present in the prediction keeps the formula, whose score
-  eps / (sum_v p_vc + eps) ~ 0 charges the false positives.
+Numerical rules added to the published formulation: logits are upcast to float32 before the softmax
+and every sum, and ``log p`` comes from ``log_softmax``; ``alpha_c`` is taken over the classes present
+in the truth only (:func:`class_weights`); sums run over the whole batch, or per scan
+(``dice_per="scan"``); a class absent from both the truth and the prediction has a Dice score of exactly
+1 and no gradient (:func:`dice_loss`).
 """
 
 from __future__ import annotations
@@ -65,6 +52,11 @@ def _one_hot(target: torch.Tensor, n_classes: int) -> torch.Tensor:
 def class_weights(y: torch.Tensor, power: float = ALPHA_POWER) -> torch.Tensor:
     """alpha_c: inverse class frequency (to ``power``) over the classes present in ``y``, summing to 1.
 
+    ``power`` 1 is the paper's inverse frequency, 0.5 its square root, 0 uniform weights; with eta
+    rescaling the focal term only these relative weights matter, and p = 1 makes background errors nearly
+    free. An absent class gets alpha 0 (its focal term is 0 anyway), so it cannot blow up the
+    normalisation and collapse the other weights.
+
     Args:
         y: (B, C, *S) one-hot truth.
         power: p in alpha_c ~ count_c^-p (1: inverse frequency; 0: uniform over present classes).
@@ -78,8 +70,15 @@ def class_weights(y: torch.Tensor, power: float = ALPHA_POWER) -> torch.Tensor:
     return inv / inv.sum().clamp_min(torch.finfo(torch.float32).tiny)
 
 
-def dice_loss(probs: torch.Tensor, y: torch.Tensor, eps: float = DICE_EPS, per: str = "batch") -> torch.Tensor:
-    """Soft multi-class Dice loss with the empty-class rule of the module docstring.
+def dice_loss(probs: torch.Tensor, y: torch.Tensor, eps: float = DICE_EPS,
+              per: str = "batch") -> torch.Tensor:
+    """Soft multi-class Dice loss.
+
+    Empty-class rule: a class absent from both the truth and the argmax prediction (predicted at a voxel
+    where its probability equals the voxel's maximum) scores exactly 1 (the eps/eps limit of the formula)
+    with no gradient. A class absent from the truth but predicted keeps the formula, whose score
+    eps / (sum_v p_vc + eps) ~ 0 charges the false positives. Per scan, a small inclusion's over-marking
+    counts as much as a large one's, where the batch sum lets the batch's largest inclusion outweigh it.
 
     Args:
         probs: (B, C, *S) float32 class probabilities.
@@ -108,7 +107,8 @@ def dice_loss(probs: torch.Tensor, y: torch.Tensor, eps: float = DICE_EPS, per: 
     return 1.0 - score.mean()
 
 
-def focal_loss(log_probs: torch.Tensor, y: torch.Tensor, alpha: torch.Tensor, gamma: float = GAMMA) -> torch.Tensor:
+def focal_loss(log_probs: torch.Tensor, y: torch.Tensor, alpha: torch.Tensor,
+               gamma: float = GAMMA) -> torch.Tensor:
     """Class-weighted focal loss averaged over all voxels of the batch.
 
     Args:
@@ -121,7 +121,8 @@ def focal_loss(log_probs: torch.Tensor, y: torch.Tensor, alpha: torch.Tensor, ga
         0-d float32.
     """
     if gamma != 0 and gamma < 1:
-        raise ValueError(f"gamma must be 0 or >= 1 (got {gamma}); (1 - p)^gamma has an infinite slope at p = 1")
+        raise ValueError(f"gamma must be 0 or >= 1 (got {gamma}); (1 - p)^gamma has an infinite slope at p = "
+                         "1")
     n_voxels = y.numel() // y.shape[1]
     # only the true class of each voxel contributes: gather it instead of multiplying by zeros, so that
     # -inf-like log-probabilities of other classes never meet a 0 weight

@@ -35,7 +35,8 @@ def particle_grid(extent_mm: float, spacing_mm: float,
         (P, 2) float32 x, y positions in mm, P = n * n, row-major with y slowest.
     """
     if not spacing_mm > 0 or not extent_mm >= 0:
-        raise ValueError(f"particle grid needs spacing_mm > 0 and extent_mm >= 0, got {spacing_mm}, {extent_mm}")
+        raise ValueError(f"particle grid needs spacing_mm > 0 and extent_mm >= 0, got {spacing_mm}, "
+                         f"{extent_mm}")
     if per_axis is not None:
         if per_axis < 1:
             raise ValueError(f"particle grid needs per_axis >= 1, got {per_axis}")

@@ -8,14 +8,13 @@ probabilities, maximum entropy, so untouched regions stay honestly uncertain.
 
 ``context=k`` (odd) adds a k x k convolution over the particle grid, so each patch also reads its
 neighbours' states (still local); ``context=0`` is the paper's decoder. On a grid of another spacing
-(``large``) patches are resampled to the same physical size. The transposed convolutions run in their
-sub-pixel form (:mod:`lesscli.models.subpixel`), decoding seen particles only; values and gradients are
-the plain modules' to float32 rounding. Measurements: docs/results/accuracy-time.md.
+(``large``) patches are resampled to the same physical size.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
@@ -76,19 +75,22 @@ class PatchDecoder(nn.Module):
         return {**out, "context": int(context)} if context else out
 
     def __init__(self, d_z: int, n_classes: int = 4, dim: int = 2, patch_px: int = PATCH_PX,
-                 depth_px: int = DEPTH_PX, patch_spacing_mm: tuple[float, float, float] = (0.9, 0.4774, 0.4774),
-                 width: int = 64, stitch: str = "sum", context: int = 0,
-                 context_width: int = CONTEXT_WIDTH) -> None:
+                 depth_px: int = DEPTH_PX,
+                 patch_spacing_mm: tuple[float, float, float] = (0.9, 0.4774, 0.4774), width: int = 64,
+                 stitch: str = "sum", context: int = 0, context_width: int = CONTEXT_WIDTH) -> None:
         super().__init__()
         if stitch not in STITCH_MODES:
             raise ValueError(f"stitch must be one of {STITCH_MODES}, got '{stitch}'")
         if context < 0 or (context and context % 2 == 0) or context_width < 1:
-            raise ValueError(f"context must be 0 or odd and context_width >= 1, got {context}, {context_width}")
+            raise ValueError(f"context must be 0 or odd and context_width >= 1, got {context}, "
+                             f"{context_width}")
         self.stitch, self.context = stitch, int(context)
-        self.neighbours = nn.Conv2d(d_z + 1, context_width, context, padding=context // 2) if context else None
+        self.neighbours = nn.Conv2d(d_z + 1, context_width, context,
+                                    padding=context // 2) if context else None
         n_up = round(math.log2(patch_px / BASE_PX))
         if dim not in (2, 3) or BASE_PX * 2**n_up != patch_px or n_up < 1:
-            raise ValueError(f"patch decoder needs dim 2 or 3 and patch_px = 4 * 2^k, k >= 1, got {dim}, {patch_px}")
+            raise ValueError(f"patch decoder needs dim 2 or 3 and patch_px = 4 * 2^k, k >= 1, got {dim}, "
+                             f"{patch_px}")
         self.dim, self.n_classes, self.width = dim, n_classes, width
         self.patch_px, self.depth_px = patch_px, depth_px if dim == 3 else 1
         self.patch_spacing_mm = tuple(float(s) for s in patch_spacing_mm)
@@ -177,7 +179,8 @@ def resample_patches(patches: Tensor, size: tuple[int, int, int]) -> Tensor:
     return out.reshape(b, p, c, *size)
 
 
-def target_patch_size(patch_shape: tuple[int, int, int], patch_spacing_mm, grid: ImageGrid) -> tuple[int, int, int]:
+def target_patch_size(patch_shape: tuple[int, int, int], patch_spacing_mm,
+                      grid: ImageGrid) -> tuple[int, int, int]:
     """Patch size in ``grid`` pixels with the same physical extent (columns span the grid's depth)."""
     depth = grid.shape[0] if patch_shape[0] > 1 or grid.shape[0] > 1 else 1
     sizes = [max(1, round(patch_shape[a] * patch_spacing_mm[a] / grid.spacing_mm[a])) for a in (1, 2)]
@@ -242,28 +245,46 @@ class _Placed(torch.autograd.Function):
     def forward(ctx, patches: Tensor, keep: Tensor | None, corners: list, padded: tuple[int, int]) -> Tensor:
         b, _, c, d, ph, pw = patches.shape
         out = patches.new_zeros(b, c, d, *padded)
-        scale = _keep_scales(keep, len(corners))
+        weights = PatchWeights.of(keep, len(corners))
         for i, (row, col) in enumerate(corners):
-            if scale[i] is not False:
-                out[..., row:row + ph, col:col + pw] += patches[:, i] if scale[i] is True else patches[:, i] * scale[i]
-        ctx.scale, ctx.corners, ctx.size = scale, corners, (ph, pw)
+            if weights.placed[i]:
+                out[..., row:row + ph, col:col + pw] += weights.applied(patches[:, i], i)
+        ctx.weights, ctx.corners, ctx.size = weights, corners, (ph, pw)
         return out
 
     @staticmethod
     def backward(ctx, grad: Tensor):
-        ph, pw = ctx.size
+        ph, pw, weights = *ctx.size, ctx.weights
         parts = []
-        for (row, col), scale in zip(ctx.corners, ctx.scale):
+        for i, (row, col) in enumerate(ctx.corners):
             part = grad[..., row:row + ph, col:col + pw]
-            parts.append(part if scale is True else torch.zeros_like(part) if scale is False else part * scale)
+            parts.append(weights.applied(part, i) if weights.placed[i] else torch.zeros_like(part))
         return torch.stack(parts, dim=1), None, None, None
 
 
-def _keep_scales(keep: Tensor | None, n: int) -> list:
-    """Per particle: True (kept at weight 1 in every batch row), False (kept nowhere), else the (B, 1, 1,
-    1, 1) weights of its batch rows."""
-    if keep is None:
-        return [True] * n
-    ones, zeros = (keep == 1).all(0).tolist(), (keep == 0).all(0).tolist()
-    return [True if one else False if zero else keep[:, i, None, None, None, None]
-            for i, (one, zero) in enumerate(zip(ones, zeros))]
+@dataclass
+class PatchWeights:
+    """How each particle's patch enters the canvas: the batch rows' ``keep`` weights, sorted per particle
+    into the two cases that need no multiply.
+
+    Attributes:
+        placed: per particle, kept (weight not 0) in some batch row; an unplaced one costs nothing.
+        whole: per particle, kept at weight 1 in every batch row.
+        keep: (B, P) weights, None when all are 1.
+    """
+
+    placed: list[bool]
+    whole: list[bool]
+    keep: Tensor | None
+
+    @classmethod
+    def of(cls, keep: Tensor | None, n: int) -> PatchWeights:
+        """The weights of ``n`` particles from ``keep`` (B, n) (None: all 1)."""
+        if keep is None:
+            return cls(placed=[True] * n, whole=[True] * n, keep=None)
+        zeros = (keep == 0).all(0).tolist()
+        return cls(placed=[not z for z in zeros], whole=(keep == 1).all(0).tolist(), keep=keep)
+
+    def applied(self, x: Tensor, i: int) -> Tensor:
+        """(B, ...) values of particle i's patch (or its gradient) times its batch rows' weights."""
+        return x if self.whole[i] else x * self.keep[:, i, None, None, None, None]

@@ -42,7 +42,8 @@ def _advance(gates: Tensor, weight_hh: Tensor, bias_hh: Tensor, sizes: list[int]
     the gates, candidates and ``W_hn h + b_hn`` of every step for the backward pass (else None)."""
     hidden = weight_hh.shape[1]
     states = gates.new_empty(gates.shape[0], hidden)
-    saved = (gates.new_empty(gates.shape[0], 2 * hidden), torch.empty_like(states), torch.empty_like(states)) \
+    saved = (gates.new_empty(gates.shape[0], 2 * hidden), torch.empty_like(states),
+             torch.empty_like(states)) \
         if keep else None
     h, at = gates.new_zeros(sizes[0], hidden), 0
     for size in sizes:

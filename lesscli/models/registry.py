@@ -14,8 +14,8 @@ from lesscli.models.taxel import TaxelParticleEncoder
 
 # "less" and "global" are the paper's pair; "less-taxel" adds a per-particle taxel stiffness map
 # (models/taxel.py) and "global-taxel" is its global partner, one state and one map per scan
-ENCODERS: dict[str, type] = {"less": ParticleEncoder, "less-taxel": TaxelParticleEncoder, "global": GlobalEncoder,
-                             "global-taxel": GlobalTaxelEncoder}
+ENCODERS: dict[str, type] = {"less": ParticleEncoder, "less-taxel": TaxelParticleEncoder,
+                             "global": GlobalEncoder, "global-taxel": GlobalTaxelEncoder}
 FORCE_DECODERS: dict[str, type] = {"mlp": ForceDecoder}
 
 
@@ -23,7 +23,8 @@ def lookup(registry: dict[str, type], name: str, what: str = "model") -> type:
     """``registry[name]``, or a LessError naming the choices and the closest one."""
     if name in registry:
         return registry[name]
-    raise LessError(f"unknown {what} '{name}'{did_you_mean(name, registry)} (choices: {', '.join(sorted(registry))})")
+    raise LessError(f"unknown {what} '{name}'{did_you_mean(name, registry)} (choices: "
+                    f"{', '.join(sorted(registry))})")
 
 
 def build_decoder(settings: dict, seed: int | None = None) -> torch.nn.Module:

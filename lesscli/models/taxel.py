@@ -1,24 +1,13 @@
 """Taxel-aware LESS (``less-taxel``): every particle also keeps a map of what its taxels felt, where.
 
-Why: the paper's encoder feeds the 90 forces in pad order to an MLP, so the network must learn to turn
-the taxel pattern by the pad's yaw and a GRU to average stiffness over touches; its states locate the
-inclusion poorly, while the same image decoder reading a local stiffness map does well
-(docs/results/images-worth-trusting.md). So the state is the paper's GRU state (same FLE, same GRU)
-plus a stiffness map the recurrence keeps exactly. Each taxel t of a step sits at
-
-    r_t = p_xy + R(roll, pitch, yaw)[:2, :2] @ taxel_xy_t          (mm, relative to the particle)
-
-and, where it presses (z is the height above the surface fitted from the scan's contact onsets,
-:mod:`lesscli.data.surface`, never the pose frame's zero), gives ``k_t = f_t / (depth + DEPTH_FLOOR_MM)``,
-weighted by its indentation d (a deep press measures stiffness more surely). With Gaussian cell weights ``w_j`` on a
-``map_cells`` square grid at ``map_pitch_mm``:
-
-    M_j = sum w_j d log k_t / (W_j + MAP_EPS),   W_j = sum w_j d,   c_j = log(1 + W_j)
-    Q_j = sum w_j d (log k_t - mean over the step's pressing taxels) / (W_j + MAP_EPS)
-
-``map_contrast="plane"`` takes Q's contrast to a plane fitted over the step's pressing taxels, so a
-stiffness ramp across the pad (an insert's soft edge) leaves none. The map has no parameters and is a
-pure function of the state and the step, so it streams like the GRU (:meth:`gru_step`).
+The paper's encoder feeds the 90 forces in pad order to an MLP, so the network must learn to turn the
+taxel pattern by the pad's yaw, and its GRU to average stiffness over touches; its states locate the
+inclusion poorly, while the same decoder reading a local stiffness map does well
+(docs/results/images-worth-trusting.md). So the state here is the paper's GRU state (same FLE, same GRU)
+plus a map of log stiffness ``f / (depth + DEPTH_FLOOR_MM)`` per taxel, placed at the taxel's x-y under
+the pad's pose and weighted by its indentation (z above the surface fitted from the scan's contact
+onsets, :mod:`lesscli.data.surface`). The map has no parameters and its recurrence is exact, so it
+streams like the GRU (:meth:`TaxelParticleEncoder.gru_step`).
 """
 
 from __future__ import annotations
@@ -91,9 +80,11 @@ class TaxelParticleEncoder(ParticleEncoder):
         super().__init__(force_dim, **kwargs)
         xy = torch.as_tensor(taxel_xy_mm, dtype=torch.float64).reshape(-1, 2)
         if xy.shape[0] * AXES != self.force_dim:
-            raise ValueError(f"less-taxel: {xy.shape[0]} taxels x {AXES} axes != {self.force_dim} force features")
+            raise ValueError(f"less-taxel: {xy.shape[0]} taxels x {AXES} axes != {self.force_dim} force "
+                             "features")
         if map_cells < 1 or not map_pitch_mm > 0:
-            raise ValueError(f"less-taxel: map_cells >= 1 and map_pitch_mm > 0 needed, got {map_cells}, {map_pitch_mm}")
+            raise ValueError(f"less-taxel: map_cells >= 1 and map_pitch_mm > 0 needed, got {map_cells}, "
+                             f"{map_pitch_mm}")
         if map_contrast not in MAP_CONTRASTS:
             raise ValueError(f"less-taxel: map_contrast must be one of {MAP_CONTRASTS}, got {map_contrast!r}")
         self.settings.update({"taxel_xy_mm": xy.tolist(), "map_cells": int(map_cells),
@@ -105,17 +96,26 @@ class TaxelParticleEncoder(ParticleEncoder):
         self.gru_dim = self.dim
         self.cells = int(map_cells) ** 2
         self.dim = self.gru_dim + MAP_CHANNELS * self.cells
-        self.paper_fle = self._modules.pop("fle")           # the paper's FLE feeds the GRU; fle() adds the map
+        # the paper's FLE feeds the GRU; fle() adds the map
+        self.paper_fle = self._modules.pop("fle")
 
     def fle(self, pose: Tensor, force: Tensor) -> Tensor:
-        """Step inputs ``[FLE(pose, force) (gru_dim), sum w log k, sum w contrast, sum w (m each)]``."""
+        """Step inputs ``[FLE(pose, force) (gru_dim), sum w log k, sum w contrast, sum w (m each)]``.
+
+        Taxel t sits at ``r_t = p_xy + R(roll, pitch, yaw)[:2, :2] @ taxel_xy_t`` (mm, relative to the
+        particle) and, where it presses, gives ``k_t = f_t / (depth + DEPTH_FLOOR_MM)`` weighted by its
+        indentation d. With Gaussian cell weights ``w_j`` the state keeps, per cell,
+        ``M_j = sum w_j d log k_t / (W_j + MAP_EPS)``, ``W_j = sum w_j d``, ``c_j = log(1 + W_j)`` and
+        ``Q_j``, the same mean of log k_t less the step's trend (:meth:`_step_trend`).
+        """
         taxels = self.taxel_xy_mm.shape[0]
         normal = force.unflatten(-1, (taxels, AXES))[..., 2]                     # (..., T)
         depth = torch.clamp(-pose[..., 2:3], min=0.0)
         presses = (pose[..., 2:3] < 0) & (normal > CONTACT_FORCE)
         log_k = torch.log(torch.clamp(normal / (depth + DEPTH_FLOOR_MM), min=STIFFNESS_FLOOR))
         # the Gaussian weight of a cell is separable: exp(-dx^2 / 2 s^2) exp(-dy^2 / 2 s^2)
-        d = taxel_xy(pose, self.taxel_xy_mm)[..., None, :] - self.axis_mm.to(pose.dtype)[:, None]  # (..., T, n, 2)
+        # (..., T, n, 2)
+        d = taxel_xy(pose, self.taxel_xy_mm)[..., None, :] - self.axis_mm.to(pose.dtype)[:, None]
         wx, wy = torch.exp(-(d * d) / (2 * self.sigma_mm**2)).unbind(-1)
         pressing = presses.to(pose.dtype)
         contrast = log_k - self._step_trend(pressing, log_k)
@@ -126,7 +126,8 @@ class TaxelParticleEncoder(ParticleEncoder):
 
     def _step_trend(self, pressing: Tensor, log_k: Tensor) -> Tensor:
         """(..., T) what a taxel's log stiffness is compared with: the mean over the step's pressing
-        taxels, or the plane fitted over them (``map_contrast``)."""
+        taxels, or the plane fitted over them (``map_contrast``: with "plane" a stiffness ramp across the
+        pad, an insert's soft edge, leaves no contrast)."""
         if self.map_contrast == "step":
             return (pressing * log_k).sum(-1, keepdim=True) / pressing.sum(-1, keepdim=True).clamp(min=1.0)
         uv = self.taxel_xy_mm.to(log_k.dtype) / PLANE_UNIT_MM
@@ -152,7 +153,8 @@ class TaxelParticleEncoder(ParticleEncoder):
         past ``count``): the packed GRU on the first ``gru_dim``, running sums for the map."""
         g, m = self.gru_dim, self.cells
         h_gru = super()._run_gru(x[..., :g], count)
-        real = (torch.arange(x.shape[1], device=x.device) < count[:, None].to(x.device))[..., None].to(x.dtype)
+        real = (torch.arange(x.shape[1], device=x.device)
+                < count[:, None].to(x.device))[..., None].to(x.dtype)
         s = torch.cumsum(x[..., g:g + 2 * m] * real, dim=1)
         w = torch.cumsum(x[..., g + 2 * m:] * real, dim=1)
         return torch.cat([h_gru, s / (w + MAP_EPS).repeat(1, 1, 2) * real, torch.log1p(w) * real], dim=-1)

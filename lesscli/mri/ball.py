@@ -14,14 +14,17 @@ import numpy as np
 from lesscli.mri.column import _Column, _from_line, _own, _run_on
 from lesscli.robust import robust_sigma
 
-RIM_VOXELS = 1.0                # an inclusion's image surface moves at most this far from the opening, in (largest) voxels
+# an inclusion's image surface moves at most this far from the opening, in (largest) voxels
+RIM_VOXELS = 1.0
 LEVEL_VOXELS = (2.0, 4.0)       # the filling's level is measured this far outside an inclusion, in voxels
-PROFILE_VOXELS = 2.0            # the blurred-ball profile is fitted to the voxels this close to a body, in voxels
+# the blurred-ball profile is fitted to the voxels this close to a body, in voxels
+PROFILE_VOXELS = 2.0
 PROFILE_SHIFT_VOXELS = 1.0      # ... its centre within this of the body's centroid
 PROFILE_RADIUS = (0.5, 1.5)     # ... its radius within these factors of the body's equal-volume radius
 PROFILE_SIGMA_VOXELS = (0.1, 3.0)   # ... its blur within these, in voxels
 PROFILE_CONTRAST = (0.5, 2.0)   # ... its contrast within these factors of the interior's over the filling
-CAP_SHUT_VOXELS = 1.0           # the ball's fit leaves out the core from this far inside the body's end on the base side
+# the ball's fit leaves out the core from this far inside the body's end on the base side
+CAP_SHUT_VOXELS = 1.0
 
 
 @dataclass
@@ -104,7 +107,8 @@ def fitted_ball(own_full: np.ndarray, fraction: np.ndarray, allowed: np.ndarray,
 
 
 def ball_profile(r_mm: np.ndarray, radius_mm: float, sigma_mm: float) -> np.ndarray:
-    """A ball of ``radius_mm`` blurred by an isotropic Gaussian of ``sigma_mm``, at ``r_mm`` from its centre (0-1).
+    """A ball of ``radius_mm`` blurred by an isotropic Gaussian of ``sigma_mm``, at ``r_mm`` from its centre
+    (0-1).
 
     At the ball's surface this is ``1/2 - sigma / (R sqrt(2 pi))`` for sigma << R: the half-way level of a
     flat boundary lies inside a curved one, by about ``sigma^2 / R``.
@@ -114,7 +118,8 @@ def ball_profile(r_mm: np.ndarray, radius_mm: float, sigma_mm: float) -> np.ndar
     r = np.maximum(np.asarray(r_mm, dtype=np.float64), 1e-6 * radius_mm)
     s = math.sqrt(2.0) * sigma_mm
     a, b = (radius_mm - r) / s, (radius_mm + r) / s
-    return 0.5 * (erf(a) + erf(b)) - sigma_mm / (r * math.sqrt(2 * math.pi)) * (np.exp(-a * a) - np.exp(-b * b))
+    return (0.5 * (erf(a) + erf(b)) - sigma_mm / (r * math.sqrt(2 * math.pi))
+            * (np.exp(-a * a) - np.exp(-b * b)))
 
 
 def _fit_ball(values: np.ndarray, points_mm: np.ndarray, body: np.ndarray, spacing: np.ndarray,
@@ -136,17 +141,18 @@ def _fit_ball(values: np.ndarray, points_mm: np.ndarray, body: np.ndarray, spaci
         r = np.linalg.norm(points_mm - p[:3], axis=1)
         return filling + p[5] * ball_profile(r, p[3], p[4]) - values
 
-    lo = np.r_[centre - PROFILE_SHIFT_VOXELS * voxel, PROFILE_RADIUS[0] * radius, PROFILE_SIGMA_VOXELS[0] * voxel,
-               PROFILE_CONTRAST[0] * contrast]
-    hi = np.r_[centre + PROFILE_SHIFT_VOXELS * voxel, PROFILE_RADIUS[1] * radius, PROFILE_SIGMA_VOXELS[1] * voxel,
-               PROFILE_CONTRAST[1] * contrast]
+    lo = np.r_[centre - PROFILE_SHIFT_VOXELS * voxel, PROFILE_RADIUS[0] * radius,
+               PROFILE_SIGMA_VOXELS[0] * voxel, PROFILE_CONTRAST[0] * contrast]
+    hi = np.r_[centre + PROFILE_SHIFT_VOXELS * voxel, PROFILE_RADIUS[1] * radius,
+               PROFILE_SIGMA_VOXELS[1] * voxel, PROFILE_CONTRAST[1] * contrast]
     if len(values) < len(lo) or contrast <= 0:
         return None
     start = np.clip(np.r_[centre, radius, 0.5 * voxel, contrast], lo, hi)
     return least_squares(residuals, start, bounds=(lo, hi)).x
 
 
-def _column_ball(fraction, allowed, inc_ids, label, col: _Column, side: int, core_mm: float, step_mm: float, spacing):
+def _column_ball(fraction, allowed, inc_ids, label, col: _Column, side: int, core_mm: float, step_mm: float,
+                 spacing):
     """The inclusion's blurred ball, fitted away from other inclusions and from the column on the base side,
     from CAP_SHUT_VOXELS inside the body's end there: the post's silicone, blurred, reads within the ball's
     cap above it, and fitted with it, drew the ball's surface towards the post (by 0.1 mm over a 3 mm post

@@ -1,4 +1,5 @@
-"""Bias-field correction: a smooth multiplicative field ``exp(p(x, y, z))`` with ``p`` a low-degree polynomial.
+"""Bias-field correction: a smooth multiplicative field ``exp(p(x, y, z))`` with ``p`` a low-degree
+polynomial.
 
 Inside the object (eroded away from partial-volume boundaries) the log intensity is a tissue level
 plus ``p``. Alternating between a two-class split of the corrected log intensities and a least-squares
@@ -25,7 +26,8 @@ MIN_FIT_VOXELS = 200
 LOG_EPS = 1e-6
 RIDGE = 1e-6                    # keeps the normal equations well posed
 SAMPLE_SEED = 0
-TISSUE_MARGIN_VOXELS = 2        # the refit leaves out voxels this close to the other tissue (Chebyshev, voxels)
+# the refit leaves out voxels this close to the other tissue (Chebyshev, voxels)
+TISSUE_MARGIN_VOXELS = 2
 
 
 def _powers(degree: int) -> list[tuple[int, int, int]]:
@@ -95,8 +97,8 @@ def _sample_fit(smoothed: np.ndarray, mask: np.ndarray, axes, powers, rng, start
     return fit_log_field(_log(smoothed[tuple(idx.T)]).astype(np.float64), _design(idx, axes, powers), start)
 
 
-def _away_from_boundaries(smoothed: np.ndarray, fitted: np.ndarray, coef: np.ndarray, axes, powers, degree: int,
-                          voxels: int, rng) -> np.ndarray:
+def _away_from_boundaries(smoothed: np.ndarray, fitted: np.ndarray, coef: np.ndarray, axes, powers,
+                          degree: int, voxels: int, rng) -> np.ndarray:
     """The voxels of ``fitted`` at least ``voxels`` (Chebyshev) from any voxel of the other class, the
     classes split as the fit's rounds split them (Otsu on the log intensities, corrected by the field of
     ``coef``, of its voxels; the air falls with the darker tissue)."""
@@ -114,14 +116,16 @@ def _away_from_boundaries(smoothed: np.ndarray, fitted: np.ndarray, coef: np.nda
     upper = (log_box > threshold_otsu(values)).view(np.uint8)
     size = 2 * voxels + 1
     clear = np.zeros_like(fitted)
-    clear[box] = fitted_box & (ndimage.maximum_filter(upper, size=size) == ndimage.minimum_filter(upper, size=size))
+    clear[box] = fitted_box & (ndimage.maximum_filter(upper, size=size)
+                               == ndimage.minimum_filter(upper, size=size))
     return clear
 
 
 def _eroded(mask: np.ndarray, spacing_mm: np.ndarray, depth_mm: float) -> np.ndarray:
-    """``mask``'s voxels more than ``depth_mm`` from every voxel outside it (the array's border is not outside),
-    the distance transform taken over the mask's bounding box and a voxel around it: every voxel outside the
-    mask beyond that box has one in the box's outer layer at least as near, so the result is the whole
+    """``mask``'s voxels more than ``depth_mm`` from every voxel outside it (the array's border is not
+    outside), the distance transform taken over the mask's bounding box and a voxel around it: every voxel
+    outside the mask beyond that box has one in the box's outer layer at least as near, so the result is the
+    whole
     array's, at the cost of the box (a third of a scan whose field of view leaves air around the insert)."""
     from scipy import ndimage
 

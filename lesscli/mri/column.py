@@ -60,14 +60,16 @@ def _column(fraction, insert, deep, inc_ids, label, centre_mm, axis, spacing, re
     own = ids == label
     start = {sign: float((sign * t_sel[own]).max()) if own.any() else 0.0 for sign in (1, -1)}
     inside = insert[index]
-    return _Column(index, t_sel, np.stack([offsets @ e1, offsets @ e2], axis=1), fraction[index].astype(np.float64),
-                   inside, inside & (ids == 0), deep[index], (ids != 0) & ~own, offsets + np.asarray(centre_mm), start)
+    return _Column(index, t_sel, np.stack([offsets @ e1, offsets @ e2], axis=1),
+                   fraction[index].astype(np.float64), inside, inside & (ids == 0), deep[index],
+                   (ids != 0) & ~own, offsets + np.asarray(centre_mm), start)
 
 
 def _slab(col: _Column, sign: int, st, step_mm: float) -> np.ndarray:
-    """Slab index of depth ``st`` (mm beyond the inclusion on side ``sign``): slabs ``step_mm`` thick centred on
-    the column's planes of voxel centres (slab 0 on ``col.start[sign]``, a voxel's). A slab's edge on a plane
-    would split that slice's voxels between two slabs by the axis's slightest tilt (or by rounding), and read
+    """Slab index of depth ``st`` (mm beyond the inclusion on side ``sign``): slabs ``step_mm`` thick centred
+    on the column's planes of voxel centres (slab 0 on ``col.start[sign]``, a voxel's). A slab's edge on a
+    plane would split that slice's voxels between two slabs by the axis's slightest tilt (or by rounding), and
+    read
     each slab's ring level between two slices."""
     return np.floor((np.asarray(st) - col.start[sign]) / step_mm + 0.5).astype(np.int64)
 

@@ -1,5 +1,6 @@
 """A straight blurred cylinder: its profile across the axis (:func:`disc_profile`), its least-squares fit to a
-post's voxels (:func:`fit_blurred_cylinder`), and the F tests that decide whether a post leaves its inclusion's
+post's voxels (:func:`fit_blurred_cylinder`), and the F tests that decide whether a post leaves its
+inclusion's
 axis (:func:`own_or_centred`), read with the correlation the scan's denoising put into its noise."""
 
 from __future__ import annotations
@@ -14,12 +15,15 @@ from lesscli.mri.trace import Trace
 MAX_TILT = math.tan(math.radians(30.0))
 BLUR_RANGE = (0.5, 2.0)         # a post's fitted blur, in units of the inclusion's it starts from
 SMOOTHING_TRUNCATE = 4.0        # the denoising's Gaussian, in its sigmas, as the F tests' correction reads it
-OWN_LINE_P = 0.01               # a post leaves its inclusion's axis where its own line fits better at this level
+# a post leaves its inclusion's axis where its own line fits better at this level
+OWN_LINE_P = 0.01
 
 
 def disc_profile(rho_mm: np.ndarray, radius_mm: float, sigma_mm: float) -> np.ndarray:
-    """A disc of ``radius_mm`` blurred by an isotropic Gaussian of ``sigma_mm``, at ``rho_mm`` from its centre (0-1):
-    the chance that a 2D normal around that point lands in the disc (a noncentral chi-square with 2 degrees)."""
+    """A disc of ``radius_mm`` blurred by an isotropic Gaussian of ``sigma_mm``, at ``rho_mm`` from its centre
+    (0-1):
+    the chance that a 2D normal around that point lands in the disc (a noncentral chi-square with 2
+    degrees)."""
     from scipy.special import chndtr
 
     s2 = max(sigma_mm, 1e-6) ** 2
@@ -51,8 +55,8 @@ def fit_blurred_cylinder(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line
     reach = np.r_[core_mm, core_mm, MAX_TILT, MAX_TILT][:free_line]
     lo = np.r_[mid - reach, 0.25 * radius, BLUR_RANGE[0] * sigma]
     hi = np.r_[mid + reach, core_mm, BLUR_RANGE[1] * sigma]
-    x = least_squares(lambda p: _cylinder_misfit(uv, t, excess, *unpack(p)), np.clip(x0, lo + 1e-9, hi - 1e-9),
-                      bounds=(lo, hi)).x
+    x = least_squares(lambda p: _cylinder_misfit(uv, t, excess, *unpack(p)),
+                      np.clip(x0, lo + 1e-9, hi - 1e-9), bounds=(lo, hi)).x
     fitted, r, s = unpack(x)
     return fitted, float(r), float(s)
 
@@ -68,7 +72,8 @@ def _line_jacobian(uv: np.ndarray, t: np.ndarray, fit: tuple, free_line: int) ->
         return disc_profile(_from_line(uv, held, t), p[-2], p[-1])
 
     steps = 1e-4 * np.maximum(1.0, np.abs(p0))
-    return np.stack([(model(p0 + h * e) - model(p0 - h * e)) / (2 * h) for h, e in zip(steps, np.eye(len(p0)))], 1)
+    return np.stack([(model(p0 + h * e) - model(p0 - h * e)) / (2 * h) for h,
+                     e in zip(steps, np.eye(len(p0)))], 1)
 
 
 def _span(m: np.ndarray) -> np.ndarray:
@@ -124,10 +129,10 @@ def own_or_centred(uv: np.ndarray, t: np.ndarray, excess: np.ndarray, line: np.n
     places better than a post's few noisy voxels per slab place its own line: over the 700 volumes of
     the independent family (``tests/mri_family.py``, box partial volume) the posts' feet lay 0.041 mm
     off their true axes (median; 0.126 mm for one in ten) on their own lines, 0.031 mm (0.097 mm) so
-    chosen when this choice came in. A post set off its inclusion's axis by more than the noise explains keeps its own line.
-    Tested directly against the held line, the tilted line took 39 of 68 posts (family seeds 7000-7039,
-    box), as much as 0.5 mm off at their ends in strong noise; tested in two steps, 26 are held, 31 take
-    a straight line and 11 a tilted one.
+    chosen when this choice came in. A post set off its inclusion's axis by more than the noise explains keeps
+    its own line. Tested directly against the held line, the tilted line took 39 of 68 posts (family seeds
+    7000-7039, box), as much as 0.5 mm off at their ends in strong noise; tested in two steps, 26 are held, 31
+    take a straight line and 11 a tilted one.
 
     The scan's denoising (``smoothing``, its Gaussian's sigma per axis in voxels; ``index``, the voxels'
     grid indices) correlates the residuals of neighbouring voxels, and read as white each F statistic
@@ -177,5 +182,5 @@ def _fit_cylinder(col: _Column, sign: int, trace: Trace, line: np.ndarray, radiu
     bg = np.interp(st[sel], trace.t_mm, trace.ring)
     scale = np.maximum(contrast[0] + contrast[1] - bg, SCALE_EPS)
     excess = (value[sel] - bg) / scale
-    return own_or_centred(col.uv[sel], st[sel], excess, line, radius, _blur_mm(ball, step_mm), core_mm, centred,
-                          tuple(i[sel] for i in col.index), smoothing)
+    return own_or_centred(col.uv[sel], st[sel], excess, line, radius, _blur_mm(ball, step_mm), core_mm,
+                          centred, tuple(i[sel] for i in col.index), smoothing)

@@ -54,7 +54,8 @@ class InsertFrame:
     def to_world(self, points_mm: np.ndarray) -> np.ndarray:
         """(n, 3) phantom x, y, z -> (n, 3) world x, y, z."""
         p = np.asarray(points_mm, dtype=np.float64)
-        return self.origin_mm + p[:, 0:1] * self.axes[:, 0] + p[:, 1:2] * self.axes[:, 1] + p[:, 2:3] * self.axes[:, 2]
+        return (self.origin_mm + p[:, 0:1] * self.axes[:, 0] + p[:, 1:2] * self.axes[:, 1] + p[:, 2:3]
+                * self.axes[:, 2])
 
 
 def voxel_to_world(idx: np.ndarray, affine: np.ndarray) -> np.ndarray:
@@ -109,7 +110,8 @@ def _octagon(uv: np.ndarray) -> tuple[float, np.ndarray, float]:
     angle = float(np.degrees(fine[int(np.argmin(_widths(hull, fine)))])) % STEP_DEG
     if angle >= STEP_DEG / 2:
         angle -= STEP_DEG
-    normals = np.array([[math.cos(math.radians(angle + STEP_DEG * j)), math.sin(math.radians(angle + STEP_DEG * j))]
+    normals = np.array([[math.cos(math.radians(angle + STEP_DEG * j)),
+                         math.sin(math.radians(angle + STEP_DEG * j))]
                         for j in range(FLATS)])
     proj = hull @ normals.T
     mids, widths = 0.5 * (proj.max(axis=0) + proj.min(axis=0)), proj.max(axis=0) - proj.min(axis=0)
@@ -151,7 +153,8 @@ def find_frame(labels: np.ndarray, affine: np.ndarray, up_hint: np.ndarray | Non
 
 
 def up_hint_from(labels: np.ndarray, silicone: np.ndarray, affine: np.ndarray) -> np.ndarray | None:
-    """World vector from the insert centroid to the skin (silicone labelled insert), else to the inclusions."""
+    """World vector from the insert centroid to the skin (silicone labelled insert), else to the
+    inclusions."""
     insert = labels != BACKGROUND
     for mask in (silicone & (labels == INSERT), labels == INCLUSION):
         if mask.sum() > 0:

@@ -2,13 +2,10 @@
 
 - A thin shell along the insert's outer surface is set aside first: there, partial-volume voxels
   between the filling and the air can mimic the darker tissue.
-- Inclusions: the opening of the remaining silicone by a ball thicker than the thickest pillar and
-  skin (radius ``max(pillar, skin) / 2`` plus a quarter voxel): compact bodies survive, thin ones
-  vanish; the rim (one largest voxel) that the opening shaves off a noisy sphere is given back. A
-  second, smaller ball finds inclusions too thin, voxel for voxel, for the first one; of what it
-  keeps apart from those, only round bodies holding the first ball's volume are inclusions.
-- Pillars: traced from each inclusion towards the base along the insert axis
-  (:mod:`lesscli.mri.pillar`); an inclusion without one gets a warning.
+- Inclusions: the opening of the remaining silicone by a ball thicker than the thickest pillar and skin:
+  compact bodies survive, thin ones vanish. A second, smaller ball finds inclusions too thin, voxel for
+  voxel, for the first; of what it keeps apart from those, only round bodies are inclusions.
+- Pillars: traced from each inclusion towards the base along the insert axis (:mod:`lesscli.mri.pillar`).
 - Each inclusion's surface is drawn again from its local contrast or as its fitted ball, and takes back
   the pillar's voxels inside its sphere (:mod:`lesscli.mri.surface`).
 - Everything else (the skin, partial-volume speckle) stays insert.
@@ -32,12 +29,15 @@ SMALL_BALL = 0.8                # a second, smaller ball for small inclusions (o
 MAX_ELONGATION = 1.5            # ... kept where round: largest over smallest principal spread
 BALL_MARGIN_VOXELS = 0.25       # the opening ball's radius exceeds the thickest pillar's by this
 BOUNDARY_VOXELS = (1.0, 2.5)    # the layer around a body in which its surroundings are measured
-MAX_BOUNDARY_SILICONE = 0.3     # an inclusion lies in the filling; more silicone around: a pillar's foot, a corner
-BLUR_VOXELS = 1.0               # ... the fit leaves out the voxels this close to a post or the base, in voxels
+# an inclusion lies in the filling; more silicone around: a pillar's foot, a corner
+MAX_BOUNDARY_SILICONE = 0.3
+# ... the fit leaves out the voxels this close to a post or the base, in voxels
+BLUR_VOXELS = 1.0
 
 
 def crop_box(mask: np.ndarray, pad: int) -> tuple[slice, ...]:
-    """The bounding box of ``mask`` (not empty) widened by ``pad`` voxels (clipped to the array), read from its
+    """The bounding box of ``mask`` (not empty) widened by ``pad`` voxels (clipped to the array), read from
+    its
     projections on the axes (listing its voxels' indices took a hundred times as long on a scan)."""
     box = []
     for ax, n in enumerate(mask.shape):
@@ -123,7 +123,8 @@ def insert_axis(insert: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     return _principal(insert, spacing)[1][:, 2]
 
 
-def _opened(core: np.ndarray, radius_mm: float, spacing: np.ndarray, depth_mm: np.ndarray | None = None) -> np.ndarray:
+def _opened(core: np.ndarray, radius_mm: float, spacing: np.ndarray,
+            depth_mm: np.ndarray | None = None) -> np.ndarray:
     """The components of ``core`` opened by a ball of ``radius_mm`` holding at least half that ball
     (``depth_mm``: :func:`open_ball`'s)."""
     from skimage.measure import label
@@ -137,8 +138,8 @@ def _opened(core: np.ndarray, radius_mm: float, spacing: np.ndarray, depth_mm: n
 def _round(candidates: np.ndarray, bodies: np.ndarray, radius_mm: float, spacing: np.ndarray,
            elongated: np.ndarray | None = None) -> np.ndarray:
     """The round components of ``candidates`` apart from ``bodies`` that hold at least half the volume of a
-    ball of ``radius_mm`` (the rule of :func:`_opened`); ``elongated`` (a mask of the candidates' shape), where
-    given, gets each such component that is not round.
+    ball of ``radius_mm`` (the rule of :func:`_opened`); ``elongated`` (a mask of the candidates' shape),
+    where given, gets each such component that is not round.
 
     A small inclusion at coarse voxels can be too thin, voxel for voxel, for the ball that removes the
     thickest pillar, though it holds that ball's volume; a smaller ball keeps it, and with it any pillar
@@ -169,7 +170,8 @@ def _unexplained(elongated: np.ndarray, bodies: np.ndarray, axis: np.ndarray, sp
     """Of the elongated components :func:`_round` left out that lie in the filling (:func:`_in_filling`),
     the centre indices of those off the axis of every body kept (laterally beyond its equal-volume radius
     from its centre): no piece of a body's post, no skin's corner, so perhaps a small inclusion the noise
-    left too ragged to read as round (:func:`split_silicone` leaves out those past the base's surface, and those
+    left too ragged to read as round (:func:`split_silicone` leaves out those past the base's surface, and
+    those
     within the thickest skin of the insert's outer surface: a base without posts has no surface found)."""
     held = _centres_radii(bodies, spacing)[1]
     return [c / spacing for c, _r in _centres_radii(elongated, spacing)[1]
@@ -213,7 +215,8 @@ def _lateral(offset: np.ndarray, axis: np.ndarray) -> float:
     return float(np.linalg.norm(offset - float(offset @ axis) * axis))
 
 
-def _in_filling(bodies: np.ndarray, silicone: np.ndarray, insert: np.ndarray, spacing: np.ndarray) -> np.ndarray:
+def _in_filling(bodies: np.ndarray, silicone: np.ndarray, insert: np.ndarray,
+                spacing: np.ndarray) -> np.ndarray:
     """The bodies mostly surrounded by filling: silicone covers at most MAX_BOUNDARY_SILICONE of the layer
     BOUNDARY_VOXELS around each (inside the insert; a voxel away, so that the body's own rim does not
     count); thick spots where a pillar meets the base, or skin meets skin in a corner, are surrounded by
@@ -238,7 +241,9 @@ def _bodies(sil: np.ndarray, ins: np.ndarray, deep: np.ndarray, radius_mm: float
             spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The inclusions' bodies in the silicone ``sil`` of the insert ``ins`` (both padded crops), from its
     voxels ``deep`` inside the insert: what an opening by a ball of ``radius_mm`` keeps in the filling, and
-    the round pieces of one by a smaller ball off the axis of every body found so.
+    the round pieces of one by a smaller ball off the axis of every body found so. The split passes a
+    radius of ``max(pillar, skin) / 2`` plus a quarter voxel, and the rim (one largest voxel) that the
+    opening shaves off a noisy sphere is given back.
 
     Returns:
         (bodies, the pieces the smaller ball kept that read elongated (:func:`_round`), the insert axis).
@@ -249,7 +254,8 @@ def _bodies(sil: np.ndarray, ins: np.ndarray, deep: np.ndarray, radius_mm: float
     depth = ndimage.distance_transform_edt(core, sampling=spacing)      # one transform for both openings
     opened = _opened(core, radius_mm, spacing, depth)
     elongated = np.zeros(core.shape, dtype=bool)
-    pieces = _round(_opened(core, SMALL_BALL * radius_mm, spacing, depth), opened, radius_mm, spacing, elongated)
+    pieces = _round(_opened(core, SMALL_BALL * radius_mm, spacing, depth), opened, radius_mm, spacing,
+                    elongated)
     bodies = _in_filling(opened, sil, ins, spacing)
     axis = insert_axis(ins, spacing)
     if pieces.any():                                        # rare: labelling every scan's bodies costs
@@ -274,8 +280,10 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
                    skin_max_thickness_mm: float, fraction: np.ndarray | None = None,
                    inclusion_shape: str = "auto",
                    pillar_diameter_mm: float | None = None,
-                   smoothing: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[str], list[dict]]:
-    """Pillar and inclusion masks from the silicone mask of an insert.
+                   smoothing: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, list[str], list[dict]]:
+    """Pillar and inclusion masks from the silicone mask of an insert; an inclusion without a pillar gets
+    a warning.
 
     Args:
         silicone: bool mask (any 3D shape) of silicone voxels inside the insert.
@@ -286,7 +294,8 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
         fraction: float image of the silicone fraction (0 hydrogel, 1 silicone) for tracing pillars;
             None uses the silicone mask itself.
         inclusion_shape: "auto", "image" or "ball" (:func:`lesscli.mri.surface.local_surface`).
-        pillar_diameter_mm: the posts' diameter as cast, where known (:func:`find_pillars`); None: as measured.
+        pillar_diameter_mm: the posts' diameter as cast, where known (:func:`find_pillars`); None: as
+            measured.
         smoothing: (3,) sigma per axis, in voxels, of the denoising ``fraction`` had (:func:`find_pillars`).
 
     Returns:
@@ -302,7 +311,8 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     pillar_full = np.zeros(insert.shape, dtype=bool)
     inclusion_full = np.zeros(insert.shape, dtype=bool)
     if not silicone.any():
-        return pillar_full, inclusion_full, ["no inclusion found (no silicone inside the insert)"], [], None, []
+        return (pillar_full, inclusion_full, ["no inclusion found (no silicone inside the insert)"], [], None,
+                [])
     box = crop_box(insert, 2)
     # one voxel of padding: the distance transforms must see air beyond a scan's border too
     sil, ins = np.pad(silicone[box], 1), np.pad(insert[box], 1)
@@ -316,7 +326,8 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     offset = np.array([b.start for b in box]) - 1              # padded crop -> input voxel index
     inc_ids, n_inclusions = ndimage.label(bodies)
     warnings = [] if n_inclusions else ["no inclusion found"]
-    lost = _unexplained(_in_filling(elongated, sil, ins, spacing), bodies, axis, spacing) if elongated.any() else []
+    lost = (_unexplained(_in_filling(elongated, sil, ins, spacing), bodies, axis, spacing) if elongated.any()
+            else [])
     deep = ins & (depth > shell_mm)
     pillar, missing, base, posts, run_on = find_pillars(frac, ins, inc_ids, n_inclusions, spacing,
                                                         axis, pillar_max_diameter_mm, deep,
@@ -325,10 +336,12 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     for centre in lost:
         at = tuple(np.round(centre).astype(int))
         if depth[at] <= skin_max_thickness_mm + voxel_mm or (beyond is not None and beyond[at]):
-            continue        # within a skin's thickness of the outer surface (and the voxel that places it), or
+            # within a skin's thickness of the outer surface (and the voxel that places it), or
+            continue
                             # past the base's surface: the skin's or the base's silicone, not the filling's
-        warnings.append(f"silicone in the filling near voxel {np.round(centre + offset).astype(int).tolist()} "
-                        "holds a small inclusion's volume but is not round: not labelled an inclusion")
+        warnings.append("silicone in the filling near voxel "
+                        f"{np.round(centre + offset).astype(int).tolist()} holds a small inclusion's volume "
+                        "but is not round: not labelled an inclusion")
     inclusion, shapes = local_surface(bodies & ~run_on, frac, deep & ~pillar, spacing, RIM_VOXELS * voxel_mm,
                                        inclusion_shape, beyond, blurred)
     inclusion |= junctions(inclusion, pillar, spacing, shapes)
@@ -340,5 +353,6 @@ def split_silicone(silicone: np.ndarray, insert: np.ndarray, spacing_mm, pillar_
     pillar_full[box], inclusion_full[box] = pillar[inner], inclusion[inner]
     for row in shapes:
         row["centre_index"] = [float(c + o) for c, o in zip(row["centre_index"], offset)]
-    return (pillar_full, inclusion_full, warnings, shapes, None if base is None else base.shifted(-offset, spacing),
+    return (pillar_full, inclusion_full, warnings, shapes,
+            None if base is None else base.shifted(-offset, spacing),
             [post.shifted(-offset, spacing) for post in posts])

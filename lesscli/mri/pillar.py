@@ -1,35 +1,16 @@
 """Pillars: the thin silicone post between each inclusion and the base, traced along the insert axis.
 
-Nothing here assumes a pillar's diameter, intensity or which end of the insert the base is at. For each
-inclusion, the insert's voxels near the line through its centre along the insert axis are cut into slabs
-one plane of voxel centres thick, on both sides of the inclusion (``fraction``: 0 hydrogel, 1 silicone).
-Per slab:
+Nothing here assumes a pillar's diameter, intensity or which end of the insert the base is at. Around
+the line through each inclusion's centre the insert is cut into slabs one voxel thick; in each, the
+core's silicone in excess of a surrounding ring, divided by the inclusion's contrast, is the post's
+cross-section. A sum is unchanged by partial volume and blur, so no threshold is involved and a post 1-2
+voxels wide is measured like a wide one. The post drawn is a blurred cylinder fitted to the slabs; the
+rules are in :func:`find_pillars`, and how each was found in docs/results/mri-label-rounds.md.
 
-- a ring around the core gives the local background (its level a median clipped of far voxels, so a
-  nearby wall's skin does not raise it); the trace ends where the ring turns silicone or leaves the
-  insert, at the base's surface, fitted to the ring levels around the crossing (a thin base has no level
-  of its own);
-- the core's silicone in excess of the ring level, summed and divided by the inclusion's contrast, is
-  the pillar's cross-section (mm^2): a sum is unchanged by partial volume and blur, so no threshold is
-  involved and a post 1-2 voxels wide is measured like a wide one. The inclusion's fitted blurred ball
-  is taken out of every voxel first, as its blur spreads silicone along the pillar's line;
-- the weighted centroid of the excess locates the pillar in the slab.
-
-The base is on the side where the inclusions together show more excess silicone. An inclusion has a
-pillar there when the median cross-section exceeds a disc of ``MIN_RADIUS_MM`` and ``NOISE_Z`` standard
-errors of the slab-to-slab scatter pooled over the scan's traces, in a wide core or a narrow one (less
-noise for a thin post). The pillar drawn is a blurred cylinder fitted to a second trace around the line
-through the slab centroids, held on its inclusion's axis (as the phantoms are cast) unless its own line
-fits significantly better; a post measured thinner than ``MIN_RADIUS_MM`` in the end is no post. Short
-posts have few slabs: under ``MIN_LINE_SLABS`` the post stands under the inclusion's fitted centre, and
-under ``MIN_OWN_SLABS`` its radius is fitted to its whole silicone with the ball, or pooled over the
-scan's other posts (the posts of one insert are cast alike). How each rule was found, with its numbers:
-docs/results/mri-label-rounds.md.
-
-This module walks the steps (:func:`find_pillars`) and draws the posts, with :mod:`lesscli.mri.column`
-(a column, its slabs and rings), :mod:`lesscli.mri.trace` (a trace and the base's surface it meets),
-:mod:`lesscli.mri.section` (a post's cross-section, the base's side), :mod:`lesscli.mri.cylinder` (the
-blurred cylinder's fit and its F tests) and :mod:`lesscli.mri.ball` (the inclusion's blurred ball).
+The steps use :mod:`lesscli.mri.column` (a column, its slabs and rings), :mod:`lesscli.mri.trace` (a
+trace and the base's surface it meets), :mod:`lesscli.mri.section` (a post's cross-section, the base's
+side), :mod:`lesscli.mri.cylinder` (the blurred cylinder's fit and its F tests) and
+:mod:`lesscli.mri.ball` (the inclusion's blurred ball).
 """
 
 from __future__ import annotations
@@ -99,6 +80,20 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
                  ) -> tuple[np.ndarray, list[int], BaseSurface | None, list[Post], np.ndarray]:
     """The pillar under each inclusion, traced towards the base.
 
+    Per slab on both sides of each inclusion (its fitted blurred ball taken out of every voxel first, as
+    its blur spreads silicone along the pillar's line): a ring around the core gives the local background
+    (a median clipped of far voxels, so a nearby wall's skin does not raise it); the trace ends where the
+    ring turns silicone or leaves the insert, at the base's surface fitted to the ring levels around the
+    crossing; the weighted centroid of the excess locates the post in the slab.
+
+    The base is on the side where the inclusions together show more excess silicone. An inclusion has a
+    pillar there when the median cross-section exceeds a disc of ``MIN_RADIUS_MM`` and ``NOISE_Z``
+    standard errors of the slab-to-slab scatter pooled over the scan's traces, in a wide core or a narrow
+    one. The cylinder is held on its inclusion's axis (as the phantoms are cast) unless its own line fits
+    significantly better; a post measured thinner than ``MIN_RADIUS_MM`` is no post. Under
+    ``MIN_LINE_SLABS`` slabs the post stands under the inclusion's centre, and under ``MIN_OWN_SLABS`` its
+    radius is fitted to its whole silicone with the ball, or pooled over the scan's other posts.
+
     Args:
         fraction: 3D float silicone fraction (0 hydrogel, 1 silicone; bias-corrected, any smoothing).
         insert: bool mask of the insert (holes filled); inc_ids: int labels 1..n of the inclusions.
@@ -122,8 +117,8 @@ def find_pillars(fraction: np.ndarray, insert: np.ndarray, inc_ids: np.ndarray, 
     if n_inclusions == 0:
         none = np.zeros(insert.shape, dtype=bool)
         return none, [], None, [], none.copy()
-    search = _Search(fraction, insert, insert if deep is None else deep, inc_ids, n_inclusions, spacing_mm, axis,
-                     max_diameter_mm, smoothing)
+    search = _Search(fraction, insert, insert if deep is None else deep, inc_ids, n_inclusions, spacing_mm,
+                     axis, max_diameter_mm, smoothing)
     search.walk()
     search.side = _base_side(search.traces, search.columns, search.contrasts, search.labels, search.core0,
                              search.step, search.voxel_mm3)
@@ -150,8 +145,10 @@ class _Search:
         self.spacing = np.asarray(spacing_mm, dtype=np.float64)
         self.axis, self.max_diameter_mm, self.smoothing = axis, max_diameter_mm, smoothing
         self.voxel = float(self.spacing.max())
-        along = int(np.argmax(np.abs(axis)))          # slabs one plane of voxel centres thick (the module's docstring)
-        self.step, self.voxel_mm3 = float(self.spacing[along] / abs(axis[along])), float(np.prod(self.spacing))
+        # slabs one plane of voxel centres thick (the module's docstring)
+        along = int(np.argmax(np.abs(axis)))
+        self.step, self.voxel_mm3 = (float(self.spacing[along] / abs(axis[along])),
+                                     float(np.prod(self.spacing)))
         self.core0 = 0.5 * max_diameter_mm + CORE_MARGIN_VOXELS * self.voxel
         self.labels = list(range(1, n_inclusions + 1))
         centres = ndimage.center_of_mass(inc_ids > 0, inc_ids, self.labels)
@@ -166,15 +163,15 @@ class _Search:
         return inner, inner + max(RING_WIDTH_MM, 2 * self.voxel)
 
     def trace(self, label: int, sign: int, core: float, line: np.ndarray | None = None, ball=None) -> Trace:
-        return _trace(self.columns[label], sign, np.zeros((2, 2)) if line is None else line, core, self.rings(core),
-                      self.step, self.voxel_mm3, self.contrasts[label], ball)
+        return _trace(self.columns[label], sign, np.zeros((2, 2)) if line is None else line, core,
+                      self.rings(core), self.step, self.voxel_mm3, self.contrasts[label], ball)
 
     def walk(self) -> None:
         """Each inclusion's column and its first traces on both sides, the hydrogel level taken again from the
         slabs walked on either side."""
         for label, centre in zip(self.labels, self.centres):
-            self.columns[label] = _column(self.fraction, self.insert, self.deep, self.inc_ids, label, centre, self.axis,
-                                          self.spacing, self.rings(self.core0)[1])
+            self.columns[label] = _column(self.fraction, self.insert, self.deep, self.inc_ids, label, centre,
+                                          self.axis, self.spacing, self.rings(self.core0)[1])
             self.contrasts[label] = _contrast(self.fraction, self.inc_ids, label, self.columns[label],
                                               self.rings(self.core0), self.spacing)
             for _ in range(2):
@@ -183,13 +180,15 @@ class _Search:
             self.traces[label, 1], self.traces[label, -1] = both
 
     def fit_balls(self) -> np.ndarray:
-        """Each inclusion's blurred ball and the line under its centre; a column whose gap to the base is short
+        """Each inclusion's blurred ball and the line under its centre; a column whose gap to the base is
+        short
         walked again past its ball. Returns the voxels past the balls where a body runs on into the base."""
         side = self.side
         run_on = np.zeros(self.insert.shape, dtype=bool)
         for label, centre in zip(self.labels, self.centres):
-            ball = self.balls[label] = _column_ball(self.fraction, self.deep, self.inc_ids, label, self.columns[label],
-                                                    side, self.core0, self.step, self.spacing)
+            ball = self.balls[label] = _column_ball(self.fraction, self.deep, self.inc_ids, label,
+                                                    self.columns[label], side, self.core0, self.step,
+                                                    self.spacing)
             self.under[label] = _ball_axis(ball, centre, self.axis)
             col = self.columns[label]
             if ball is not None and _run_on(col, side, self.step):
@@ -207,17 +206,19 @@ class _Search:
         if trace.profiled is not False:
             return trace.end_mm
         if label not in self.clear:
-            self.clear[label] = _clear_end(self.fraction, self.insert, self.deep, self.inc_ids, label, self.centres,
-                                           self.balls, self.axis, self.spacing, self.side, self.step, self.voxel_mm3,
-                                           self.contrasts[label])
+            self.clear[label] = _clear_end(self.fraction, self.insert, self.deep, self.inc_ids, label,
+                                           self.centres, self.balls, self.axis, self.spacing, self.side,
+                                           self.step, self.voxel_mm3, self.contrasts[label])
         return trace.end_mm if self.clear[label] is None else self.clear[label]
 
     def measure(self) -> tuple[dict, dict, list[int], list[int]]:
-        """The posts the traces on the base's side show: label -> (line, slab cross-sections, core radius, end),
+        """The posts the traces on the base's side show: label -> (line, slab cross-sections, core radius,
+        end),
         label -> the trace measured, the labels across a short gap, and those without a post."""
         side, voxel = self.side, self.voxel
         scatter = _pooled_scatter(_inner(trace) for trace in self.traces.values())
-        thin_core = 0.25 * self.max_diameter_mm + CORE_MARGIN_VOXELS * voxel  # half the widest pillar's, less noise
+        # half the widest pillar's, less noise
+        thin_core = 0.25 * self.max_diameter_mm + CORE_MARGIN_VOXELS * voxel
         thin = {}                           # every trace again in the thin core, read once if one is needed
         found, finals, short, missing = {}, {}, [], []
         for label in self.labels:
@@ -245,8 +246,8 @@ class _Search:
         ball, side = self.balls[label], self.side
         start = (self.columns[label].start[side] if ball is None
                  else _ball_surface(ball, self.centres[label - 1], self.axis, side))
-        return _post_radius(self.columns[label], side, start, end, ball, self.contrasts[label], core, self.rings(core),
-                            self.step, self.voxel_mm3, self.under[label])
+        return _post_radius(self.columns[label], side, start, end, ball, self.contrasts[label], core,
+                            self.rings(core), self.step, self.voxel_mm3, self.under[label])
 
     def refine(self, found: dict, finals: dict, cores: dict, missing: list[int]) -> None:
         """Line, radius and blur of each post with slabs enough refined together (one blurred cylinder); a
@@ -255,8 +256,8 @@ class _Search:
             if len(final.area_mm2) >= MIN_LINE_SLABS:
                 line, radius, end = found[label]
                 ball = self.balls[label]
-                line, fitted = _fit_cylinder(self.columns[label], self.side, final, line, radius, cores[label],
-                                             self.step, self.contrasts[label], ball,
+                line, fitted = _fit_cylinder(self.columns[label], self.side, final, line, radius,
+                                             cores[label], self.step, self.contrasts[label], ball,
                                              None if ball is None else self.under[label], self.smoothing)
                 if len(final.area_mm2) >= MIN_OWN_SLABS:        # its own slabs must show a post too
                     radius = fitted if radius >= MIN_RADIUS_MM else 0.0
@@ -271,14 +272,15 @@ class _Search:
         for label in short:
             col, end = self.columns[label], self.base_end(label, self.traces[label, self.side])
             fitted = None if self.balls[label] is None else partial(self.short_radius, label, self.core0, end)
-            radius = _gap_radius(col, self.side, end, self.contrasts[label], self.core0, self.step, self.voxel_mm3,
-                                 found, self.under[label], self.max_diameter_mm, fitted)
+            radius = _gap_radius(col, self.side, end, self.contrasts[label], self.core0, self.step,
+                                 self.voxel_mm3, found, self.under[label], self.max_diameter_mm, fitted)
             if radius is None:
                 missing.append(label)
             else:
                 found[label] = (self.under[label], radius, end)
 
-    def draw(self, found: dict, diameter_mm: float | None) -> tuple[np.ndarray, BaseSurface | None, list[Post]]:
+    def draw(self, found: dict,
+             diameter_mm: float | None) -> tuple[np.ndarray, BaseSurface | None, list[Post]]:
         """The pillar mask, the base's surface (one cast plane: the median of where the posts met it) and the
         posts of ``found`` (label -> (line, radius, end)), each ``diameter_mm`` wide where that is given."""
         side, axis = self.side, self.axis
@@ -295,8 +297,10 @@ class _Search:
             pillar[tuple(i[sel] for i in col.index)] = True
         base = None
         if found:
-            base = BaseSurface(side * axis, float(np.median([side * float(self.centres[label - 1] @ axis) + end
-                                                             for label, (_line, _radius, end) in found.items()])))
+            base = BaseSurface(side * axis,
+                               float(np.median([side * float(self.centres[label - 1] @ axis) + end
+                                                             for label,
+                                                             (_line, _radius, end) in found.items()])))
         posts = [_post(*found[label], self.centres[label - 1], axis, side,
                        self.columns[label].start[side] if self.balls[label] is None
                        else _ball_surface(self.balls[label], self.centres[label - 1], axis, side),
@@ -347,10 +351,12 @@ class BaseSurface:
     def past_mm(self, spacing: np.ndarray, shape: tuple) -> np.ndarray:
         """How far each voxel's centre lies past the surface, mm: positive in the base's silicone (which no
         inclusion's ball holds), negative on the filling's side."""
-        d = np.meshgrid(*(np.arange(n) * s * a for n, s, a in zip(shape, spacing, self.normal)), indexing="ij",
-                        sparse=True)
+        d = np.meshgrid(*(np.arange(n) * s * a for n, s, a in zip(shape, spacing, self.normal)),
+                        indexing="ij", sparse=True)
         return d[0] + d[1] + d[2] - self.offset_mm
 
     def shifted(self, origin_index: np.ndarray, spacing: np.ndarray) -> BaseSurface:
-        """The same plane on a grid (of the same spacing) whose index 0 lies at this one's ``origin_index``."""
-        return BaseSurface(self.normal, self.offset_mm - float(self.normal @ (np.asarray(origin_index) * spacing)))
+        """The same plane on a grid (of the same spacing) whose index 0 lies at this one's
+        ``origin_index``."""
+        return BaseSurface(self.normal,
+                           self.offset_mm - float(self.normal @ (np.asarray(origin_index) * spacing)))

@@ -18,7 +18,8 @@ def class_rows(labels: np.ndarray, affine: np.ndarray) -> list[dict]:
     """One row per class: voxel count and volume in mm^3 (|det| of the affine per voxel)."""
     voxel_mm3 = abs(float(np.linalg.det(np.asarray(affine)[:3, :3])))
     counts = np.bincount(labels.ravel(), minlength=len(CLASS_NAMES))
-    return [{"row": "class", "class": name, "voxels": int(counts[c]), "volume_mm3": float(counts[c]) * voxel_mm3}
+    return [{"row": "class", "class": name, "voxels": int(counts[c]),
+             "volume_mm3": float(counts[c]) * voxel_mm3}
             for c, name in enumerate(CLASS_NAMES)]
 
 
@@ -61,7 +62,8 @@ def shape_rows(shapes: list[dict], affine: np.ndarray) -> list[dict]:
     from lesscli.mri.frame import voxel_to_world
 
     return [{"row": "inclusion_shape", "shape": s["shape"],
-             "centre_mm": [round(float(v), 3) for v in voxel_to_world(np.asarray([s["centre_index"]]), affine)[0]],
+             "centre_mm": [round(float(v), 3)
+                           for v in voxel_to_world(np.asarray([s["centre_index"]]), affine)[0]],
              "ball_diameter_mm": s["ball_diameter_mm"], "ball_misfit": s["ball_misfit"]} for s in shapes]
 
 
@@ -132,7 +134,8 @@ def qc_centres(labels: np.ndarray) -> list[np.ndarray]:
         order = np.argsort(-np.asarray(sizes)) + 1
         return [np.round(ndimage.center_of_mass(comps == i)).astype(int) for i in order]
     body = labels != BACKGROUND
-    return [np.round(np.argwhere(body).mean(axis=0)).astype(int) if body.any() else np.array(labels.shape) // 2]
+    return [np.round(np.argwhere(body).mean(axis=0)).astype(int) if body.any()
+            else np.array(labels.shape) // 2]
 
 
 def save_qc(path: str, image: np.ndarray, labels: np.ndarray, spacing_mm, title: str = "") -> None:

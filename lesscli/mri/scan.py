@@ -127,7 +127,8 @@ def _number(value, default: float) -> float:
 def _group_value(groups, sequence: str, key: str):
     """``key`` in the first of ``groups`` (functional group items, or None) whose ``sequence`` holds it."""
     for group in groups:
-        if group is not None and sequence in group and len(group[sequence].value) and key in group[sequence][0]:
+        if (group is not None and sequence in group and len(group[sequence].value)
+            and key in group[sequence][0]):
             return group[sequence][0][key].value
     return None
 
@@ -149,16 +150,20 @@ def _images(name: str, ds) -> list[_Image]:
             out.append(_Image(f"{name} frame {k + 1}", ds, np.asarray(at, float), np.asarray(turned, float),
                               (float(spacing[0]), float(spacing[1])),
                               _number(_group_value(groups, "PixelMeasuresSequence", "SliceThickness"), 1.0),
-                              _number(_group_value(groups, "PixelValueTransformationSequence", "RescaleSlope"), 1.0),
-                              _number(_group_value(groups, "PixelValueTransformationSequence", "RescaleIntercept"),
+                              _number(_group_value(groups, "PixelValueTransformationSequence",
+                                                   "RescaleSlope"), 1.0),
+                              _number(_group_value(groups, "PixelValueTransformationSequence",
+                                                   "RescaleIntercept"),
                                       0.0), k))
         return out
     if not all(key in ds for key in ("ImagePositionPatient", "ImageOrientationPatient", "PixelSpacing",
                                      "PixelData")):
         return []
-    return [_Image(name, ds, np.asarray(ds.ImagePositionPatient, float), np.asarray(ds.ImageOrientationPatient, float),
-                   (float(ds.PixelSpacing[0]), float(ds.PixelSpacing[1])), _number(ds.get("SliceThickness"), 1.0),
-                   _number(ds.get("RescaleSlope"), 1.0), _number(ds.get("RescaleIntercept"), 0.0))]
+    return [_Image(name, ds, np.asarray(ds.ImagePositionPatient, float),
+                   np.asarray(ds.ImageOrientationPatient, float),
+                   (float(ds.PixelSpacing[0]), float(ds.PixelSpacing[1])),
+                   _number(ds.get("SliceThickness"), 1.0), _number(ds.get("RescaleSlope"), 1.0),
+                   _number(ds.get("RescaleIntercept"), 0.0))]
 
 
 def _dicom_affine(first: _Image, last: _Image, n: int) -> np.ndarray:
@@ -166,8 +171,8 @@ def _dicom_affine(first: _Image, last: _Image, n: int) -> np.ndarray:
     dr, dc = first.spacing
     step = (last.position - first.position) / (n - 1) if n > 1 else first.normal * first.thickness
     aff = np.eye(4)
-    aff[:3, 0], aff[:3, 1], aff[:3, 2], aff[:3, 3] = first.orientation[:3] * dc, first.orientation[3:] * dr, step, \
-        first.position
+    aff[:3, 0], aff[:3, 1] = first.orientation[:3] * dc, first.orientation[3:] * dr
+    aff[:3, 2], aff[:3, 3] = step, first.position
     return np.diag([-1.0, -1.0, 1.0, 1.0]) @ aff      # LPS -> RAS
 
 
@@ -194,8 +199,9 @@ def _one_series(path: str, images: list[_Image], series: str | None) -> list[_Im
                             f"SeriesInstanceUID of one ({', '.join(uids)})")
         return chosen[0]
     if len(groups) > 1:
-        listed = "; ".join(sorted(f"{_series_key(g[0].ds)} {str(getattr(g[0].ds, 'SeriesDescription', '')).strip()!r}: "
-                                  f"{len(g)} images" for g in groups.values()))
+        listed = "; ".join(sorted(f"{_series_key(g[0].ds)} "
+                                  f"{str(getattr(g[0].ds, 'SeriesDescription', '')).strip()!r}: {len(g)} "
+                                  "images" for g in groups.values()))
         raise DataError(f"{path}: {len(groups)} series in this folder ({listed}); choose one with --series")
     return next(iter(groups.values()))
 
@@ -205,8 +211,8 @@ def _slice_positions(path: str, images: list[_Image]) -> list[_Image]:
     else a DataError naming the files."""
     for image in images:
         if np.abs(image.orientation - images[0].orientation).max() > ORIENTATION_TOLERANCE:
-            raise DataError(f"{path}: {images[0].name} and {image.name} have different orientations; one series "
-                            "of parallel slices is one volume")
+            raise DataError(f"{path}: {images[0].name} and {image.name} have different orientations; one "
+                            "series of parallel slices is one volume")
     along = np.array([image.position for image in images]) @ images[0].normal
     order = np.argsort(along, kind="stable")
     images, at = [images[i] for i in order], along[order]
@@ -219,8 +225,9 @@ def _slice_positions(path: str, images: list[_Image]) -> list[_Image]:
         step = float(np.median(gaps))
         k = int(np.argmax(np.abs(gaps - step)))
         if abs(gaps[k] - step) > max(SPACING_TOLERANCE * step, POSITION_TOLERANCE_MM):
-            raise DataError(f"{path}: slices are not evenly spaced ({gaps[k]:.3f} mm between {images[k].name} and "
-                            f"{images[k + 1].name}, {step:.3f} mm elsewhere): a slice missing?")
+            raise DataError(f"{path}: slices are not evenly spaced ({gaps[k]:.3f} mm between "
+                            f"{images[k].name} and {images[k + 1].name}, {step:.3f} mm elsewhere): a slice "
+                            "missing?")
     return images
 
 
@@ -230,7 +237,8 @@ def _load_dicom(path: str, series: str | None = None) -> MRIScan:
     except ImportError:
         raise DataError(f"{path}: reading DICOM needs pydicom (pip install 'less-tactile[dicom]'), "
                         "or convert the series to NIfTI first") from None
-    names = sorted(os.path.relpath(os.path.join(root, f), path) for root, _dirs, files in os.walk(path) for f in files)
+    names = sorted(os.path.relpath(os.path.join(root, f), path) for root, _dirs,
+                   files in os.walk(path) for f in files)
     images = []
     for name in names:                      # large values (the pixels) read once an image is chosen
         try:
@@ -246,8 +254,9 @@ def _load_dicom(path: str, series: str | None = None) -> MRIScan:
             pixels.append(image.pixels())
         except Exception as exc:            # noqa: BLE001 - pydicom raises many kinds for undecodable data
             syntax = getattr(getattr(image.ds, "file_meta", None), "TransferSyntaxUID", None)
-            raise DataError(f"{os.path.join(path, image.name)}: pixel data not decodable"
-                            f"{f' ({syntax.name})' if syntax else ''}: {' '.join(str(exc).split())}") from None
+            named = f" ({syntax.name})" if syntax else ""
+            raise DataError(f"{os.path.join(path, image.name)}: pixel data not decodable{named}: "
+                            f"{' '.join(str(exc).split())}") from None
     shapes = {p.shape for p in pixels}
     if len(shapes) != 1:
         raise DataError(f"{path}: slices have different sizes {sorted(shapes)}")

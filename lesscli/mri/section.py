@@ -1,6 +1,7 @@
 """A post's cross-section: from its trace's slabs, fitted to its whole silicone where it is a slab or two
 tall (:func:`_post_radius`), across a gap too short to hold a slab (:func:`_gap_radius`), or pooled over the
-scan's posts (:func:`_pooled_radii`); and the base's side, from the posts the traces show (:func:`_base_side`)."""
+scan's posts (:func:`_pooled_radii`); and the base's side, from the posts the traces show
+(:func:`_base_side`)."""
 
 from __future__ import annotations
 
@@ -17,17 +18,19 @@ from lesscli.mri.trace import MIN_RADIUS_MM, Trace, _pooled_scatter
 SHORT_GAP_SLABS = 2.5           # a closer base leaves too few slabs to measure a cross-section
 GAP_AXIS_MM = 0.75              # the voxels this close to the line decide whether a short gap holds a post
 MIN_OWN_SLABS = 4               # fewer slabs take the cross-section pooled over the scan's pillars
-CLEAR_POST_RADIUS_MM = 0.7      # a significant post this wide (1.4 mm) outweighs a brief side of its inclusion
+# a significant post this wide (1.4 mm) outweighs a brief side of its inclusion
+CLEAR_POST_RADIUS_MM = 0.7
 
 
 def _inner(trace: Trace) -> Trace:
-    """Leave out the slab next to the inclusion and, from 3 slabs, the one next to the base (partial volume)."""
+    """Leave out the slab next to the inclusion and, from 3 slabs, the one next to the base (partial
+    volume)."""
     n = len(trace.area_mm2)
     if n < 2:
         return trace
     keep = slice(1, n - 1 if n >= 3 else n)
-    return replace(trace, t_mm=trace.t_mm[keep], area_mm2=trace.area_mm2[keep], centroid_mm=trace.centroid_mm[keep],
-                   ring=trace.ring[keep])
+    return replace(trace, t_mm=trace.t_mm[keep], area_mm2=trace.area_mm2[keep],
+                   centroid_mm=trace.centroid_mm[keep], ring=trace.ring[keep])
 
 
 def _short_gap(trace: Trace, col: _Column, sign: int, step_mm: float) -> bool:
@@ -103,7 +106,8 @@ def _post_radius(col: _Column, sign: int, start_mm: float, end_mm: float, ball, 
     at = np.concatenate(at)
     excess = (value[at] - np.interp(st[at], ring_t, ring_level)) / contrast[1]
     def axial(wider: float) -> np.ndarray:
-        """The post along its length, from the surface of the ball ``wider`` (mm) than fitted above each voxel."""
+        """The post along its length, from the surface of the ball ``wider`` (mm) than fitted above each
+        voxel."""
         top = start_mm if ball is None else start_mm - ball.radius_mm + np.sqrt(np.maximum(
             (ball.radius_mm + wider) ** 2 - rho[at] ** 2, 0.0))
         return ndtr((st[at] - top) / sigma) - ndtr((st[at] - end_mm) / sigma)
@@ -133,8 +137,8 @@ def _gap_radius(col: _Column, sign: int, end_mm: float, contrast: tuple[float, f
     return radius if MIN_RADIUS_MM <= radius <= 0.5 * widest_mm else None
 
 
-def _base_side(traces: dict, columns: dict, contrasts: dict, labels: list[int], core_mm: float, step_mm: float,
-               voxel_mm3: float) -> int:
+def _base_side(traces: dict, columns: dict, contrasts: dict, labels: list[int], core_mm: float,
+               step_mm: float, voxel_mm3: float) -> int:
     """+1 or -1: the side of the inclusions where the base lies, from the excess silicone beyond them.
 
     In order, the first that decides: the cross-sections summed per side of the significant posts (their
@@ -162,9 +166,11 @@ def _base_side(traces: dict, columns: dict, contrasts: dict, labels: list[int], 
         if len(brief) == 1 and clear == [-brief[0]]:
             strong += clear[0] * inner[k, clear[0]].median_area()
             continue
-        gaps = {sign: _gap_area(columns[k], sign, traces[k, sign].end_mm, contrasts[k], core_mm, step_mm, voxel_mm3)
+        gaps = {sign: _gap_area(columns[k], sign, traces[k, sign].end_mm, contrasts[k], core_mm, step_mm,
+                                voxel_mm3)
                 for sign in short}
-        gaps = {sign: max(area, math.pi * MIN_RADIUS_MM ** 2) for sign, area in gaps.items() if area is not None}
+        gaps = {sign: max(area, math.pi * MIN_RADIUS_MM ** 2) for sign,
+                area in gaps.items() if area is not None}
         strong += sum(sign * area for sign, area in gaps.items()) if gaps else sum(
             sign * inner[k, sign].median_area() for sign in (1, -1) if inner[k, sign].significant(scatter))
     weak = sum(sign * inner[k, sign].median_area() for k in labels for sign in (1, -1))

@@ -1,21 +1,11 @@
 """MRI volume -> labels (0 background, 1 insert, 2 pillar, 3 inclusion), in 3D and physical units.
 
-Pipeline (:func:`segment`):
-
-1. validate (3D, finite, not constant) and normalise intensities to the 99.5th percentile;
-2. Gaussian smoothing (sigma in mm) against noise;
-3. bias-field correction: a smooth multiplicative field ``exp(poly(x, y, z))`` fitted to the log
-   intensities of the two tissue classes inside the object (:mod:`lesscli.mri.bias`);
-4. three-class thresholding: class levels (air, dark tissue, bright tissue) from multi-Otsu, then
-   thresholds half-way between adjacent levels (the 50 % partial-volume surfaces);
-5. topology: a component that crosses the scan from face to face along two or more axes (a
-   container, a bath) is background, and so is everything below the air threshold; the insert is
-   the largest remaining object of at least MIN_INSERT_MM3 (else: no insert), holes filled;
-6. which tissue is silicone: the minority tissue of the insert (the filling is hydrogel), so either
-   contrast works;
-7. silicone morphology (:mod:`lesscli.mri.morphology`): inclusions = opening with a ball thicker
-   than any pillar or skin; pillars traced from each inclusion to the base in the silicone fraction
-   image (:mod:`lesscli.mri.pillar`); the rest of the silicone (skin, base) stays insert.
+The pipeline (:func:`segment`) normalises and smooths the intensities, corrects the bias field
+(:mod:`lesscli.mri.bias`), thresholds three classes (air, dark and bright tissue) half-way between their
+multi-Otsu levels (the 50 % partial-volume surfaces), takes the largest object that does not cross the
+scan from face to face (a container or bath is background) as the insert, calls its minority tissue
+silicone (the filling is hydrogel, so either contrast works), and splits the silicone into inclusions,
+pillars and skin (:mod:`lesscli.mri.morphology`).
 """
 
 from __future__ import annotations
@@ -70,9 +60,10 @@ class SegmentParams:
     pillar_diameter_mm: float | None = None
 
     def __post_init__(self):
-        if self.pillar_diameter_mm is not None and not 0 < self.pillar_diameter_mm <= self.pillar_max_diameter_mm:
-            raise ValueError(f"the pillar diameter ({self.pillar_diameter_mm:g} mm) must lie above 0 and at most "
-                             f"the thickest pillar's ({self.pillar_max_diameter_mm:g} mm)")
+        if (self.pillar_diameter_mm is not None
+            and not 0 < self.pillar_diameter_mm <= self.pillar_max_diameter_mm):
+            raise ValueError(f"the pillar diameter ({self.pillar_diameter_mm:g} mm) must lie above 0 and at "
+                             f"most the thickest pillar's ({self.pillar_max_diameter_mm:g} mm)")
 
 
 @dataclass
@@ -230,11 +221,13 @@ def _surface(corrected: np.ndarray, insert: np.ndarray, levels: tuple[float, flo
     inside = ndimage.distance_transform_edt(ins, sampling=spacing)
     outside = ndimage.distance_transform_edt(~ins, sampling=spacing)
     band_mm = SURFACE_BAND_VOXELS * voxel
-    depth = SURFACE_LAYER_VOXELS * voxel           # the layer is at least a voxel thick: slices must not fall past it
+    # the layer is at least a voxel thick: slices must not fall past it
+    depth = SURFACE_LAYER_VOXELS * voxel
     layer = ins & (inside > depth) & (inside <= depth + max(SURFACE_LAYER_MM, voxel))
     sigma = SURFACE_SIGMA_MM / spacing
     weight = ndimage.gaussian_filter(layer.astype(np.float32), sigma)
-    level = ndimage.gaussian_filter(np.where(layer, img, 0.0).astype(np.float32), sigma) / np.maximum(weight, 1e-6)
+    level = ndimage.gaussian_filter(np.where(layer, img, 0.0).astype(np.float32), sigma) / np.maximum(weight,
+                                                                                                     1e-6)
     band = ((ins & (inside <= band_mm)) | (~ins & (outside <= band_mm))) & (weight > SURFACE_MIN_WEIGHT)
     threshold = np.where(np.abs(level - dark) <= np.abs(level - bright), half_level(air, dark),
                          half_level(air, bright))
@@ -256,6 +249,18 @@ def _check_contrast(corrected: np.ndarray, insert: np.ndarray, where: str) -> No
 def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams(),
             where: str = "scan") -> Segmentation:
     """Label an MRI volume of an insert.
+
+    1. validate (3D, finite, not constant) and normalise intensities to the 99.5th percentile;
+    2. Gaussian smoothing (sigma in mm) against noise;
+    3. bias-field correction: a smooth multiplicative field ``exp(poly(x, y, z))`` fitted to the log
+       intensities of the two tissue classes inside the object (:mod:`lesscli.mri.bias`);
+    4. three-class thresholding: class levels (air, dark tissue, bright tissue) from multi-Otsu, then
+       thresholds half-way between adjacent levels;
+    5. topology: a component that crosses the scan from face to face along two or more axes is
+       background, and so is everything below the air threshold; the insert is the largest remaining
+       object of at least MIN_INSERT_MM3 (else: no insert), holes filled;
+    6. silicone: the minority tissue of the insert;
+    7. silicone morphology (:func:`lesscli.mri.morphology.split_silicone`).
 
     Args:
         image: 3D array of intensities, any axis order; ``spacing_mm`` follows the same axes.
@@ -281,7 +286,8 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     arr = arr - min(float(arr.min()), 0.0)             # magnitudes are >= 0; shift signed data
     scale = float(np.percentile(_sample(arr), NORM_PERCENTILE)) or float(arr.max())
     smooth_mm = params.smooth_mm if params.smooth_mm is not None else SMOOTH_VOXELS * float(spacing.min())
-    smoothed = ndimage.gaussian_filter(arr / scale, sigma=smooth_mm / spacing) if smooth_mm > 0 else arr / scale
+    smoothed = (ndimage.gaussian_filter(arr / scale, sigma=smooth_mm / spacing) if smooth_mm > 0
+                else arr / scale)
     corrected, foreground = correct_bias(smoothed, spacing, params.bias_degree)
     air, dark, bright = _levels(corrected, foreground)
     t_air, t_tissue = 0.5 * (air + dark), 0.5 * (dark + bright)
@@ -297,12 +303,13 @@ def segment(image: np.ndarray, spacing_mm, params: SegmentParams = SegmentParams
     pillar, inclusion, more, shapes, base, posts = split_silicone(silicone, insert, spacing,
                                                                   params.pillar_max_diameter_mm,
                                                                   params.skin_max_thickness_mm, fraction,
-                                                                  params.inclusion_shape, params.pillar_diameter_mm,
+                                                                  params.inclusion_shape,
+                                                                  params.pillar_diameter_mm,
                                                                   smooth_mm / spacing)
     labels = np.full(arr.shape, BACKGROUND, dtype=np.uint8)
     labels[insert] = INSERT
     labels[pillar] = PILLAR
     labels[inclusion] = INCLUSION
     levels = {"air": air, "silicone": sil_level, "hydrogel": gel_level}
-    return Segmentation(labels, spacing, silicone_brighter, levels, (t_air, t_tissue), corrected.astype(np.float32),
-                        silicone, warnings + more, shapes, base, posts)
+    return Segmentation(labels, spacing, silicone_brighter, levels, (t_air, t_tissue),
+                        corrected.astype(np.float32), silicone, warnings + more, shapes, base, posts)

@@ -17,7 +17,8 @@ import numpy as np
 from lesscli.mri.ball import fitted_ball
 
 JUNCTION_STEPS = 4
-BALL_MISFIT = 1.25              # an inclusion whose blurred ball fits its voxels this close to the noise is that ball
+# an inclusion whose blurred ball fits its voxels this close to the noise is that ball
+BALL_MISFIT = 1.25
 
 
 def local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray, spacing: np.ndarray,
@@ -52,7 +53,8 @@ def local_surface(bodies: np.ndarray, fraction: np.ndarray, allowed: np.ndarray,
     shapes = []
     for i, sl in enumerate(ndimage.find_objects(comps), start=1):
         own = (comps == i) & ~base
-        fit = fitted_ball(own, fraction, allowed, spacing, sl, reach_mm, base if blurred is None else base | blurred)
+        fit = fitted_ball(own, fraction, allowed, spacing, sl, reach_mm,
+                          base if blurred is None else base | blurred)
         if fit is None:
             out |= own
             shapes.append({"shape": "image", "centre_index": list(ndimage.center_of_mass(own)),
@@ -88,7 +90,8 @@ def junctions(bodies: np.ndarray, pillar: np.ndarray, spacing: np.ndarray, shape
     balls = {}              # component -> (centre, radius) of the ball it was drawn as
     body = np.argwhere(comps)
     for row in shapes:
-        if row["shape"] == "ball" and len(body):    # the component nearest its centre (the pillar runs through it)
+        # the component nearest its centre (the pillar runs through it)
+        if row["shape"] == "ball" and len(body):
             centre = np.asarray(row["centre_index"]) * spacing
             nearest = body[np.argmin(np.sum((body * spacing - centre) ** 2, axis=1))]
             balls[int(comps[tuple(nearest)])] = (centre, 0.5 * row["ball_diameter_mm"])

@@ -87,7 +87,8 @@ class SyntheticMRI:
 
 
 def random_pose(params: MRIParams, rng: np.random.Generator) -> tuple[np.ndarray, float]:
-    """(3, 3) rotation: yaw about z, then a tilt of at most ``max_tilt_deg`` about a random horizontal axis."""
+    """(3, 3) rotation: yaw about z, then a tilt of at most ``max_tilt_deg`` about a random horizontal
+    axis."""
     yaw_deg = float(rng.uniform(0.0, 360.0)) if params.yaw_deg is None else float(params.yaw_deg)
     tilt = math.radians(params.max_tilt_deg) * float(rng.uniform(0.0, 1.0))
     azimuth = float(rng.uniform(0.0, 2 * math.pi))
@@ -104,7 +105,8 @@ def _grid(phantom: Phantom, rotation: np.ndarray, params: MRIParams,
     posed = _apply(corners, rotation)
     centre_xyz = 0.5 * (posed.min(axis=0) + posed.max(axis=0))
     if params.shape is None:
-        extent_zyx = (posed.max(axis=0) - posed.min(axis=0))[::-1] + 2 * (params.margin_mm + params.max_shift_mm)
+        extent_zyx = ((posed.max(axis=0) - posed.min(axis=0))[::-1] + 2
+                      * (params.margin_mm + params.max_shift_mm))
         shape = tuple(math.ceil(e / s) + 1 for e, s in zip(extent_zyx, spacing))
     else:
         shape = tuple(int(n) for n in params.shape)
@@ -228,7 +230,8 @@ def save_synthetic(result: SyntheticMRI, image_path: str, labels_path: str | Non
 
 
 def find_phantom(name_or_path: str) -> Phantom:
-    """A catalogue insert by name (any catalogue, case-insensitive) or the first phantom of a .toml/.json file."""
+    """A catalogue insert by name (any catalogue, case-insensitive) or the first phantom of a .toml/.json
+    file."""
     import os
 
     from lesscli.phantom.catalogue import CATALOGUES, load_phantom_file
@@ -242,7 +245,8 @@ def find_phantom(name_or_path: str) -> Phantom:
 
     hint = closest(name_or_path.lower(), inserts)
     raise DataError(f"unknown insert '{name_or_path}'" + (f"; did you mean '{inserts[hint].name}'?" if hint
-                                                          else " (give a catalogue insert name or a .toml/.json file)"))
+                                                          else " (give a catalogue insert name or a "
+                                                               ".toml/.json file)"))
 
 
 def write_mri_set(out_dir: str, phantoms: list[Phantom], orientations, seed: int = 0,
@@ -263,8 +267,11 @@ def write_mri_set(out_dir: str, phantoms: list[Phantom], orientations, seed: int
             for k in orientations:
                 result = synthesize(base.rotated(k), np.random.default_rng([seed, i, k]), params)
                 stem = f"{base.name}_{k}"
-                save_synthetic(result, os.path.join(tmp, stem + ".nii.gz"), os.path.join(tmp, stem + "_truth.nii.gz"))
-                rows.append({"insert": base.name, "orientation": int(k), "mri": os.path.join(folder, stem + ".nii.gz"),
+                save_synthetic(result, os.path.join(tmp, stem + ".nii.gz"),
+                               os.path.join(tmp, stem + "_truth.nii.gz"))
+                rows.append({"insert": base.name, "orientation": int(k),
+                             "mri": os.path.join(folder, stem + ".nii.gz"),
                              "truth": os.path.join(folder, stem + "_truth.nii.gz"),
-                             "shape": "x".join(map(str, result.image.shape)), "yaw_deg": round(result.yaw_deg, 3)})
+                             "shape": "x".join(map(str, result.image.shape)),
+                             "yaw_deg": round(result.yaw_deg, 3)})
     return rows

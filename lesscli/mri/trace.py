@@ -31,10 +31,13 @@ BASE_PLATEAU_SLABS = 3          # from this many slabs in the base, its level is
 PROFILE_GEL_SLABS = 4           # the base surface's profile fit reads this many hydrogel slabs before it
 PROFILE_AIR_SLABS = 2           # ... and this many slabs past the insert beyond the base
 PROFILE_BLUR_SLABS = (0.2, 2.0)  # ... with its blur within this range, in slabs
-PROFILE_MOVE_SLABS = 0.5        # ... moving the half-way crossing by less than this (at it: the crossing kept)
+# ... moving the half-way crossing by less than this (at it: the crossing kept)
+PROFILE_MOVE_SLABS = 0.5
 PROFILE_SPARE_SLABS = 2         # ... from this many slabs more than it has unknowns
-CLEAR_RING_MM = 4.0             # the annulus clear of a ball where the base's profile is read under a short post
-TESTED_SLABS = 3                # from this many slabs, a trace's cross-section is tested against their scatter
+# the annulus clear of a ball where the base's profile is read under a short post
+CLEAR_RING_MM = 4.0
+# from this many slabs, a trace's cross-section is tested against their scatter
+TESTED_SLABS = 3
 
 
 @dataclass
@@ -171,7 +174,8 @@ def _base_crossing(col: _Column, st: np.ndarray, slab: np.ndarray, ring: np.ndar
     norm = (np.asarray(levels) - contrast[0]) / scale
     j = int(np.argmax(norm > HALF)) if (norm > HALF).any() else len(ts) - 1
     t, norm = np.asarray(ts[:j + 1]), norm[:j + 1]
-    before_t, before = list(ts[max(j - PROFILE_GEL_SLABS, 0):j]), list(levels[max(j - PROFILE_GEL_SLABS, 0):j])
+    before_t, before = (list(ts[max(j - PROFILE_GEL_SLABS, 0):j]),
+                        list(levels[max(j - PROFILE_GEL_SLABS, 0):j]))
     inclusion_side = (slab == -1) & ring & col.free          # the inclusion's last slice
     if j == 0 and inclusion_side.any():
         before_t, before = [float(np.median(st[inclusion_side]))], [_ring_level(col.value[inclusion_side])]
@@ -256,14 +260,15 @@ def _clear_radius(ball, voxel_mm: float) -> float:
     return ball.radius_mm + 2.0 * ball.sigma_mm + voxel_mm
 
 
-def _clear_end(fraction, insert, deep, inc_ids, label: int, centres: np.ndarray, balls: dict, axis: np.ndarray,
-               spacing: np.ndarray, side: int, step_mm: float, voxel_mm3: float,
+def _clear_end(fraction, insert, deep, inc_ids, label: int, centres: np.ndarray, balls: dict,
+               axis: np.ndarray, spacing: np.ndarray, side: int, step_mm: float, voxel_mm3: float,
                contrast: tuple[float, float]) -> float | None:
     """The base surface under inclusion ``label`` (mm along ``side`` * ``axis`` from its body's centre, as
     :attr:`Trace.end_mm`) read in an annulus CLEAR_RING_MM wide around its fitted ball's axis, clear of the
-    ball's blur (:func:`_clear_radius`) and of every other inclusion's, walked from up to PROFILE_GEL_SLABS + 2
-    slabs beside the ball (not past its centre): the hydrogel before the base is read there, and the base's
-    profile fitted (:func:`_base_crossing`). None without a fitted ball or where that fit is not decided either.
+    ball's blur (:func:`_clear_radius`) and of every other inclusion's, walked from up to PROFILE_GEL_SLABS +
+    2 slabs beside the ball (not past its centre): the hydrogel before the base is read there, and the base's
+    profile fitted (:func:`_base_crossing`). None without a fitted ball or where that fit is not decided
+    either.
 
     Under a post a slab or two tall the ring of the post's own trace holds a slab or two of hydrogel, whose
     levels the ball's blur raises: too few for the profile fit, and the half-way crossing that stands in
@@ -283,9 +288,11 @@ def _clear_end(fraction, insert, deep, inc_ids, label: int, centres: np.ndarray,
         return None
     near_other = np.zeros(len(col.t), dtype=bool)
     for other in others:
-        near_other |= _from_line(col.uv, _ball_axis(other, centre, axis), col.t) <= _clear_radius(other, voxel)
+        near_other |= (_from_line(col.uv, _ball_axis(other, centre, axis), col.t)
+                       <= _clear_radius(other, voxel))
     back = min(PROFILE_GEL_SLABS + 2, math.floor(col.start[side] / step_mm))
-    col = replace(col, free=col.free & ~near_other, start={**col.start, side: col.start[side] - back * step_mm})
+    col = replace(col, free=col.free & ~near_other,
+                  start={**col.start, side: col.start[side] - back * step_mm})
     trace = _trace(col, side, line, inner, (inner, inner + CLEAR_RING_MM), step_mm, voxel_mm3, contrast)
     return trace.end_mm if trace.profiled else None
 
@@ -298,7 +305,8 @@ def _contrast(fraction: np.ndarray, inc_ids: np.ndarray, label: int, col: _Colum
     sl = ndimage.find_objects(inc_ids, max_label=label)[label - 1]
     own = np.pad(inc_ids[sl] == label, 1)
     depth = ndimage.distance_transform_edt(own, sampling=spacing)[1:-1, 1:-1, 1:-1]
-    interior = (depth > float(spacing.max())) if (depth > float(spacing.max())).any() else own[1:-1, 1:-1, 1:-1]
+    interior = ((depth > float(spacing.max())) if (depth > float(spacing.max())).any()
+                else own[1:-1, 1:-1, 1:-1])
     silicone = float(np.median(fraction[sl][interior]))
     rho = _from_line(col.uv)
     ring = col.free & (rho > ring_mm[0]) & (rho <= ring_mm[1])

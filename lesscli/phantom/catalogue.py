@@ -59,7 +59,8 @@ def single() -> list[Phantom]:
             for off in SINGLE_OFFSETS_MM]
 
 
-def _chain(name: str, start: tuple[float, float], step: tuple[float, float], count: int, radius_mm: float) -> Phantom:
+def _chain(name: str, start: tuple[float, float], step: tuple[float, float], count: int,
+           radius_mm: float) -> Phantom:
     z = inclusion_depth_mm(radius_mm)
     spheres = [Sphere((start[0] + i * step[0], start[1] + i * step[1], z), radius_mm) for i in range(count)]
     inclusions, pillars = hanging(spheres)
@@ -69,7 +70,8 @@ def _chain(name: str, start: tuple[float, float], step: tuple[float, float], cou
 def _curve(name: str, radius_arc_mm: float, angles_deg: list[float], radius_mm: float) -> Phantom:
     z = inclusion_depth_mm(radius_mm)
     spheres = [Sphere((round(radius_arc_mm * math.cos(math.radians(a)), 9),
-                       round(radius_arc_mm * math.sin(math.radians(a)), 9), z), radius_mm) for a in angles_deg]
+                       round(radius_arc_mm * math.sin(math.radians(a)), 9), z), radius_mm)
+                       for a in angles_deg]
     inclusions, pillars = hanging(spheres)
     return Phantom(name, inclusions=inclusions, pillars=pillars)
 
@@ -118,14 +120,16 @@ def load_phantom_file(path: str) -> list[Phantom]:
             doc = read_toml(path, "phantom set")
             unknown = set(doc) - {"phantom"}
             if unknown:
-                raise DataError(f"{path}: unknown top-level key '{min(unknown)}'; expected [[phantom]] tables")
+                raise DataError(f"{path}: unknown top-level key '{min(unknown)}'; expected [[phantom]] "
+                                "tables")
             entries = doc.get("phantom", [])
         else:
             import json
 
             with open(path, encoding="utf-8") as fh:
                 doc = json.load(fh)
-            entries = doc if isinstance(doc, list) else doc.get("phantoms", [doc]) if isinstance(doc, dict) else doc
+            entries = (doc if isinstance(doc, list) else doc.get("phantoms", [doc]) if isinstance(doc, dict)
+                       else doc)
     except (ValueError, OSError) as exc:
         raise DataError(f"{path}: cannot parse ({exc})") from None
     if not isinstance(entries, list) or not entries:
@@ -142,4 +146,5 @@ def resolve_set(name_or_path: str) -> list[Phantom]:
     from lesscli.errors import did_you_mean
 
     raise DataError(f"unknown phantom set '{name_or_path}'"
-                    + did_you_mean(name_or_path, CATALOGUES, f" (choose {', '.join(CATALOGUES)} or a .toml/.json file)"))
+                    + did_you_mean(name_or_path, CATALOGUES,
+                                   f" (choose {', '.join(CATALOGUES)} or a .toml/.json file)"))

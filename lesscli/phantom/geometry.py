@@ -229,10 +229,13 @@ class Phantom:
         delta = (int(k) - self.orientation) % ORIENTATIONS
         if delta == 0:
             return self
-        spheres = tuple(Sphere((*_rotate_xy(s.center_mm[0], s.center_mm[1], delta), s.center_mm[2]), s.radius_mm)
+        spheres = tuple(Sphere((*_rotate_xy(s.center_mm[0], s.center_mm[1], delta), s.center_mm[2]),
+                               s.radius_mm)
                         for s in self.inclusions)
-        pillars = tuple(Pillar(*_rotate_xy(c.x_mm, c.y_mm, delta), c.z_top_mm, c.radius_mm) for c in self.pillars)
-        return replace(self, inclusions=spheres, pillars=pillars, orientation=int(k) % ORIENTATIONS, _cache={})
+        pillars = tuple(Pillar(*_rotate_xy(c.x_mm, c.y_mm, delta), c.z_top_mm, c.radius_mm)
+                        for c in self.pillars)
+        return replace(self, inclusions=spheres, pillars=pillars, orientation=int(k) % ORIENTATIONS,
+                       _cache={})
 
     def label_volume(self, shape: tuple[int, int, int] = DEFAULT_LABEL_SHAPE,
                      spacing_mm: tuple[float, float, float] = DEFAULT_LABEL_SPACING_MM) -> LabelVolume:
@@ -263,7 +266,8 @@ class Phantom:
             "width_mm": float(self.width_mm), "height_mm": float(self.height_mm),
             "skin_thickness_mm": float(self.skin_thickness_mm), "orientation": self.orientation,
             **{key: _material_dict(getattr(self, key)) for key in ("skin", "filling", "inclusion", "pillar")},
-            "inclusions": [{"center_mm": list(s.center_mm), "radius_mm": float(s.radius_mm)} for s in self.inclusions],
+            "inclusions": [{"center_mm": list(s.center_mm), "radius_mm": float(s.radius_mm)}
+                           for s in self.inclusions],
             "pillars": [{"x_mm": float(c.x_mm), "y_mm": float(c.y_mm), "z_top_mm": float(c.z_top_mm),
                          "radius_mm": float(c.radius_mm)} for c in self.pillars],
         }

@@ -4,23 +4,12 @@ The catalogues (``lesscli.phantom.catalogue``) place every inclusion 5-13 mm fro
 depth with fixed moduli; a model trained on them can learn the layout instead of reading the touch.
 Training data therefore comes from this family, and the catalogues stay for evaluation.
 
-Per insert (independent stream per insert, spawned from the family generator, fixed draw order):
-
-- empty with probability ``empty_share`` (no inclusion, no pillar);
-- inclusion diameter uniform in ``diameter_mm``;
-- depth: the sphere's top lies ``gap_below_skin_mm`` (uniform) under the skin;
-- centre uniform over the whole insert such that the sphere keeps ``edge_margin_mm`` from every flat of
-  the octagon (it lies fully in the filling region), found by rejection sampling;
-- moduli log-uniform (stiffness contrasts are ratios) in ``filling_kpa``, ``inclusion_kpa`` and
-  ``skin_kpa``; the pillar keeps the catalogue material; the inclusion hangs on a pillar down to the
-  base, as in the catalogue (``catalogue.hanging``).
-
-Every parameter is drawn for every insert, so changing ``empty_share`` only changes which inserts are
-empty, and ``count = 3`` gives the first three inserts of ``count = 48``.
-
-Names are ``R<index>s<seed>`` (``R0s7``: the first insert of the family drawn with seed 7), so families
-of different seeds can be merged without clashes. A name identifies an insert only together with the
-ranges it was drawn from (a scan set's meta records its scene).
+Each insert is drawn from its own stream, spawned from the family generator, in a fixed order
+(:func:`random_insert`); every parameter is drawn for every insert, so changing ``empty_share`` only
+changes which inserts are empty, and ``count = 3`` gives the first three inserts of ``count = 48``.
+Names are ``R<index>s<seed>`` (``R0s7``: the first insert drawn with seed 7), so families of different
+seeds merge without clashes; a name identifies an insert only together with the ranges it was drawn
+from (a scan set's meta records its scene).
 """
 
 from __future__ import annotations
@@ -170,7 +159,17 @@ def _log_uniform(bounds: tuple[float, float], rng: np.random.Generator) -> float
 
 
 def random_insert(ranges: RandomRanges, name: str, rng: np.random.Generator) -> Phantom:
-    """One member of the family, drawn from ``rng`` (see the module docstring for the draw order)."""
+    """One member of the family, drawn from ``rng`` in this order:
+
+    - empty with probability ``empty_share`` (no inclusion, no pillar);
+    - inclusion diameter uniform in ``diameter_mm``;
+    - depth: the sphere's top lies ``gap_below_skin_mm`` (uniform) under the skin;
+    - centre uniform over the whole insert such that the sphere keeps ``edge_margin_mm`` from every flat
+      of the octagon (it lies fully in the filling region), found by rejection sampling;
+    - moduli log-uniform (stiffness contrasts are ratios) in ``skin_kpa``, ``filling_kpa`` and
+      ``inclusion_kpa``; the pillar keeps the catalogue material, and the inclusion hangs on a pillar
+      down to the base, as in the catalogue (``catalogue.hanging``).
+    """
     body = ranges.template()
     empty = rng.random() < ranges.empty_share
     radius = rng.uniform(*ranges.diameter_mm) / 2

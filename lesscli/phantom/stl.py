@@ -1,9 +1,10 @@
 """CAD phantoms: voxelise watertight STL meshes onto the label grid by point containment.
 
 A voxel gets a class when its centre lies inside the mesh (not when the surface touches it). Centres
-are tested column by column (centres on the surface count as inside, as in ``Phantom.classify``): a vertical line through each (x, y) column crosses the closed surface at
-heights z_1 < ... < z_m, and a centre is inside when an odd number of crossings lies above it. The
-columns are offset by a tiny irrational amount so no line passes exactly through a mesh edge.
+are tested column by column (centres on the surface count as inside, as in ``Phantom.classify``): a vertical
+line through each (x, y) column crosses the closed surface at heights z_1 < ... < z_m, and a centre is inside
+when an odd number of crossings lies above it. The columns are offset by a tiny irrational amount so no line
+passes exactly through a mesh edge.
 
 Frames: with ``frame="auto"`` all meshes are shifted together so the insert's bounding box is centred
 on x = y = 0 with its top at z = 0 (the phantom frame); with ``frame="phantom"`` the files are taken
@@ -45,7 +46,8 @@ def load_mesh(path: str):
     return mesh
 
 
-def contains_on_grid(triangles: np.ndarray, z_mm: np.ndarray, y_mm: np.ndarray, x_mm: np.ndarray) -> np.ndarray:
+def contains_on_grid(triangles: np.ndarray, z_mm: np.ndarray, y_mm: np.ndarray,
+                     x_mm: np.ndarray) -> np.ndarray:
     """Which grid points lie inside a closed triangle surface.
 
     Args:
@@ -105,7 +107,9 @@ def stl_label_volume(insert_path: str, inclusion_paths=(), pillar_paths=(), orie
             data[contains_on_grid(verts[np.asarray(mesh.faces)], *axes)] = code
     base = name or os.path.splitext(os.path.basename(insert_path))[0]
     spec = {"schema": "less.phantom-stl", "version": 1, "name": base, "orientation": int(orientation) % 8,
-            "insert": os.path.abspath(insert_path), "inclusions": [os.path.abspath(p) for p in inclusion_paths],
+            "insert": os.path.abspath(insert_path),
+            "inclusions": [os.path.abspath(p) for p in inclusion_paths],
             "pillars": [os.path.abspath(p) for p in pillar_paths], "frame": frame,
-            "shift_mm": shift.round(9).tolist(), "width_mm": float(hi[0] - lo[0]), "height_mm": float(hi[2] - lo[2])}
+            "shift_mm": shift.round(9).tolist(), "width_mm": float(hi[0] - lo[0]),
+            "height_mm": float(hi[2] - lo[2])}
     return LabelVolume(data, origin, spacing_mm, f"{base}_{int(orientation) % 8}"), spec

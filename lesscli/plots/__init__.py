@@ -1,1 +1,2 @@
-"""Figures: truth | prediction | uncertainty panels and time strips (matplotlib, Agg chosen inside functions)."""
+"""Figures: truth | prediction | uncertainty panels and time strips (matplotlib, Agg chosen inside
+functions)."""

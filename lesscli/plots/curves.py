@@ -35,12 +35,14 @@ class Run:
 
     def series(self, key: str) -> tuple[np.ndarray, np.ndarray]:
         """(epochs, values) of the records that hold a number under ``key``."""
-        rows = [r for r in self.records if isinstance(r.get(key), (int, float)) and not isinstance(r[key], bool)]
+        rows = [r for r in self.records if isinstance(r.get(key), (int, float))
+                and not isinstance(r[key], bool)]
         return np.array([r["epoch"] for r in rows], float), np.array([r[key] for r in rows], float)
 
     def ratio(self) -> tuple[np.ndarray, np.ndarray]:
         """(epochs, val_loss / val_baseline_mse) where both are there and the baseline is positive."""
-        rows = [r for r in self.records if r.get("val_loss") is not None and (r.get("val_baseline_mse") or 0) > 0]
+        rows = [r for r in self.records if r.get("val_loss") is not None
+                and (r.get("val_baseline_mse") or 0) > 0]
         return (np.array([r["epoch"] for r in rows], float),
                 np.array([r["val_loss"] / r["val_baseline_mse"] for r in rows], float))
 
@@ -73,7 +75,8 @@ def summary(run: Run) -> dict:
 def curves_figure(runs: Sequence[Run], path: str, title: str = "") -> None:
     """Write the figure of the runs' curves (see the module docstring) to ``path`` atomically: PNG, or PDF /
     SVG by the path's extension."""
-    panels = [("loss", lambda r: [(r.series("train_loss"), "-", "train"), (r.series("val_loss"), "--", "val")])]
+    panels = [("loss",
+               lambda r: [(r.series("train_loss"), "-", "train"), (r.series("val_loss"), "--", "val")])]
     if any(len(r.ratio()[0]) for r in runs):
         panels.append(("force error / mean baseline (val)", lambda r: [(r.ratio(), "--", "val")]))
     if any(len(r.series("val_score")[0]) for r in runs):

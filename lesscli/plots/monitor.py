@@ -58,7 +58,8 @@ def monitor_frame(path: str, labels: np.ndarray, entropy: np.ndarray, touches_xy
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.8), constrained_layout=True)
     axes[0].imshow(CLASS_RGBA[top], origin="lower", extent=ext, interpolation="nearest")
     axes[0].set_title("image")
-    im = axes[1].imshow(ent, origin="lower", extent=ext, cmap="magma", vmin=0.0, vmax=float(np.log(n_classes)))
+    im = axes[1].imshow(ent, origin="lower", extent=ext, cmap="magma", vmin=0.0,
+                        vmax=float(np.log(n_classes)))
     axes[1].set_title("uncertainty (nats)")
     fig.colorbar(im, ax=axes[1], shrink=0.8)
     axes[2].imshow(CLASS_RGBA[top], origin="lower", extent=ext, interpolation="nearest", alpha=0.35)

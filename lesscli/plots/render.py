@@ -57,7 +57,8 @@ def views(pred: ScanPrediction) -> list[tuple[str, slice | int]]:
     k = int(area.argmax()) if area.any() else depth // 2
     below = max(0, k - max(1, k // 2))           # slice index grows upward (z = origin + k dz)
     z = lambda i: pred.origin_mm[0] + i * pred.spacing_mm[0]
-    return [("top view", slice(None)), (f"slice z = {z(k):.1f} mm", k), (f"slice z = {z(below):.1f} mm", below)]
+    return [("top view", slice(None)), (f"slice z = {z(k):.1f} mm", k),
+            (f"slice z = {z(below):.1f} mm", below)]
 
 
 def _codes(volume: np.ndarray, sel) -> np.ndarray:
@@ -117,7 +118,8 @@ def _legend(fig, touches: bool = False) -> None:
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    handles = [Patch(facecolor=CLASS_RGBA[c], edgecolor="black", label=name) for c, name in enumerate(CLASS_NAMES)]
+    handles = [Patch(facecolor=CLASS_RGBA[c], edgecolor="black", label=name) for c,
+               name in enumerate(CLASS_NAMES)]
     handles.append(Patch(facecolor=tuple(1 - 0.25 * (1 - CLASS_RGBA[INCLUSION][:3])), edgecolor="black",
                          label="faint: uncertain"))
     if touches:

@@ -36,7 +36,8 @@ def save_figure(fig, path: str, dpi: float | None = None) -> None:
 
     fmt = figure_format(path)
     metadata = {"pdf": {"CreationDate": None}, "svg": {"Date": None}}.get(fmt)     # no clock time inside
-    with atomic_path(path, "." + fmt) as tmp, matplotlib.rc_context({"svg.hashsalt": "less"}):  # nor random ids
+    # nor random ids
+    with atomic_path(path, "." + fmt) as tmp, matplotlib.rc_context({"svg.hashsalt": "less"}):
         fig.savefig(tmp, format=fmt, dpi=dpi, **({"metadata": metadata} if metadata else {}))
 
 
@@ -100,14 +101,16 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
     front = []
     for i in idx:
         ti, si = points[i]
-        dominated = any((points[j][0] <= ti and points[j][1] >= si) and (points[j][0] < ti or points[j][1] > si)
+        dominated = any((points[j][0] <= ti and points[j][1] >= si)
+                        and (points[j][0] < ti or points[j][1] > si)
                         for j in idx if j != i)
         if not dominated:
             front.append(i)
     return sorted(front, key=lambda i: points[i][0])
 
 
-def _pareto_panel(ax, rows: Sequence[Mapping], time_key: str, score: str, refs: Sequence[Mapping] = ()) -> None:
+def _pareto_panel(ax, rows: Sequence[Mapping], time_key: str, score: str,
+                  refs: Sequence[Mapping] = ()) -> None:
     """One panel: ``score`` (percent, error bars from ``<score>_std``) against ``time_key`` (log) per
     setting, one marker per knob, the Pareto front as a line and each reference row's score as a
     horizontal line."""
@@ -117,8 +120,8 @@ def _pareto_panel(ax, rows: Sequence[Mapping], time_key: str, score: str, refs: 
         sel = [i for i, r in enumerate(rows) if str(r["knob"]) == knob]
         err = [_num(rows[i].get(f"{score}_std")) * 100.0 for i in sel]
         ax.errorbar([pts[i][0] for i in sel], [pts[i][1] for i in sel],
-                    yerr=np.nan_to_num(np.asarray(err, float), nan=0.0), fmt=NOISE_MARKERS[k % len(NOISE_MARKERS)],
-                    capsize=2, label=knob, zorder=3)
+                    yerr=np.nan_to_num(np.asarray(err, float), nan=0.0),
+                    fmt=NOISE_MARKERS[k % len(NOISE_MARKERS)], capsize=2, label=knob, zorder=3)
         for i in sel:
             ax.annotate(str(rows[i]["value"]), pts[i], fontsize=7, xytext=(3, 3), textcoords="offset points")
     front = pareto_front(pts)

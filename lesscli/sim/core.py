@@ -37,7 +37,8 @@ def scan_label(state: SimState) -> str:
 
 def get_model(tier: str, phantom, sensor: dict, params: dict, cache_dir: str | None):
     """A prepared contact model, memoised per process by tier, params, sensor and phantom content."""
-    key = (tier, json.dumps(params, sort_keys=True), json.dumps(sensor, sort_keys=True), phantom.content_hash())
+    key = (tier, json.dumps(params, sort_keys=True), json.dumps(sensor, sort_keys=True),
+           phantom.content_hash())
     if key in _MODELS:
         _MODELS.move_to_end(key)
         return _MODELS[key]
@@ -83,9 +84,10 @@ def _motion(state: SimState, params: dict, rng: np.random.Generator) -> SimState
     lengths = np.array([len(t.time_s) for t in trajs], dtype=np.int64)
     pose = np.concatenate([t.pose for t in trajs]).astype(np.float64)
     attrs = tuple({k: (v if isinstance(v, str) else float(v)) for k, v in t.attrs.items()} for t in trajs)
-    return replace(state, traj_attrs=attrs, offsets=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
-                   time_s=np.concatenate([t.time_s for t in trajs]).astype(np.float64),
-                   pose_cmd=pose, pose_true=pose, flags=np.zeros(len(pose), np.int64))
+    return replace(state, traj_attrs=attrs,
+                   offsets=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
+                   time_s=np.concatenate([t.time_s for t in trajs]).astype(np.float64), pose_cmd=pose,
+                   pose_true=pose, flags=np.zeros(len(pose), np.int64))
 
 
 def pad_clear_of_surface(pose: np.ndarray, sensor: dict) -> np.ndarray:
@@ -116,9 +118,11 @@ def solve_contact(model, pose: np.ndarray, sensor: dict) -> tuple[np.ndarray, np
     parts = [model.solve(unique[i:i + SOLVE_CHUNK]) for i in range(0, len(unique), SOLVE_CHUNK)]
     u_force = np.concatenate([np.asarray(r.force_n, dtype=np.float64) for r in parts])
     if u_force.shape[1:] != (taxels, 3):
-        raise SimulationError(f"contact tier returned forces of shape {u_force.shape}, expected (n, {taxels}, 3)")
+        raise SimulationError(f"contact tier returned forces of shape {u_force.shape}, expected (n, "
+                              f"{taxels}, 3)")
     force[touching] = u_force[inverse.ravel()]
-    depth[touching] = np.concatenate([np.asarray(r.indentation_mm, np.float64) for r in parts])[inverse.ravel()]
+    depth[touching] = np.concatenate([np.asarray(r.indentation_mm, np.float64)
+                                      for r in parts])[inverse.ravel()]
     flags[touching] = np.concatenate([np.asarray(r.flags, np.int64) for r in parts])[inverse.ravel()]
     return force, depth, flags
 
@@ -131,7 +135,8 @@ def _contact(state: SimState, params: dict, rng: np.random.Generator) -> SimStat
         step = int(np.flatnonzero(bad)[0])
         traj = int(np.searchsorted(state.offsets, step, side="right") - 1)
         raise SimulationError(f"{scan_label(state)}: non-finite contact force at trajectory {traj}, step "
-                              f"{step - state.offsets[traj]} (pose {np.round(state.pose_true[step], 3).tolist()})")
+                              f"{step - state.offsets[traj]} (pose "
+                              f"{np.round(state.pose_true[step], 3).tolist()})")
     return replace(state, force=force, indentation_mm=depth, flags=state.flags | flags)
 
 
@@ -154,7 +159,8 @@ def core_stages(contact: dict, motion: dict) -> dict[str, Stage]:
         "prepare": Stage("core:prepare", "contact", "prepare", ("phantom", "sensor"), ("model",), _prepare,
                          contact),
         "motion": Stage("core:motion", "motion", "motion", ("phantom", "model", "orientation"),
-                        ("traj_attrs", "offsets", "time_s", "pose_cmd", "pose_true", "flags"), _motion, motion),
+                        ("traj_attrs", "offsets", "time_s", "pose_cmd", "pose_true", "flags"), _motion,
+                        motion),
         "contact": Stage("core:contact", "contact", "contact", ("model", "pose_true", "orientation"),
                          ("force", "indentation_mm", "flags"), _contact, contact),
         "finish": Stage("core:finish", "core", "finish", ("pose_cmd", "pose_out", "flags"),

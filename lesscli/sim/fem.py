@@ -138,7 +138,8 @@ def box_elements(bm: BodyMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def modulus_at_points(body, x_mm: np.ndarray, centre_mm: np.ndarray) -> np.ndarray:
-    """(ne, nq) Young's modulus in N/mm^2 at points ``x_mm`` (ne, nq, 3) of elements with ``centre_mm`` (ne, 3).
+    """(ne, nq) Young's modulus in N/mm^2 at points ``x_mm`` (ne, nq, 3) of elements with ``centre_mm`` (ne,
+    3).
 
     Points that fall just outside the outline (elements cut by the octagon's diagonals) take the
     modulus at their element's centre.
@@ -182,7 +183,8 @@ def stiffness(body, bm: BodyMesh, nu: float) -> sp.csr_matrix:
     flat = grad.reshape(ne, 8, 24)
     t1 = np.matmul(np.swapaxes(flat * weight[..., None], 1, 2), flat).reshape(ne, 8, 3, 8, 3)
     dot = np.einsum("eakbk->eab", t1)
-    ke = lam * t1 + mu * t1.transpose(0, 1, 4, 3, 2) + mu * dot[:, :, None, :, None] * np.eye(3)[None, None, :, None, :]
+    ke = (lam * t1 + mu * t1.transpose(0, 1, 4, 3, 2) + mu * dot[:, :, None, :, None]
+          * np.eye(3)[None, None, :, None, :])
     dofs = (3 * bm.mesh.t.T[:, :, None] + np.arange(3)).reshape(ne, 24)
     n = 3 * bm.mesh.p.shape[1]
     rows = np.broadcast_to(dofs[:, :, None], (ne, 24, 24)).ravel()

@@ -21,15 +21,15 @@ from lesscli.phantom.geometry import Phantom
 DepthForForce = Callable[[float, float, float, float], float]   # (x_mm, y_mm, yaw_rad, target_n) -> depth mm
 
 _GRID = {"control": "force", "depth_mm": [1.0, 3.0], "n_traj": 100, "spacing_mm": 6.0, "jitter_mm": 1.5,
-         "margin_mm": 3.0, "yaw_deg": [0.0, 80.0], "force_n": [1.5, 6.0], "approach_mm": [5.0, 10.0], "approach_speed_mm_s": [5.0, 20.0],
-         "press_s": [0.6, 1.2], "hold_s": [0.3, 0.8], "retract_s": 0.4, "retract_mm": 3.0,
-         "max_duration_s": 5.0, "rate_hz": 100.0}
+         "margin_mm": 3.0, "yaw_deg": [0.0, 80.0], "force_n": [1.5, 6.0], "approach_mm": [5.0, 10.0],
+         "approach_speed_mm_s": [5.0, 20.0], "press_s": [0.6, 1.2], "hold_s": [0.3, 0.8], "retract_s": 0.4,
+         "retract_mm": 3.0, "max_duration_s": 5.0, "rate_hz": 100.0}
 MOTION_DEFAULTS: dict[str, dict] = {
     "poke": dict(_GRID),
     "primitive": {**_GRID, "primitives": ["jab", "back_and_forth", "left_and_right"], "slide_mm": [3.0, 10.0],
                   "cycles": [1, 2], "cycle_s": [0.8, 1.4], "tremor_hz": [8.0, 12.0], "tremor_mm": [0.05, 0.3],
-                  "force_scale": [0.8, 1.2], "jab_overshoot": [1.1, 1.3], "min_steps": 50, "press_s": [0.4, 0.8],
-                  "approach_speed_mm_s": [10.0, 20.0], "approach_mm": [5.0, 8.0]},
+                  "force_scale": [0.8, 1.2], "jab_overshoot": [1.1, 1.3], "min_steps": 50,
+                  "press_s": [0.4, 0.8], "approach_speed_mm_s": [10.0, 20.0], "approach_mm": [5.0, 8.0]},
     "handheld": {"n_traj": 70, "margin_mm": 3.0, "duration_s": [2.0, 2.9], "force_n": [1.0, 5.0],
                  "force_wobble": 0.3, "path_mm": [4.0, 15.0], "yaw_deg": [0.0, 80.0], "yaw_drift_deg": 10.0,
                  "tilt_deg": 3.0, "approach_mm": [4.0, 6.0], "approach_s": [0.3, 0.5], "retract_s": 0.3,
@@ -194,7 +194,8 @@ def primitives(phantom: Phantom, params: dict, rng: np.random.Generator,
         force = uniform(rng, p["force_n"]) * uniform(rng, p["force_scale"])
         for attempt in range(10):
             kind = "jab" if attempt == 9 else str(p["primitives"][int(rng.integers(len(p["primitives"])))])
-            path, _ = _primitive(kind, float(x), float(y), yaw, force, p, rng, controlled(p, rng, depth_for_force))
+            path, _ = _primitive(kind, float(x), float(y), yaw, force, p, rng,
+                                 controlled(p, rng, depth_for_force))
             path = path[:max_n] + tremor(min(len(path), max_n), p, rng)
             outside = np.flatnonzero(~phantom.inside_outline(path[:, 0], path[:, 1]))
             if len(outside):
@@ -240,7 +241,8 @@ def handheld(phantom: Phantom, params: dict, rng: np.random.Generator,
                                                      + rng.uniform(0, 2 * np.pi, size=(2, 1)))
         wobble = 1 + p["force_wobble"] * np.sin(2 * np.pi * rng.uniform(0.2, 1.0) * t)
         knots = np.linspace(0, len(xy) - 1, p["knots"]).round().astype(int)
-        depth_k = [depth_for_force(float(xy[k, 0]), float(xy[k, 1]), float(yaw[k]), force * wobble[k]) for k in knots]
+        depth_k = [depth_for_force(float(xy[k, 0]), float(xy[k, 1]), float(yaw[k]), force * wobble[k])
+                   for k in knots]
         depth = np.interp(np.arange(len(xy)), knots, depth_k)
         approach_n = round(uniform(rng, p["approach_s"]) * rate)
         z = -depth.copy()

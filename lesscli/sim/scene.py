@@ -1,38 +1,18 @@
 """Scene files (TOML): phantoms, sensor, contact tier, motion and the enabled effects.
 
-Example::
+Example (every key with its default: docs/reference/settings.md; more in ``lesscli/scenes/``)::
 
     name = "poke"
-    seed = 0
     [phantoms]
     set = "single"            # single | multiple | large | random | a .toml/.json phantom file
-    limit = 4                 # first N inserts (or names = ["St12C13"])
-    orientations = [0, 4]     # default: all 8
-    [phantoms.random]         # only with set = "random": the randomised training family
-    count = 48                # (lesscli.phantom.randomised; ranges [low, high], a number v means [v, v])
-    [sensor]
-    layout = "xela"           # or taxel_xy_mm = [[x, y], ...] and pad_size_mm = [w, h]; noise_n, max_force_n
     [contact]
     tier = "green"            # winkler | green | fem
-    params = { }              # passed to the tier
-    [motion]
-    kind = "poke"             # poke | primitive | handheld, plus that generator's parameters
-    n_traj = 100
     [effects.noise]           # one table per enabled effect; absent = off
     white_n = 0.01
 
-``set = "random"`` draws single-inclusion inserts named ``R<index>s<seed>`` from the ranges of
-``[phantoms.random]`` (defaults): ``count`` (32), ``seed`` (the scene's ``seed``), ``empty_share``
-(0.15, probability of an insert without inclusion), ``diameter_mm`` ([6, 16]), ``gap_below_skin_mm``
-([0.5, 6], sphere top under the skin), ``edge_margin_mm`` (1.0, sphere to the octagon's flats and the
-base), ``filling_kpa`` ([10, 40]), ``inclusion_kpa`` ([150, 600]), ``skin_kpa`` ([70, 130]) and
-``width_mm`` (60). The same file always gives the same family; ``--set phantoms.random.seed=3`` (or
-another scene seed) gives another. ``names``, ``limit`` and ``orientations`` apply as for the catalogues;
-``[phantoms.random]`` is ignored for other sets (so ``--set phantoms.set=single`` works on a random scene).
-
-Unknown keys are errors that name the closest valid key. Options (``--seed``), then ``--set a.b=value``
-overrides, apply to the document before validation (lesscli.io.overrides: values parse as TOML, bare
-words as strings).
+``set = "random"`` draws the training family of ``[phantoms.random]``'s ranges (:class:`RandomRanges`;
+ignored for other sets). Unknown keys are errors that name the closest valid key. Options (``--seed``),
+then ``--set a.b=value`` overrides, apply to the document before validation (lesscli.io.overrides).
 """
 
 from __future__ import annotations
@@ -115,9 +95,9 @@ def _check_types(values: dict, defaults: dict, where: str, prefix: str) -> dict:
             continue
         if _is_range(ref) and isinstance(value, (int, float)) and not isinstance(value, bool):
             out[key] = value = [value, value]
-        if isinstance(ref, str) != isinstance(value, str) or isinstance(ref, list) != isinstance(value, list) or \
-                (isinstance(ref, (int, float)) and not isinstance(ref, bool) and
-                 (isinstance(value, bool) or not isinstance(value, (int, float, list)))):
+        if (isinstance(ref, str) != isinstance(value, str) or isinstance(ref, list) != isinstance(value, list)
+                or (isinstance(ref, (int, float)) and not isinstance(ref, bool) and
+                    (isinstance(value, bool) or not isinstance(value, (int, float, list))))):
             raise DataError(f"{where}: '{prefix}{key}' = {value!r} has the wrong type "
                             f"(default is {ref!r})")
     return out
@@ -157,7 +137,8 @@ def _phantoms(table: dict, where: str, base_dir: str, seed: int) -> tuple[list[P
 
 
 def _sensor(table: dict, where: str) -> dict:
-    """The sensor layout, with the sensor's white noise per taxel and force range (N) when the table gives them."""
+    """The sensor layout, with the sensor's white noise per taxel and force range (N) when the table gives
+    them."""
     check_keys(table, SECTION_KEYS["sensor"], where, "sensor.")
     extra = {}
     for key in ("noise_n", "max_force_n"):
@@ -237,14 +218,17 @@ def _labels(table: dict, where: str) -> dict:
     check_keys(table, SECTION_KEYS["labels"], where, "labels.")
     shape = tuple(int(v) for v in table.get("shape", DEFAULT_LABEL_SHAPE))
     spacing = table.get("spacing_mm")
-    if len(shape) != 3 or min(shape) < 1 or (spacing is not None and (len(spacing) != 3 or min(spacing) <= 0)):
-        raise DataError(f"{where}: labels.shape needs 3 positive sizes and labels.spacing_mm 3 positive values")
+    if len(shape) != 3 or min(shape) < 1 or (spacing is not None
+                                             and (len(spacing) != 3 or min(spacing) <= 0)):
+        raise DataError(f"{where}: labels.shape needs 3 positive sizes and labels.spacing_mm 3 positive "
+                        "values")
     return {"shape": shape, "spacing_mm": None if spacing is None else tuple(float(v) for v in spacing)}
 
 
 def label_spacing_for(phantom: Phantom, labels: dict) -> tuple[float, float, float]:
     """The scene's label spacing, or the default scaled in-plane with the insert width (large set: 2x)."""
-    return labels["spacing_mm"] if labels["spacing_mm"] is not None else default_label_spacing(phantom.width_mm)
+    return (labels["spacing_mm"] if labels["spacing_mm"] is not None
+            else default_label_spacing(phantom.width_mm))
 
 
 def parse_scene(doc: dict, where: str = "<scene>", base_dir: str = ".") -> Scene:
@@ -259,9 +243,9 @@ def parse_scene(doc: dict, where: str = "<scene>", base_dir: str = ".") -> Scene
     phantoms, orientations = _phantoms(doc.get("phantoms", {}), where, base_dir, seed)
     return Scene(name=str(doc.get("name", os.path.splitext(os.path.basename(where))[0])), seed=seed,
                  phantoms=phantoms, orientations=orientations, sensor=_sensor(doc.get("sensor", {}), where),
-                 contact=_contact(doc.get("contact", {}), where), motion=_motion(doc.get("motion", {}), where),
-                 labels=_labels(doc.get("labels", {}), where), effects=_effects(doc.get("effects", {}), where),
-                 source=where, doc=doc)
+                 contact=_contact(doc.get("contact", {}), where),
+                 motion=_motion(doc.get("motion", {}), where), labels=_labels(doc.get("labels", {}), where),
+                 effects=_effects(doc.get("effects", {}), where), source=where, doc=doc)
 
 
 def load_scene(path: str, overrides: list[str] | tuple[str, ...] = (), options: dict | None = None) -> Scene:
@@ -282,7 +266,8 @@ def scene_document(scene: Scene) -> dict:
     if phantoms["set"] == RANDOM_SET:
         phantoms["random"] = _random_ranges(table.get("random", {}), scene.source, scene.seed).to_dict()
     labels = {"shape": list(scene.labels["shape"]), "spacing_mm": scene.labels["spacing_mm"]}
-    sensor = {k: scene.sensor[k] for k in sorted(SECTION_KEYS["sensor"]) if k in scene.sensor}   # a set: sorted, so reruns agree
+    # a set: sorted, so reruns agree
+    sensor = {k: scene.sensor[k] for k in sorted(SECTION_KEYS["sensor"]) if k in scene.sensor}
     motion = {"kind": scene.motion["kind"], **scene.motion["params"]}
     return {"name": scene.name, "seed": scene.seed, "description": scene.doc.get("description"),
             "phantoms": phantoms, "sensor": sensor, "contact": dict(scene.contact), "motion": motion,

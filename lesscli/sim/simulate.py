@@ -70,7 +70,8 @@ def simulate_scan(scene: Scene, job: ScanJob, stages=None) -> ScanPart:
         bad = (state.flags & FLAG_OUTSIDE_VALIDITY) != 0
         keep = np.add.reduceat(bad.astype(np.int64), state.offsets[:-1]) == 0 if len(bad) else keep
     steps = np.repeat(keep, lengths)
-    attrs = {key: np.array([a.get(key, "" if kind is str else np.nan) for a, k in zip(state.traj_attrs, keep) if k])
+    attrs = {key: np.array([a.get(key, "" if kind is str else np.nan) for a,
+                            k in zip(state.traj_attrs, keep) if k])
              .astype(kind) for key, kind in TRAJ_ATTRS.items()}
     phantom = job.phantom.rotated(job.orientation)
     label = phantom.label_volume(scene.labels["shape"], label_spacing_for(phantom, scene.labels))
@@ -85,7 +86,8 @@ def _worker(args: tuple[Scene, ScanJob]) -> ScanPart:
 
 
 def contact_phantoms(scene: Scene, todo: list[ScanJob]) -> list[Phantom]:
-    """The distinct phantoms the contact tier will see (after the phantom-slot effects), in first-use order."""
+    """The distinct phantoms the contact tier will see (after the phantom-slot effects), in first-use
+    order."""
     early = tuple(s for s in compile_pipeline(scene) if s.slot == "phantom")
     seen: dict[str, Phantom] = {}
     for job in todo:
@@ -97,7 +99,8 @@ def contact_phantoms(scene: Scene, todo: list[ScanJob]) -> list[Phantom]:
 def _prepare_worker(args: tuple[Scene, Phantom]) -> None:
     """Warm the tier's on-disk cache for one phantom, so parallel scans do not repeat the precompute."""
     scene, phantom = args
-    get_model(scene.contact["tier"], phantom, scene.sensor, scene.contact["params"], scene.contact["cache_dir"])
+    get_model(scene.contact["tier"], phantom, scene.sensor, scene.contact["params"],
+              scene.contact["cache_dir"])
 
 
 def simulate(scene: Scene, jobs: int = 1, shard: tuple[int, int] = (0, 1),
@@ -186,6 +189,7 @@ def assemble(scene: Scene, parts: list[ScanPart], shard: tuple[int, int] = (0, 1
         time_s=np.concatenate([p.time_s for p in parts]),
         traj_offsets=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
         traj_scan=np.repeat(np.arange(len(parts)), [len(p.lengths) for p in parts]).astype(np.int64),
-        scan_insert=np.array([p.insert for p in parts]), scan_orientation=np.array([p.orientation for p in parts]),
-        scan_label=np.array(scan_label, np.int64), labels=labels,
-        traj_attrs={k: np.concatenate([p.attrs[k] for p in parts]) for k in TRAJ_ATTRS}, meta=meta)
+        scan_insert=np.array([p.insert for p in parts]),
+        scan_orientation=np.array([p.orientation for p in parts]), scan_label=np.array(scan_label, np.int64),
+        labels=labels, traj_attrs={k: np.concatenate([p.attrs[k] for p in parts]) for k in TRAJ_ATTRS},
+        meta=meta)

@@ -18,7 +18,8 @@ from lesscli.geometry.rotations import turn_xy
 from lesscli.phantom.geometry import Phantom
 
 # Pipeline slots in execution order; every stage sits in one slot.
-SLOTS = ("phantom", "prepare", "motion", "pose-true", "contact", "force", "sensor", "noise", "record", "finish")
+SLOTS = ("phantom", "prepare", "motion", "pose-true", "contact", "force", "sensor", "noise", "record",
+         "finish")
 ORIENTATION_STEP_RAD = math.pi / 4
 
 

@@ -67,7 +67,8 @@ class PretrainConfig:
 
 # (section.field, test, requirement) checked by check_pretrain_config
 _RULES = [("model.dim", lambda v: v >= 1, ">= 1"), ("model.spacing_mm", lambda v: v > 0, "> 0"),
-          ("model.grid_extent_mm", lambda v: v >= 0, ">= 0"), ("model.receptive_field_mm", lambda v: v > 0, "> 0"),
+          ("model.grid_extent_mm", lambda v: v >= 0, ">= 0"),
+          ("model.receptive_field_mm", lambda v: v > 0, "> 0"),
           ("model.max_steps_per_particle", lambda v: v >= 0, ">= 0 (0 = no cap)"),
           ("model.n_freq", lambda v: v >= 1, ">= 1"), ("train.epochs", lambda v: v >= 1, ">= 1"),
           ("train.batch_size", lambda v: v >= 1, ">= 1"), ("train.lr", lambda v: v > 0, "> 0"),
@@ -90,7 +91,8 @@ class SettingError(LessError):
 
 
 def check_rules(cfg, rules) -> None:
-    """Raise SettingError naming the first setting of ``cfg`` that breaks ``rules`` ((key, ok, need) tuples)."""
+    """Raise SettingError naming the first setting of ``cfg`` that breaks ``rules`` ((key, ok, need)
+    tuples)."""
     for key, ok, need in rules:
         section, name = key.split(".")
         value = getattr(getattr(cfg, section), name)
@@ -122,7 +124,8 @@ def to_dict(cfg) -> dict:
     return dataclasses.asdict(cfg)
 
 
-def load_config(cls, path: str | None = None, overrides: typing.Iterable[str] = (), explicit: dict | None = None):
+def load_config(cls, path: str | None = None, overrides: typing.Iterable[str] = (),
+                explicit: dict | None = None):
     """Defaults, then a TOML file, then ``explicit`` (``{"section.field": value}``, None = not given), then
     ``--set`` pairs (lesscli.io.overrides: a key is ``section.field`` or a field that one section has)."""
     doc = read_toml(path, "config file") if path else None

@@ -2,8 +2,8 @@
 
 The checkpoint is a normal ``less.checkpoint`` (``torch.load(weights_only=True)``) with an empty model
 state and ``config = {"model": "forcemap", "forcemap": <Calibration as a dict>, "image": {"dim",
-"slice"}, "grid": <first training target grid>, "data": <the training scans' data signature>}``; ``less image predict`` recognises it by
-``config["model"]`` (:func:`lesscli.infer.predict.predict_file`).
+"slice"}, "grid": <first training target grid>, "data": <the training scans' data signature>}``; ``less image
+predict`` recognises it by ``config["model"]`` (:func:`lesscli.infer.predict.predict_file`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ from lesscli.models.imager import grid_to_dict
 
 def fit_forcemap(scans: ScanSet, output: str, dim: int = 3, slice_index: int | None = None,
                  name: str = "scan set", history: list | None = None,
-                 sigmas_mm: tuple[float, ...] = forcemap.SIGMAS_MM, grid_mm: float = forcemap.GRID_MM) -> dict:
+                 sigmas_mm: tuple[float, ...] = forcemap.SIGMAS_MM,
+                 grid_mm: float = forcemap.GRID_MM) -> dict:
     """Calibrate on ``scans`` (every scan needs a label volume), save to ``output``; returns a summary record.
 
     ``dim`` and ``slice_index`` (None: through the inclusion centre) choose the targets as ``image fit`` does;

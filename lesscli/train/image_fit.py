@@ -11,6 +11,7 @@ encoder its states are computed once per scan and only the decoder runs in the e
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -40,7 +41,8 @@ class ImageModelConfig:
     """Decoder and targets."""
 
     dim: int = 3                  # 2: image (slice), 3: volume
-    decoder: str = ""             # patch | global; "" pairs with the encoder (less -> patch, global -> global)
+    # patch | global; "" pairs with the encoder (less -> patch, global -> global)
+    decoder: str = ""
     width: int = 32               # channels of the decoder's first feature map (docs/guide/training.md)
     patch_px: int = 32            # patch side in label pixels (4 * 2^k, k >= 1)
     stitch: str = "sum"           # overlapping patch logits: sum (paper) or mean
@@ -50,7 +52,8 @@ class ImageModelConfig:
     select: str = "f1"            # best epoch on --val: inclusion "f1" (ties: loss) or "loss"
     threshold: float | None = None  # inclusion only above this probability at predict; None: chosen on --val
     min_volume_mm3: float | None = None  # smaller inclusion regions dropped at predict; None: chosen on --val
-    smooth_mm: float | None = None  # labels from probabilities smoothed across each slice (mm); None: chosen on --val
+    # labels from probabilities smoothed across each slice (mm); None: chosen on --val
+    smooth_mm: float | None = None
 
 
 @dataclass
@@ -69,10 +72,13 @@ class ImageFitConfig:
 
 
 _RULES = [("image.dim", lambda v: v in (2, 3), "2 or 3"), ("image.width", lambda v: v >= 8, ">= 8"),
-          ("image.patch_px", lambda v: v >= 8 and (v // 4) & (v // 4 - 1) == 0 and v % 4 == 0, "8, 16, 32, ..."),
+          ("image.patch_px", lambda v: v >= 8 and (v // 4) & (v // 4 - 1) == 0 and v % 4 == 0,
+           "8, 16, 32, ..."),
           ("image.stitch", lambda v: v in ("sum", "mean"), "sum or mean"),
           ("image.context", lambda v: v == 0 or (v > 0 and v % 2 == 1), "0 or odd"),
-          ("image.select", lambda v: v in ("f1", "loss"), "f1 or loss"), ("loss.lam", lambda v: 0 <= v <= 1, "in [0, 1]"), ("loss.gamma", lambda v: v == 0 or v >= 1, "0 or >= 1"),
+          ("image.select", lambda v: v in ("f1", "loss"), "f1 or loss"),
+          ("loss.lam", lambda v: 0 <= v <= 1, "in [0, 1]"),
+          ("loss.gamma", lambda v: v == 0 or v >= 1, "0 or >= 1"),
           ("loss.alpha_power", lambda v: 0 <= v <= 2, "in [0, 2]"),
           ("loss.dice_per", lambda v: v in DICE_PER, " or ".join(DICE_PER)),
           ("image.min_volume_mm3", lambda v: v is None or v >= 0, "unset or >= 0"),
@@ -145,7 +151,8 @@ def inclusion_f1(model: torch.nn.Module, dataset, batch_size: int, device: torch
     model = model.to(device).eval()
     with torch.no_grad():
         out = validation_pass(model, loader, device, cfg)
-    return {"inclusion_f1": out["inclusion_f1"], "no_inclusion_f1": 0.0 if out["true_inclusion"] else float("nan")}
+    return {"inclusion_f1": out["inclusion_f1"],
+            "no_inclusion_f1": 0.0 if out["true_inclusion"] else float("nan")}
 
 
 # Labelling rules tried on the validation set. The best micro inclusion F1 wins; rules within
@@ -153,7 +160,8 @@ def inclusion_f1(model: torch.nn.Module, dataset, batch_size: int, device: torch
 # sizing: the smallest mean diameter error (ties: the least smoothing, the lowest threshold, then the
 # largest minimum volume, since regions the validation scans cannot tell apart are specks, not
 # inclusions). None: argmax; thresholds below 0.5 label a class that is likely but not the likeliest, so an
-# unsure model is not forced to predict nothing; 0 mm^3: no region rule; 0 mm: no smoothing. The smoothing widths (one to
+# unsure model is not forced to predict nothing; 0 mm^3: no region rule; 0 mm: no smoothing. The smoothing
+# widths (one to
 # five pixels of the label grids, 0.48-0.95 mm) even out patch seams and single-pixel spurs; much wider
 # ones would round off the smallest inclusions (docs/results/sizing.md).
 THRESHOLD_CHOICES = (None, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
@@ -189,6 +197,13 @@ def _menu_masks(probs: np.ndarray, choices: list, spacing_mm):
         yield drop_specks(by_threshold[th], tissue, mv, spacing_mm) == INCLUSION
 
 
+def _tie_order(choice: tuple) -> tuple[float, float, float]:
+    """Sort key of a (smooth_mm, threshold, min_volume_mm3) choice among equals: the least smoothing, the
+    lowest threshold (None, the argmax, lowest of all), then the largest minimum volume."""
+    smooth_mm, threshold, min_volume = choice
+    return float(smooth_mm), -math.inf if threshold is None else float(threshold), -float(min_volume)
+
+
 def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: torch.device, spacing_mm,
                      collate_fn: Callable = collate_images, thresholds=THRESHOLD_CHOICES,
                      volumes=MIN_VOLUME_CHOICES_MM3, smooths=SMOOTH_CHOICES_MM,
@@ -218,7 +233,8 @@ def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: t
             for p, target in zip(probs, batch.target.cpu().numpy()):
                 true = target == INCLUSION
                 true_diameter = _diameter_or_zero(true, spacing_mm)
-                diameters: dict[bytes, float] = {}             # rules often give the same mask: measure it once
+                # rules often give the same mask: measure it once
+                diameters: dict[bytes, float] = {}
                 for i, pred in enumerate(_menu_masks(p, choices, spacing_mm)):
                     counts[i] += ((pred & true).sum(), (pred & ~true).sum(), (~pred & true).sum())
                     key = np.packbits(pred).tobytes()
@@ -229,12 +245,12 @@ def choose_labelling(model: torch.nn.Module, dataset, batch_size: int, device: t
     sizing = [float(np.mean(e)) if e else float("nan") for e in diameter_errors]
     ranked = [-1.0 if np.isnan(f) else f for f in scores]
     near = [i for i, f in enumerate(ranked) if f >= max(ranked) - tolerance]
-    n_volumes = len(volumes)                              # choices: smoothing-, then threshold-major
-    best = min(near, key=lambda i: (float("inf") if np.isnan(sizing[i]) else sizing[i],
-                                    i // n_volumes, -(i % n_volumes)))
+    best = min(near,
+               key=lambda i: (float("inf") if np.isnan(sizing[i]) else sizing[i], *_tie_order(choices[i])))
 
     def table(values):
-        return {f"{sm:g}": {str(th): {f"{mv:g}": v for (s_, t, mv), v in zip(choices, values) if (s_, t) == (sm, th)}
+        return {f"{sm:g}": {str(th): {f"{mv:g}": v for (s_, t, mv),
+                                      v in zip(choices, values) if (s_, t) == (sm, th)}
                             for th in thresholds} for sm in smooths}
     smooth_mm, threshold, min_volume = choices[best]
     return Labelling(threshold, min_volume, float(smooth_mm)), table(scores), table(sizing)
@@ -290,7 +306,8 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
     model = Imager(encoder, build_decoder(dec, cfg.train.seed), grid, frozen=not cfg.image.finetune)
     config = {**to_dict(cfg), "encoder": enc_cfg, "decoder": dec, "grid": grid_to_dict(grid),
               "representation": {"path": rep_path, "config": rep.get("config", {})}}
-    inputs = fit_inputs(model, train_set, val_set, cfg.train.batch_size, env.device, cache and not cfg.image.finetune)
+    inputs = fit_inputs(model, train_set, val_set, cfg.train.batch_size, env.device,
+                        cache and not cfg.image.finetune)
     model, train_set, val_set, collate = inputs.model, inputs.train_set, inputs.val_set, inputs.collate
     result: FitResult = fit(model, image_loss_fn(cfg.loss), train_set, val_set, cfg.train,
                             collate_fn=collate, output=output, config=config, norm_stats=stats, env=env,
@@ -306,7 +323,8 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
     if val_set is not None and result.best_state is not None:
         model.load_state_dict(result.best_state)
         summary.update({f"val_{k}": v for k, v in
-                        inclusion_f1(model, val_set, cfg.train.batch_size, env.device, cfg.loss, collate).items()})
+                        inclusion_f1(model, val_set, cfg.train.batch_size, env.device, cfg.loss,
+                                     collate).items()})
         image = cfg.image
         if by_f1 and None in (image.threshold, image.min_volume_mm3, image.smooth_mm) and env.is_main:
             labelling, scores, sizing = choose_labelling(

@@ -8,13 +8,9 @@ Usage (any model whose loss is computed through its ``forward``)::
     result = fit(model, loss_fn, train_set, val_set, cfg, collate_fn=collate, output="rep.pt",
                  config=resolved_config_dict, norm_stats=stats, env=distributed.setup(cfg.device))
 
-Files (rank 0 only): ``output`` holds the best model so far (by validation loss, or by a validation
-score such as the imaging F1 with ties broken by the loss; by training loss when there is no
-validation set) and is rewritten with the full history at the end;
-``<stem>.last.pt`` holds the latest epoch with optimizer and schedule state for ``resume=True``
-(random streams are keyed by seed, epoch and rank, so a resumed run draws as an uninterrupted one); ``<stem>.log.jsonl`` gets one JSON line per epoch
-(with its wall-clock ``seconds``, which the checkpoints leave out: see :func:`timeless`). Parameters with
-``requires_grad=False`` (a frozen representation) are not optimised.
+Files (rank 0 only): ``output`` holds the best model so far and is rewritten with the full history at
+the end; ``<stem>.last.pt`` holds the latest epoch with optimizer and schedule state for ``resume=True``;
+``<stem>.log.jsonl`` gets one JSON line per epoch (see :func:`fit`).
 """
 
 from __future__ import annotations
@@ -47,7 +43,8 @@ RESUME_FREE = {"epochs", "device", "num_workers"}   # settings a resumed run may
 
 def _stream_seed(seed: int, epoch: int, stream: int) -> int:
     """A 63-bit seed for one (run seed, epoch, stream) triple."""
-    return int.from_bytes(hashlib.blake2b(f"{seed}/{epoch}/{stream}".encode(), digest_size=8).digest(), "big") >> 1
+    return int.from_bytes(hashlib.blake2b(f"{seed}/{epoch}/{stream}".encode(), digest_size=8).digest(),
+                          "big") >> 1
 
 
 def timeless(history: list[dict]) -> list[dict]:
@@ -167,17 +164,19 @@ class _Trainer:
 
     def resume(self) -> None:
         if not self.last_path or not os.path.exists(self.last_path):
-            raise TrainingError(f"{self.last_path or self.output}: nothing to resume from (no last-epoch checkpoint)")
+            raise TrainingError(f"{self.last_path or self.output}: nothing to resume from (no last-epoch "
+                                "checkpoint)")
         ckpt = load_checkpoint(self.last_path, map_location="cpu")
         if _strip(ckpt["config"]) != _strip(self.ckpt_info["config"]):
-            raise TrainingError(f"{self.last_path}: its config differs from this run's; resume with the same options")
+            raise TrainingError(f"{self.last_path}: its config differs from this run's; resume with the same "
+                                "options")
         extra = ckpt["extra"]
         before, now = extra.get("data"), self.ckpt_info.get("data")
         if before and now and before.get("fingerprint") != now.get("fingerprint"):
             raise TrainingError(f"{self.last_path}: was trained on {before.get('name')} (data fingerprint "
                                 f"{before.get('fingerprint')}), but this run's {now['name']} differs "
-                                f"({now['fingerprint']}, data or normalisation); resume with the same data or "
-                                "start afresh without --resume")
+                                f"({now['fingerprint']}, data or normalisation); resume with the same data "
+                                "or start afresh without --resume")
         self.raw.load_state_dict(ckpt["model_state"])
         self.opt.load_state_dict(extra["optimizer"])
         self.sched.load_state_dict(extra["scheduler"])
@@ -213,7 +212,8 @@ class _Trainer:
                             f"(global step {self.step + 1}); {kept}. Lower --lr or check the data")
 
     def seed_epoch(self, epoch: int) -> None:
-        """Random streams keyed by (seed, epoch, rank): a resumed run draws exactly as an uninterrupted one."""
+        """Random streams keyed by (seed, epoch, rank): a resumed run draws exactly as an uninterrupted
+        one."""
         self.data_gen.manual_seed(_stream_seed(self.cfg.seed, epoch, 0))
         self.loss_gen.manual_seed(_stream_seed(self.cfg.seed, epoch, 1 + self.env.rank))
 
@@ -239,7 +239,8 @@ class _Trainer:
         improved = rank(val_score, loss) < self.result.criterion()
         if improved:
             self.result.best_loss, self.result.best_score, self.result.best_epoch = loss, val_score, epoch
-            self.result.best_state = copy.deepcopy({k: v.detach().cpu() for k, v in self.raw.state_dict().items()})
+            self.result.best_state = copy.deepcopy({k: v.detach().cpu() for k,
+                                                    v in self.raw.state_dict().items()})
         record = {"epoch": epoch + 1, "step": self.step, "train_loss": train_loss, "val_loss": val_loss,
                   **({} if val_score is None else {"val_score": val_score}), **(extra or {}),
                   "lr": self.opt.param_groups[0]["lr"] if self.params else 0.0, "best": improved,
@@ -290,6 +291,12 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
         val_fn: ValFn | None = None, record_extra: dict | None = None, data: dict | None = None) -> FitResult:
     """Train ``model`` by minimising ``loss_fn`` and keep the best checkpoint.
 
+    The best is by validation loss, or by a validation score such as the imaging F1 with ties broken by
+    the loss; by training loss when there is no validation set. Random streams are keyed by seed, epoch
+    and rank, so a resumed run draws as an uninterrupted one. The log's lines carry each epoch's
+    wall-clock ``seconds``, which the checkpoints leave out (:func:`timeless`). Parameters with
+    ``requires_grad=False`` (a frozen representation) are not optimised.
+
     Args:
         model: the module to train (moved to ``env.device``; wrapped in DDP when distributed).
         loss_fn: ``loss_fn(model, batch, generator) -> scalar``; must call ``model(...)`` (its forward).
@@ -316,7 +323,8 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
         TrainingError: non-finite loss or gradient (names the epoch, batch and global step).
     """
     env = env or distributed.DistEnv()
-    info = {"config": config, "norm_stats": norm_stats, "history": history or [], "extra": extra, "data": data}
+    info = {"config": config, "norm_stats": norm_stats, "history": history or [], "extra": extra,
+            "data": data}
     watch = watch or Watch()
     trainer = _Trainer(model, loss_fn, cfg, env, output, info, watch)
     train_loader = _loader(train_set, cfg, collate_fn, env, True, trainer.data_gen)
@@ -336,7 +344,8 @@ def fit(model: nn.Module, loss_fn: LossFn, train_set, val_set, cfg: LoopConfig, 
         if val_loader:
             val_loss, val_score = validate(val_fn or loss_only(loss_fn), trainer.raw, val_loader, env.device)
             trainer.guard(val_loss, "validation loss", epoch, len(val_loader) - 1)
-        record = trainer.end_epoch(epoch, train_loss, val_loss, val_score, time.perf_counter() - t0, record_extra)
+        record = trainer.end_epoch(epoch, train_loss, val_loss, val_score, time.perf_counter() - t0,
+                                   record_extra)
         if hasattr(bar, "set_postfix"):
             bar.set_postfix(bar_postfix(record, trainer.best_record(record)))
     if hasattr(bar, "close"):

@@ -23,9 +23,9 @@ MAP_SETTINGS = ("map_contrast", "map_cells", "map_pitch_mm")   # model settings 
 def encoder_kwargs(cfg: PretrainConfig, n_force: int, taxel_xy_mm: list | None = None) -> dict:
     """Constructor arguments of the configured encoder (``taxel_xy_mm`` for encoders that take it)."""
     m = cfg.model
-    kwargs = {"force_dim": n_force, "dim": m.dim, "spacing_mm": m.spacing_mm, "grid_extent_mm": m.grid_extent_mm,
-              "receptive_field_mm": m.receptive_field_mm, "n_freq": m.n_freq,
-              "max_steps_per_particle": m.max_steps_per_particle or None}
+    kwargs = {"force_dim": n_force, "dim": m.dim, "spacing_mm": m.spacing_mm,
+              "grid_extent_mm": m.grid_extent_mm, "receptive_field_mm": m.receptive_field_mm,
+              "n_freq": m.n_freq, "max_steps_per_particle": m.max_steps_per_particle or None}
     params = inspect.signature(lookup(ENCODERS, m.name, "encoder")).parameters
     if "taxel_xy_mm" in params:
         if taxel_xy_mm is None:
@@ -36,7 +36,8 @@ def encoder_kwargs(cfg: PretrainConfig, n_force: int, taxel_xy_mm: list | None =
         if key in params:
             kwargs[key] = value
         elif value != getattr(ModelConfig, key):
-            raise LessError(f"setting model.{key} = {value!r} applies to less-taxel only, not to encoder '{m.name}'")
+            raise LessError(f"setting model.{key} = {value!r} applies to less-taxel only, not to encoder "
+                            f"'{m.name}'")
     return kwargs
 
 
@@ -114,11 +115,13 @@ def pretrain(train: ScanSet, val: ScanSet | None, cfg: PretrainConfig, output: s
     config = {**to_dict(cfg), "encoder": model.encoder.config(),
               "decoder": {"name": model.decoder.name, **model.decoder.settings}}
     has_val = val_set is not None and len(val_set) > 0
-    baseline = {"val_baseline_mse": force_mse(model, val_set, cfg.train.batch_size, env.device, baseline=True)} \
+    baseline = {"val_baseline_mse": force_mse(model, val_set, cfg.train.batch_size, env.device,
+                                              baseline=True)} \
         if has_val else None
-    result: FitResult = fit(model, ssl_loss_fn, train_set, val_set, cfg.train, collate_fn=collate, output=output,
-                            config=config, norm_stats=stats, env=env, resume=resume, history=history,
-                            watch=watch, record_extra=baseline, data=data_identity(train, stats, names[0]))
+    result: FitResult = fit(model, ssl_loss_fn, train_set, val_set, cfg.train, collate_fn=collate,
+                            output=output, config=config, norm_stats=stats, env=env, resume=resume,
+                            history=history, watch=watch, record_extra=baseline,
+                            data=data_identity(train, stats, names[0]))
     summary = {"output": output, "model": cfg.model.name, "particles": model.encoder.n_particles,
                "parameters": sum(p.numel() for p in model.parameters()), "epochs": cfg.train.epochs,
                "best_epoch": result.best_epoch + 1, "best_loss": result.best_loss,

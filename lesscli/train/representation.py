@@ -29,7 +29,8 @@ def load_representation(path: str, map_location: str | torch.device = "cpu"):
     try:
         encoder.load_state_dict(state)
     except RuntimeError as exc:
-        raise DataError(f"{path}: encoder weights do not match its config ({str(exc).splitlines()[0]})") from None
+        raise DataError(f"{path}: encoder weights do not match its config "
+                        f"({str(exc).splitlines()[0]})") from None
     encoder.to(map_location)
     encoder.eval()
     return encoder, ckpt

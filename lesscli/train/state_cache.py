@@ -59,7 +59,8 @@ def collate_states(items: list[dict]) -> StatesBatch:
     return StatesBatch(states, torch.stack([it["target"] for it in items]))
 
 
-def cache_states(imager: Imager, dataset: ImageDataset, batch_size: int, device: torch.device) -> StatesDataset:
+def cache_states(imager: Imager, dataset: ImageDataset, batch_size: int,
+                 device: torch.device) -> StatesDataset:
     """Run the (frozen) encoder over every scan of ``dataset`` once, in order, on ``device``.
 
     Returns:

@@ -55,7 +55,8 @@ def summarize(errors: dict, n_tracked: int) -> dict:
         row[f"rms_{axis}_rad"] = float(np.sqrt(np.mean(ang[:, k] ** 2)))
     for k, axis in enumerate(AXES):
         row[f"bias_{axis}_mm"] = float(np.mean(pos[:, k]))
-    row.update({"median_position_error_mm": float(np.median(pos_norm)), "max_position_error_mm": float(pos_norm.max()),
+    row.update({"median_position_error_mm": float(np.median(pos_norm)),
+                "max_position_error_mm": float(pos_norm.max()),
                 "median_angle_error_deg": float(np.rad2deg(np.median(ang_norm))),
                 "max_angle_error_deg": float(np.rad2deg(ang_norm.max()))})
     return row

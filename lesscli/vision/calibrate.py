@@ -55,7 +55,8 @@ def check_spread(points: np.ndarray, name: str = "calibration") -> None:
                         "(move the sensor in at least two directions)")
 
 
-def kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def kabsch(src: np.ndarray, dst: np.ndarray,
+           weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Rigid fit without reflection or scale: ``dst ~ src R^T + t``.
 
     Args:
@@ -157,7 +158,8 @@ def calibrate(est: PoseStream, ref: PoseStream, rng: np.random.Generator, thresh
     shift = 0.0 if time_offset_s is None else time_offset_s
     if est.time_s[0] + shift - slack > ref.time_s[-1] or est.time_s[-1] + shift + slack < ref.time_s[0]:
         raise DataError(f"calibration: no time overlap (tracked {est.time_s[0]:.3f}..{est.time_s[-1]:.3f} s, "
-                        f"robot {ref.time_s[0]:.3f}..{ref.time_s[-1]:.3f} s, offset {shift:+.3f} +- {slack} s)")
+                        f"robot {ref.time_s[0]:.3f}..{ref.time_s[-1]:.3f} s, offset {shift:+.3f} +- {slack} "
+                        "s)")
     offset = time_offset_s if time_offset_s is not None else estimate_time_offset(est, ref, max_offset_s, rng)
     kept, matched = sync(est, ref, offset)
     if len(kept) < MIN_POINTS:
@@ -186,7 +188,8 @@ def load_calibration(path: str) -> Calibration:
     shapes = {"r_pos": (3, 3), "t_pos": (3,), "R_ori": (3, 3)}
     for key, shape in shapes.items():
         if key not in arrays:
-            raise DataError(f"{path}: missing '{key}' (a calibration holds r_pos (3x3), t_pos (3,), R_ori (3x3))")
+            raise DataError(f"{path}: missing '{key}' (a calibration holds r_pos (3x3), t_pos (3,), R_ori "
+                            "(3x3))")
         if np.asarray(arrays[key]).shape != shape:
             raise DataError(f"{path}: '{key}' has shape {np.asarray(arrays[key]).shape}, expected {shape}")
     vals = {k: np.asarray(arrays[k], np.float64) for k in shapes}

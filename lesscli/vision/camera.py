@@ -52,7 +52,8 @@ def default_camera() -> Camera:
 def camera_from_dict(data: object, name: str) -> Camera:
     """Validate a parsed ``cam.json``; raises DataError naming the file and the bad key."""
     if not isinstance(data, dict):
-        raise DataError(f"{name}: camera file must hold a JSON object with keys {', '.join(CAMERA_KEYS)}, dist")
+        raise DataError(f"{name}: camera file must hold a JSON object with keys {', '.join(CAMERA_KEYS)}, "
+                        "dist")
     missing = [k for k in CAMERA_KEYS if k not in data]
     if missing:
         raise DataError(f"{name}: camera file lacks {', '.join(repr(k) for k in missing)} "
@@ -66,12 +67,14 @@ def camera_from_dict(data: object, name: str) -> Camera:
         raise DataError(f"{name}: camera values must be finite")
     if vals["fx"] <= 0 or vals["fy"] <= 0:
         raise DataError(f"{name}: focal lengths fx, fy must be positive (got {vals['fx']}, {vals['fy']})")
-    if vals["width"] < 1 or vals["height"] < 1 or not vals["width"].is_integer() or not vals["height"].is_integer():
+    if (vals["width"] < 1 or vals["height"] < 1 or not vals["width"].is_integer()
+        or not vals["height"].is_integer()):
         raise DataError(f"{name}: width and height must be positive integers")
     if len(dist) not in (4, 5):
         raise DataError(f"{name}: 'dist' must hold [k1, k2, p1, p2, k3] (got {len(dist)} values)")
     dist = dist + (0.0,) * (5 - len(dist))
-    return Camera(vals["fx"], vals["fy"], vals["cx"], vals["cy"], int(vals["width"]), int(vals["height"]), dist)
+    return Camera(vals["fx"], vals["fy"], vals["cx"], vals["cy"], int(vals["width"]), int(vals["height"]),
+                  dist)
 
 
 def load_camera(path: str) -> Camera:

@@ -24,7 +24,8 @@ from lesscli.vision.edges import refine_corners
 # right and down against the pixel-centre convention (measured on renders with exactly known corners, see
 # tests/vision/test_vision_detect.py; the other refinements show no such offset).
 APRILTAG_CORNER_OFFSET_PX = -0.5
-AMBIGUITY_RATIO = 2.0       # second IPPE solution within this factor of the best reprojection error: ambiguous
+# second IPPE solution within this factor of the best reprojection error: ambiguous
+AMBIGUITY_RATIO = 2.0
 REFINE_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
 
 
@@ -106,7 +107,8 @@ class TagDetector:
             if ids.count(tag_id) == 1:
                 quad = quad.reshape(4, 2).astype(np.float64) + self.offset_px
                 if self.edge_fit:
-                    quad = refine_corners(gray, quad, self.camera.matrix, self.camera.dist_coeffs, marker_cells())
+                    quad = refine_corners(gray, quad, self.camera.matrix, self.camera.dist_coeffs,
+                                          marker_cells())
                 found[int(tag_id)] = quad
         return found
 
@@ -119,7 +121,8 @@ def tag_object_points(tag_size_mm: float) -> np.ndarray:
 
 @dataclass
 class TagPose:
-    """``T_cam_tag`` (4, 4, mm), its RMS reprojection error (px), and whether IPPE's two solutions were close."""
+    """``T_cam_tag`` (4, 4, mm), its RMS reprojection error (px), and whether IPPE's two solutions were
+    close."""
 
     T_cam_tag: np.ndarray
     reprojection_px: float
@@ -130,7 +133,8 @@ class TagPose:
 def reprojection_rms(camera: Camera, object_mm: np.ndarray, image_px: np.ndarray, T: np.ndarray) -> float:
     """RMS pixel distance between ``image_px`` (n, 2) and the projections of ``object_mm`` (n, 3) under T."""
     rvec = rotations.matrix_to_rotvec(T[:3, :3])
-    proj, _ = cv2.projectPoints(object_mm.reshape(-1, 1, 3), rvec, T[:3, 3], camera.matrix, camera.dist_coeffs)
+    proj, _ = cv2.projectPoints(object_mm.reshape(-1, 1, 3), rvec, T[:3, 3], camera.matrix,
+                                camera.dist_coeffs)
     return float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - image_px) ** 2, axis=1))))
 
 
@@ -156,11 +160,13 @@ def solve_tag_pose(camera: Camera, corners_px: np.ndarray, tag_size_mm: float) -
         tag_size_mm: side of the black square.
     """
     obj = tag_object_points(tag_size_mm)
-    n, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj.reshape(-1, 1, 3), corners_px.reshape(-1, 1, 2), camera.matrix,
-                                             camera.dist_coeffs, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+    n, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj.reshape(-1, 1, 3), corners_px.reshape(-1, 1, 2),
+                                             camera.matrix, camera.dist_coeffs,
+                                             flags=cv2.SOLVEPNP_IPPE_SQUARE)
     cands = []
     for rvec, tvec in zip(rvecs[:n], tvecs[:n]):
-        T = refine_pose(camera, obj, corners_px, se3.make_T(rotations.rotvec_to_matrix(rvec.ravel()), tvec.ravel()))
+        T = refine_pose(camera, obj, corners_px,
+                        se3.make_T(rotations.rotvec_to_matrix(rvec.ravel()), tvec.ravel()))
         if T[2, 3] > 0:
             cands.append((reprojection_rms(camera, obj, corners_px, T), T))
     if not cands:

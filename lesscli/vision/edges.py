@@ -3,9 +3,9 @@
 The detector's corners (both OpenCV refinements) are good to a few tenths of a pixel; a tag's outer
 edge, black border against the white quiet zone, is a long straight step that pins the corners far
 better. For each edge, intensity profiles are sampled across it (bilinear), the step's position
-(by the area under the normalised profile) gives one edge point per pixel of edge length, the points are undistorted (so lines stay
-straight under lens distortion), a total-least-squares line is fitted with outlier rejection, and
-neighbouring lines intersect in the corners, which are distorted back to pixels.
+(by the area under the normalised profile) gives one edge point per pixel of edge length, the points are
+undistorted (so lines stay straight under lens distortion), a total-least-squares line is fitted with outlier
+rejection, and neighbouring lines intersect in the corners, which are distorted back to pixels.
 """
 
 from __future__ import annotations

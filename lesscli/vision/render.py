@@ -60,7 +60,8 @@ class TagPlacement:
 def _tag_bitmap(tag_id: int) -> np.ndarray:
     """(N, N) float reflectance-free bitmap in {0, 1}, one pixel per cell (row 0 = top = +y)."""
     n = marker_cells()
-    return cv2.aruco.generateImageMarker(DICTIONARY(), int(tag_id), n, borderBits=1).astype(np.float64) / 255.0
+    bitmap = cv2.aruco.generateImageMarker(DICTIONARY(), int(tag_id), n, borderBits=1)
+    return bitmap.astype(np.float64) / 255.0
 
 
 def project(camera: Camera, points_cam: np.ndarray) -> np.ndarray:
@@ -99,7 +100,8 @@ def _render_card(camera: Camera, place: TagPlacement, tag_size_mm: float, fx: Re
     vv = (np.arange(y0, y1)[:, None, None, None] + strata[None, :, None, None]
           + rng.uniform(0, 1.0 / ss, size=(h, ss, w, ss)))
     pix = np.stack([uu.ravel(), vv.ravel()], -1).reshape(-1, 1, 2)
-    norm = cv2.undistortPoints(pix, camera.matrix, camera.dist_coeffs, criteria=UNDISTORT_CRITERIA).reshape(-1, 2)
+    norm = cv2.undistortPoints(pix, camera.matrix, camera.dist_coeffs,
+                               criteria=UNDISTORT_CRITERIA).reshape(-1, 2)
     rays = np.concatenate([norm, np.ones((norm.shape[0], 1))], axis=1)
     rot, trans = place.T_cam_tag[:3, :3], place.T_cam_tag[:3, 3]
     normal = rot[:, 2]
@@ -202,7 +204,8 @@ def make_trajectory(rng: np.random.Generator, n_frames: int = 30, fps: float = 3
 
 
 def load_trajectory(path: str) -> dict[str, np.ndarray]:
-    """Read a trajectory ``.npz``: ``time_s`` (n,), ``T_cam_global`` (4, 4) or (n, 4, 4), ``T_cam_sensor_tag`` (n, 4, 4)."""
+    """Read a trajectory ``.npz``: ``time_s`` (n,), ``T_cam_global`` (4, 4) or (n, 4, 4), ``T_cam_sensor_tag``
+    (n, 4, 4)."""
     from lesscli.errors import DataError
     from lesscli.io.npfiles import read_npz
 
@@ -257,8 +260,8 @@ def render_sequence(camera: Camera, traj: dict[str, np.ndarray], out_dir: str, r
     with open(os.path.join(out_dir, "timestamps.txt"), "w", encoding="utf-8") as fh:
         fh.writelines(f"{t:.6f}\n" for t in traj["time_s"])
     save_camera(os.path.join(out_dir, "camera.json"), camera)
-    np.savez(os.path.join(out_dir, "trajectory.npz"), time_s=traj["time_s"], T_cam_global=traj["T_cam_global"],
-             T_cam_sensor_tag=traj["T_cam_sensor_tag"])
+    np.savez(os.path.join(out_dir, "trajectory.npz"), time_s=traj["time_s"],
+             T_cam_global=traj["T_cam_global"], T_cam_sensor_tag=traj["T_cam_sensor_tag"])
     truth = truth_of({**traj, "T_cam_global": glob_T}, T_stag_sensor)
     np.savez(os.path.join(out_dir, "truth.npz"), **truth, tag_size_mm=np.float64(tag_size_mm))
     return n

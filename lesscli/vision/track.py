@@ -35,7 +35,8 @@ from lesscli.vision.detect import (
 )
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
-GLOBAL_OUTLIER_PX = 2.0     # a frame whose global-tag corners sit this far from the median is left out of the fit
+# a frame whose global-tag corners sit this far from the median is left out of the fit
+GLOBAL_OUTLIER_PX = 2.0
 ORTHO_TOL = 1e-3            # |R^T R - I| tolerance for a tag-to-sensor rotation
 UNREADABLE = "unreadable image"  # the note of a frame that could not be decoded
 
@@ -73,7 +74,8 @@ def read_timestamps(path: str, names: list[str]) -> np.ndarray:
             except ValueError:
                 raise DataError(f"{path}: line {number} is not 'TIME' or 'NAME TIME' in seconds") from None
             if not math.isfinite(value):
-                raise DataError(f"{path}: line {number}: the time is {parts[-1]!r}; times must be finite seconds")
+                raise DataError(f"{path}: line {number}: the time is {parts[-1]!r}; times must be finite "
+                                "seconds")
             if len(parts) == 1:
                 plain.append(value)
             else:
@@ -81,7 +83,8 @@ def read_timestamps(path: str, names: list[str]) -> np.ndarray:
     if by_name:
         missing = [n for n in names if n not in by_name]
         if missing:
-            raise DataError(f"{path}: no time for image '{missing[0]}' ({len(missing)} images without a time)")
+            raise DataError(f"{path}: no time for image '{missing[0]}' ({len(missing)} images without a "
+                            "time)")
         times = np.array([by_name[n] for n in names])
     elif len(plain) != len(names):
         raise DataError(f"{path}: {len(plain)} times for {len(names)} images")
@@ -207,7 +210,8 @@ def static_global_pose(camera: Camera, detections: list[dict], tag_id: int,
 
 
 def _pick(pose: TagPose, prev_rot: np.ndarray | None) -> np.ndarray:
-    """Resolve the planar ambiguity: the best reprojection, or when ambiguous the rotation nearest the last one."""
+    """Resolve the planar ambiguity: the best reprojection, or when ambiguous the rotation nearest the last
+    one."""
     if not pose.ambiguous or pose.alternative is None or prev_rot is None:
         return pose.T_cam_tag
     d_best = rotations.rotation_angle(prev_rot.T @ pose.T_cam_tag[:3, :3])
@@ -277,5 +281,6 @@ def track(path: str, camera: Camera, opts: TrackOptions, fps: float | None = Non
     detections = detect_all(iter_frames(path, fps), detector, camera, progress)
     rows = list(solve_frames(camera, detections, opts))
     if rows and all(r.get("note") == UNREADABLE for r in rows):
-        raise DataError(f"{path}: none of the {len(rows)} frames could be read as an image (corrupt or not images)")
+        raise DataError(f"{path}: none of the {len(rows)} frames could be read as an image (corrupt or not "
+                        "images)")
     return rows

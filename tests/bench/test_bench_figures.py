@@ -1,4 +1,5 @@
-"""Figures of the benchmarks (``bench guide --plot``, ``bench sim --plot``): size, content rules, atomic writes."""
+"""Figures of the benchmarks (``bench guide --plot``, ``bench sim --plot``): size, content rules, atomic
+writes."""
 
 from __future__ import annotations
 
@@ -49,5 +50,6 @@ def test_a_failed_figure_leaves_no_file(tmp_path, monkeypatch, draw):
 
     monkeypatch.setattr(Figure, "savefig", half_written)
     with pytest.raises(OutputError, match=r"out.png: cannot write it \(disk full\); nothing was written"):
-        draw(str(tmp_path / "out.png"))                         # one line naming the figure, not a bare OSError
+        # one line naming the figure, not a bare OSError
+        draw(str(tmp_path / "out.png"))
     assert os.listdir(tmp_path) == []

@@ -1,4 +1,5 @@
-"""`less bench mri`: the full pipeline against plain thresholding, and `--knobs`, one row per setting of each of
+"""`less bench mri`: the full pipeline against plain thresholding, and `--knobs`, one row per setting of each
+of
 mri-label's knobs against the defaults timed in the same run (a 48^3 volume: seconds, not minutes)."""
 
 from __future__ import annotations
@@ -18,14 +19,16 @@ def test_bench_mri_rows(run_less):
     full, base, first, synth = rows
     assert full["shape"] == "48x48x48" and base["ratio_vs_threshold"] == 1.0
     assert math.isclose(full["ratio_vs_threshold"], full["seconds"] / base["seconds"])
-    assert "first call" in first["case"] and math.isclose(first["ratio_vs_threshold"], first["seconds"] / base["seconds"])
-    assert all(0.9 <= full[f"dice_{c}"] <= 1.0 for c in ("insert", "pillar", "inclusion")) and full["warnings"] == 0
+    assert "first call" in first["case"] and math.isclose(first["ratio_vs_threshold"],
+                                                          first["seconds"] / base["seconds"])
+    assert all(0.9 <= full[f"dice_{c}"] <= 1.0
+               for c in ("insert", "pillar", "inclusion")) and full["warnings"] == 0
     assert synth["seconds"] > 0
 
 
 def test_bench_mri_knobs_rows_and_plot(run_less, tmp_path):
-    rows = _rows(run_less("bench", "mri", "--knobs", "--size", "48", "--plot", "knobs.png", "--format", "jsonl",
-                          check=True))
+    rows = _rows(run_less("bench", "mri", "--knobs", "--size", "48", "--plot", "knobs.png", "--format",
+                          "jsonl", check=True))
     assert [(r["knob"], r["value"]) for r in rows] == [(k, v) for k, values in KNOBS.items() for v in values]
     defaults = [r for r in rows if r["default"]]
     assert [r["knob"] for r in defaults] == list(KNOBS)

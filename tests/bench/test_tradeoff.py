@@ -49,7 +49,8 @@ def test_pareto_front_keeps_the_undominated_points_sorted_by_time():
 def test_settings_vary_one_knob_around_the_models_own_base():
     plan = tradeoff.make_plan(False, {"receptive_field": (5.0, 15.0), "dim": (16, 32, 64)})
     found = settings_of(plan, "less-taxel", ["receptive_field", "width"])
-    assert [(k, v) for k, v, _ in found] == [("base", ""), ("receptive_field", 5.0), ("receptive_field", 15.0),
+    assert [(k, v) for k, v, _ in found] == [("base", ""), ("receptive_field", 5.0),
+                                             ("receptive_field", 15.0),
                                               ("width", 8)]
     assert found[0][2] == BASES["less-taxel"] and found[1][2] == Setting(receptive_field_mm=5.0)
     less = settings_of(plan, "less", ["dim"])          # the base's own value is not repeated as a knob row
@@ -62,8 +63,8 @@ def test_every_knob_applies_somewhere_and_both_plans_name_only_known_knobs(run_l
         assert set(plan.values) <= set(KNOBS)
     assert set(FULL.values) == set(KNOBS)              # the full plan tries every knob
     assert "receptive_field" in knobs_for("less-taxel") and "receptive_field" not in knobs_for("global")
-    assert knobs_for("forcemap") == ["predict_subsample", "threads", "smoothing", "grid", "subsample", "scans",
-                                     "pokes"]
+    assert knobs_for("forcemap") == ["predict_subsample", "threads", "smoothing", "grid", "subsample",
+                                     "scans", "pokes"]
     helptext = run_less("bench", "tradeoff", "--help").stdout.decode()
     assert all(knob in helptext for knob in KNOBS)
 
@@ -92,7 +93,8 @@ def test_effect_needs_more_than_twice_the_larger_seed_spread():
 def test_aggregate_is_mean_and_sample_spread_over_seeds():
     rows = aggregate([{"f1_single": 0.7, "train_s": 10.0}, {"f1_single": 0.8, "train_s": 14.0},
                       {"f1_single": None, "train_s": 12.0}])
-    assert rows["seeds"] == 3 and rows["f1_single"] == pytest.approx(0.75) and rows["train_s"] == pytest.approx(12.0)
+    assert (rows["seeds"] == 3 and rows["f1_single"] == pytest.approx(0.75)
+            and rows["train_s"] == pytest.approx(12.0))
     assert rows["f1_single_std"] == pytest.approx(math.sqrt(((0.7 - 0.75) ** 2 + (0.8 - 0.75) ** 2) / 1))
     assert aggregate([{"f1_single": 0.5}])["f1_single_std"] == 0.0
 
@@ -103,13 +105,15 @@ def test_compare_to_base_gives_ratios_deltas_and_effects_per_model():
             {"model": "m", "knob": "dim", "f1_single": 0.7, "f1_single_std": 0.02, "f1_multiple": 0.62,
              "f1_multiple_std": 0.05, "train_s": 50.0, "latency_ms": 30.0}]
     compare_to_base(rows)
-    assert rows[1]["train_s_ratio"] == 0.5 and rows[1]["latency_ms_ratio"] == 1.5 and rows[0]["train_s_ratio"] == 1
+    assert (rows[1]["train_s_ratio"] == 0.5 and rows[1]["latency_ms_ratio"] == 1.5
+            and rows[0]["train_s_ratio"] == 1)
     assert rows[1]["f1_single_delta"] == pytest.approx(-0.1) and rows[1]["f1_single_effect"] == "effect"
     assert rows[1]["f1_multiple_effect"] == "within noise" and rows[1]["stream_ms_ratio"] is None
 
 
 def _fake_stages(monkeypatch, calls):
-    monkeypatch.setattr(tradeoff, "make_data", lambda plan, workdir: tradeoff.BenchData(None, None, None, None, 1.0))
+    monkeypatch.setattr(tradeoff, "make_data", lambda plan,
+                        workdir: tradeoff.BenchData(None, None, None, None, 1.0))
     monkeypatch.setattr(tradeoff, "training_scans", lambda data, s: (s, s))
     seed_of = {}
 
@@ -128,7 +132,8 @@ def _fake_stages(monkeypatch, calls):
         seed = seed_of.get(model["path"], 0)
         if s.precision == "int8":
             raise ValueError("int8 dynamic quantisation runs on the CPU only")
-        return {"f1_single": 0.5 + s.width / 1000 + seed / 100, "f1_multiple": 0.4, "latency_ms": 2.0 * s.turns}
+        return {"f1_single": 0.5 + s.width / 1000 + seed / 100, "f1_multiple": 0.4,
+                "latency_ms": 2.0 * s.turns}
 
     monkeypatch.setattr(tradeoff, "evaluate", fake_eval)
     monkeypatch.setattr(tradeoff, "average_reference", lambda data, run, classical: {"f1_single": 0.3})
@@ -138,11 +143,15 @@ def test_a_run_trains_each_stage_once_per_seed_and_says_what_it_cannot_run(monke
     calls = []
     _fake_stages(monkeypatch, calls)
     plan = tradeoff.make_plan(True, {"width": (8,), "turns": (4,), "precision": ("int8",)}, seeds=2)
-    rows = run_tradeoff(plan, "less-taxel", ["width", "turns", "precision"], TradeoffRun(workdir=str(tmp_path)))
-    assert [c for c in calls if c[0] == "pretrain"] == [("pretrain", 16, 0), ("pretrain", 16, 1)]   # one per seed
-    assert [c for c in calls if c[0] == "fit"] == [("fit", 16, 0), ("fit", 16, 1), ("fit", 8, 0), ("fit", 8, 1)]
-    assert [(r["knob"], r["value"]) for r in rows] == [("base", ""), ("width", 8), ("turns", 4), ("precision", "int8"),
-                                                       ("reference", "classical"), ("reference", "average")]
+    rows = run_tradeoff(plan, "less-taxel", ["width", "turns", "precision"],
+                        TradeoffRun(workdir=str(tmp_path)))
+    # one per seed
+    assert [c for c in calls if c[0] == "pretrain"] == [("pretrain", 16, 0), ("pretrain", 16, 1)]
+    assert [c for c in calls if c[0] == "fit"] == [("fit", 16, 0), ("fit", 16, 1), ("fit", 8, 0),
+                                                   ("fit", 8, 1)]
+    assert [(r["knob"], r["value"]) for r in rows] == [("base", ""), ("width", 8), ("turns", 4),
+                                                       ("precision", "int8"), ("reference", "classical"),
+                                                       ("reference", "average")]
     base, width, turns, int8 = rows[:4]
     assert base["seeds"] == 2 and base["f1_single"] == pytest.approx(0.516 + 0.005)   # seeds 0 and 1
     assert base["f1_single_std"] == pytest.approx(0.01 / math.sqrt(2))
@@ -196,7 +205,8 @@ def test_prediction_arithmetic_stays_close_to_float32_or_says_why_not():
     with pytest.raises(ValueError, match="CPU only"), tradeoff.prediction_arithmetic(imager, "int8",
                                                                                 torch.device("meta")):
         pass
-    with pytest.raises(ValueError, match="one of float32"), tradeoff.prediction_arithmetic(imager, "fp8", cpu):
+    with pytest.raises(ValueError, match="one of float32"), \
+            tradeoff.prediction_arithmetic(imager, "fp8", cpu):
         pass
 
 
@@ -221,10 +231,13 @@ def test_classical_knobs_reach_its_calibration(tmp_path):
     assert abs(big_fine[2] - big_coarse[2]) < 1.0                         # the same size, in mm
     fit_forcemap(random_scanset(n_scans=3), str(tmp_path / "fm.pt"), sigmas_mm=(3.0,), grid_mm=1.0)
 
-    cal = forcemap.calibration_from_dict(load_checkpoint(str(tmp_path / "fm.pt"))["config"]["forcemap"], "fm.pt")
+    cal = forcemap.calibration_from_dict(load_checkpoint(str(tmp_path / "fm.pt"))["config"]["forcemap"],
+                                         "fm.pt")
     assert (cal.sigma_mm, cal.grid_mm) == (3.0, 1.0)
-    old = {k: v for k, v in load_checkpoint(str(tmp_path / "fm.pt"))["config"]["forcemap"].items() if k != "grid_mm"}
-    assert forcemap.calibration_from_dict(old, "old.pt").grid_mm == forcemap.GRID_MM   # older checkpoints read on
+    old = {k: v for k,
+           v in load_checkpoint(str(tmp_path / "fm.pt"))["config"]["forcemap"].items() if k != "grid_mm"}
+    # older checkpoints read on
+    assert forcemap.calibration_from_dict(old, "old.pt").grid_mm == forcemap.GRID_MM
 
 
 def test_figures_are_non_blank_pngs(tmp_path):
@@ -240,26 +253,27 @@ def test_figures_are_non_blank_pngs(tmp_path):
         _png_is_not_blank(tmp_path / name)
 
 
-TINY = ("--family", "6", "--heldout", "2", "--multiple", "1", "--n-traj", "4", "--epochs", "1", "--image-epochs", "1",
-        "--threads", "1")
+TINY = ("--family", "6", "--heldout", "2", "--multiple", "1", "--n-traj", "4", "--epochs", "1",
+        "--image-epochs", "1", "--threads", "1")
 
 
 def test_bench_tradeoff_tiny_run_end_to_end(tmp_path, run_less):
-    proc = run_less("bench", "tradeoff", "--quick", "--knob", "width", "--values", "width=8", "--knob", "precision",
-                    *TINY, "--work-dir", "w",
+    proc = run_less("bench", "tradeoff", "--quick", "--knob", "width", "--values", "width=8", "--knob",
+                    "precision", *TINY, "--work-dir", "w",
                     "--plot", "tradeoff.png", "--format", "jsonl", env=ONE_THREAD)
     assert proc.returncode == 0, proc.stderr.decode(errors="replace")
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert [(r["knob"], r["value"]) for r in rows] == [
-        ("base", ""), ("width", 8), ("precision", "bfloat16"), ("precision", "int8"), ("reference", "classical"),
-        ("reference", "average")]
+        ("base", ""), ("width", 8), ("precision", "bfloat16"), ("precision", "int8"),
+        ("reference", "classical"), ("reference", "average")]
     for r in rows[:4]:
         assert r["seeds"] == 2 and len(r["f1_single_seeds"]) == 2 and r["f1_single_std"] is not None
         assert r["train_s"] == pytest.approx(r["pretrain_s"] + r["fit_s"]) and r["latency_ms"] > 0
         assert r["stream_ms"] > 0 and 0.0 <= r["f1_single"] <= 1.0 and 0.0 <= r["f1_multiple"] <= 1.0
         assert r["ssl_epochs"] == 1 and r["image_epochs"] == 1 and r["model"] == "less-taxel"
         assert r["f1_single_effect"] in ("effect", "within noise")
-    assert rows[0]["train_s_ratio"] == 1.0 and rows[2]["train_s_ratio"] == pytest.approx(1.0)   # the same model
+    # the same model
+    assert rows[0]["train_s_ratio"] == 1.0 and rows[2]["train_s_ratio"] == pytest.approx(1.0)
     assert rows[-1]["model"] == "average" and 0.0 <= rows[-1]["f1_single"] <= 1.0
     _png_is_not_blank(tmp_path / "tradeoff.png")
     stages = (tmp_path / "w" / "stages.jsonl").read_text().splitlines()
@@ -276,8 +290,8 @@ def test_bench_tradeoff_tiny_run_end_to_end(tmp_path, run_less):
 
 
 def test_bench_tradeoff_of_the_classical_imager(tmp_path, run_less):
-    proc = run_less("bench", "tradeoff", "--model", "forcemap", "--knob", "grid", "--values", "grid=1.0", *TINY,
-                    "--format", "jsonl", env=ONE_THREAD)
+    proc = run_less("bench", "tradeoff", "--model", "forcemap", "--knob", "grid", "--values", "grid=1.0",
+                    *TINY, "--format", "jsonl", env=ONE_THREAD)
     assert proc.returncode == 0, proc.stderr.decode(errors="replace")
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert [(r["model"], r["knob"], r["value"]) for r in rows] == [

@@ -98,7 +98,8 @@ def _swap_first(arr):
 
 SCAN_CASES = {
     **{f"missing {k}": _pop(k) for k in ("pose", "force", "traj_offsets", "traj_scan", "scan_insert", "meta",
-                                          "label_shape", "label_data", "label_origin_mm", "label_spacing_mm")},
+                                          "label_shape", "label_data", "label_origin_mm",
+                                          "label_spacing_mm")},
     "meta not JSON": lambda a: a.__setitem__("meta", np.array("{not json")),
     "meta a JSON list": lambda a: a.__setitem__("meta", np.array("[1, 2]")),
     "meta a JSON number": lambda a: a.__setitem__("meta", np.array("3")),
@@ -218,8 +219,11 @@ SCAN_FILE_CASES = {
     "empty file": lambda p: (p.write_bytes(b""), p)[1],
     "a .npy array": _npy_file,
     "a JSON text file": lambda p: (p.write_text('{"pose": [1, 2]}'), p)[1],
-    "truncated archive": lambda p: (save_scans(str(p), random_scanset()), p.write_bytes(p.read_bytes()[:300]), p)[2],
-    "pickled object": lambda p: _raw_npz(p, {**to_arrays(random_scanset()), "force": np.array([{"a": 1}], object)}),
+    "truncated archive": lambda p: (save_scans(str(p), random_scanset()), p.write_bytes(p.read_bytes()[:300]),
+                                    p)[2],
+    "pickled object": lambda p: _raw_npz(p,
+                                         {**to_arrays(random_scanset()),
+                                          "force": np.array([{"a": 1}], object)}),
     "missing file": lambda p: p,
     "folder without shards": lambda p: (p.mkdir(), p)[1],
     "folder with one bad shard": lambda p: (p.mkdir(), save_scans(str(p / "a.npz"), random_scanset()),
@@ -271,8 +275,8 @@ def _prediction_arrays(tmp_path) -> dict:
     return arrays
 
 
-PRED_KEYS = ("probs_data", "probs_shape", "label_data", "entropy_data", "truth_data", "has_truth", "origin_mm",
-             "spacing_mm", "scan_insert", "scan_orientation", "scan_steps", "meta")
+PRED_KEYS = ("probs_data", "probs_shape", "label_data", "entropy_data", "truth_data", "has_truth",
+             "origin_mm", "spacing_mm", "scan_insert", "scan_orientation", "scan_steps", "meta")
 PRED_CASES = {
     **{f"missing {k}": _pop(k) for k in PRED_KEYS},
     "meta a JSON list": lambda a: a.__setitem__("meta", np.array("[]")),
@@ -322,8 +326,10 @@ PRED_CASES = {
     "touch_count one short": lambda a: a.update(touch_count=np.array([1]), touch_xy_mm=np.zeros((1, 2))),
     "touch_count without touch_xy_mm": lambda a: a.__setitem__("touch_count", np.array([0, 0])),
     "touch_xy_mm without touch_count": lambda a: a.__setitem__("touch_xy_mm", np.zeros((0, 2))),
-    "touch_xy_mm NaN": lambda a: a.update(touch_count=np.array([1, 1]), touch_xy_mm=np.array([[0, np.nan], [1, 1]])),
-    "touch_xy_mm fewer than counted": lambda a: a.update(touch_count=np.array([2, 1]), touch_xy_mm=np.zeros((2, 2))),
+    "touch_xy_mm NaN": lambda a: a.update(touch_count=np.array([1, 1]),
+                                          touch_xy_mm=np.array([[0, np.nan], [1, 1]])),
+    "touch_xy_mm fewer than counted": lambda a: a.update(touch_count=np.array([2, 1]),
+                                                         touch_xy_mm=np.zeros((2, 2))),
     "touch_xy_mm 3 columns": lambda a: a.update(touch_count=np.array([1, 0]), touch_xy_mm=np.zeros((1, 3))),
 }
 
@@ -341,7 +347,8 @@ def test_a_prediction_with_nan_is_not_written(tmp_path):
     probs = np.full((4, 2, 3, 3), 0.25, np.float32)
     probs[:, 0, 1, 1] = np.nan
     with pytest.raises(DataError, match=r"out.npz: 'probs_data' has NaN or inf"):
-        save_predictions(str(tmp_path / "out.npz"), PredictionSet([ScanPrediction(probs, np.zeros(3), np.ones(3))]))
+        save_predictions(str(tmp_path / "out.npz"),
+                         PredictionSet([ScanPrediction(probs, np.zeros(3), np.ones(3))]))
     assert os.listdir(tmp_path) == []
 
 
@@ -417,9 +424,12 @@ CKPT_CASES = {
     "model_state a list": lambda p: torch.save(_ckpt(model_state=[1]), p),
     "model_state not tensors": lambda p: torch.save(_ckpt(model_state={"w": "x"}), p),
     "history a dict": lambda p: torch.save(_ckpt(history={}), p),
-    "norm_stats NaN": lambda p: torch.save(_ckpt(norm_stats={"force_mean": [float("nan")], "force_std": [1.0]}), p),
-    "norm_stats zero scale": lambda p: torch.save(_ckpt(norm_stats={"force_mean": [0.0], "force_std": [0.0]}), p),
-    "norm_stats lengths differ": lambda p: torch.save(_ckpt(norm_stats={"force_mean": [0.0], "force_std": []}), p),
+    "norm_stats NaN": lambda p: torch.save(_ckpt(norm_stats={"force_mean": [float("nan")],
+                                                             "force_std": [1.0]}), p),
+    "norm_stats zero scale": lambda p: torch.save(_ckpt(norm_stats={"force_mean": [0.0], "force_std": [0.0]}),
+                                                  p),
+    "norm_stats lengths differ": lambda p: torch.save(_ckpt(norm_stats={"force_mean": [0.0],
+                                                                        "force_std": []}), p),
     "norm_stats without std": lambda p: torch.save(_ckpt(norm_stats={"force_mean": [0.0]}), p),
     "not an imager": lambda p: torch.save(_ckpt(), p),
     "a representation": lambda p: make_representation(str(p), random_scanset(), dim=8),
@@ -441,15 +451,18 @@ IMAGER_CASES = {
     "config image.dim a string": lambda c: c["config"]["image"].__setitem__("dim", "three"),
     "config image.threshold a string": lambda c: c["config"]["image"].__setitem__("threshold", "hi"),
     "config image.threshold 2": lambda c: c["config"]["image"].__setitem__("threshold", 2.0),
-    "config image.min_volume_mm3 negative": lambda c: c["config"]["image"].__setitem__("min_volume_mm3", -5.0),
-    "config image.min_volume_mm3 a string": lambda c: c["config"]["image"].__setitem__("min_volume_mm3", "big"),
+    "config image.min_volume_mm3 negative":
+        lambda c: c["config"]["image"].__setitem__("min_volume_mm3", -5.0),
+    "config image.min_volume_mm3 a string":
+        lambda c: c["config"]["image"].__setitem__("min_volume_mm3", "big"),
     "config image.smooth_mm negative": lambda c: c["config"]["image"].__setitem__("smooth_mm", -1.0),
     "config image.smooth_mm a string": lambda c: c["config"]["image"].__setitem__("smooth_mm", "wide"),
     "config grid without shape": lambda c: c["config"]["grid"].pop("shape"),
     "config encoder unknown": lambda c: c["config"]["encoder"].__setitem__("name", "lesss"),
     "config encoder.dim a string": lambda c: c["config"]["encoder"].__setitem__("dim", "a"),
     "config decoder a list": lambda c: c["config"].__setitem__("decoder", [1]),
-    "weights of another shape": lambda c: c["model_state"].__setitem__(next(iter(c["model_state"])), torch.zeros(1)),
+    "weights of another shape": lambda c: c["model_state"].__setitem__(next(iter(c["model_state"])),
+                                                                       torch.zeros(1)),
     "weights NaN (a diverged run)": lambda c: c["model_state"].__setitem__(
         next(k for k, v in c["model_state"].items() if v.is_floating_point()),
         torch.full_like(next(v for v in c["model_state"].values() if v.is_floating_point()), float("nan"))),
@@ -464,7 +477,8 @@ def test_bad_imager_checkpoint(capsys, in_tmp, models, case, command):
     args = {"image predict": ["image", "predict", "model.pt", "data.npz", "-o", "pred.npz"],
             "stream": ["stream", "model.pt", "data.npz"], "guide": ["guide", "model.pt", "data.npz"]}[command]
     line = fails_clearly(capsys, in_tmp, args, "model.pt")
-    assert "pred.npz" not in line and "data.npz" not in line         # the checkpoint is to blame, not its output
+    # the checkpoint is to blame, not its output
+    assert "pred.npz" not in line and "data.npz" not in line
 
 
 def test_a_live_pose_of_true_and_false_is_named_through_a_pipe(run_less, models):
@@ -472,16 +486,18 @@ def test_a_live_pose_of_true_and_false_is_named_through_a_pipe(run_less, models)
     lines = [good, {**good, "t": 0.1, "pose": [True, 0, 0, 0, 0, 0]}, {**good, "t": 0.2}]
     text = "".join(json.dumps(line) + "\n" for line in lines).encode()
     proc = run_less("stream", models / "imager.pt", "-", "--on-error", "stop", input=text)
-    err = proc.stderr.decode().strip().splitlines()           # the latency summary of the one good sample, then:
-    assert proc.returncode == 1 and err[-1] == ("less: error: -: line 2: 'pose' holds true/false; it must be a list "
-                                                "of numbers; stopping (--on-error stop)"), err
+    # the latency summary of the one good sample, then:
+    err = proc.stderr.decode().strip().splitlines()
+    assert proc.returncode == 1 and err[-1] == ("less: error: -: line 2: 'pose' holds true/false; it must be "
+                                                "a list of numbers; stopping (--on-error stop)"), err
     assert sum("error" in line for line in err) == 1 and proc.stdout.decode().count("\n") <= 1
 
 
 @pytest.mark.parametrize("command", ["image predict", "stream", "guide", "noise-sweep"])
 def test_data_with_other_taxels_than_the_model(capsys, in_tmp, models, command):
     scans = random_scanset()
-    scans.force, scans.meta = scans.force[:, :20], {**scans.meta, "sensor": {**scans.meta["sensor"], "taxels": 20}}
+    scans.force, scans.meta = scans.force[:, :20], {**scans.meta,
+                                                    "sensor": {**scans.meta["sensor"], "taxels": 20}}
     save_scans("data.npz", scans)
     imager = models / "imager.pt"
     args = {"image predict": ["image", "predict", imager, "data.npz", "-o", "pred.npz"],
@@ -560,14 +576,16 @@ OUTPUT_CASES = {
     "concat onto a folder": (["concat", "good.npz", "good.npz", "-o", "adir"], "adir"),
     "pretrain into a missing folder": (["pretrain", "good.npz", "-o", "nodir/rep.pt"], "nodir/rep.pt"),
     "predict onto a folder": (["image", "predict", "m.pt", "good.npz", "-o", "adir"], "adir"),
-    "predict --nifti into a file": (["image", "predict", "m.pt", "good.npz", "-o", "p.npz", "--nifti", "afile.txt"],
+    "predict --nifti into a file": (["image", "predict", "m.pt", "good.npz", "-o", "p.npz", "--nifti",
+                                     "afile.txt"],
                                     "afile.txt"),
     "render into a file": (["render", "p.npz", "-o", "afile.txt"], "afile.txt"),
     "noise-sweep --plot in a missing folder": (["noise-sweep", "m.pt", "good.npz", "--plot", "nodir/n.png"],
                                                "nodir/n.png"),
     "guide --plot onto a folder": (["guide", "m.pt", "good.npz", "--plot", "adir"], "adir"),
     "phantom into a file": (["phantom", "--set", "single", "-o", "afile.txt"], "afile.txt"),
-    "pose track into a missing folder": (["pose", "track", "frames", "--camera", "c.json", "-o", "nodir/p.jsonl"],
+    "pose track into a missing folder": (["pose", "track", "frames", "--camera", "c.json", "-o",
+                                          "nodir/p.jsonl"],
                                          "nodir/p.jsonl"),
     "mri-label --synth into a missing folder": (["mri-label", "--synth", "St12C13", "-o", "nodir/s.nii.gz"],
                                                 "nodir/s.nii.gz"),
@@ -603,9 +621,11 @@ LIVE_CASES = {
     "t true": (json.dumps({"t": True, "pose": [0] * 6, "force": GOOD_FORCE}), "'t' must be"),
     "t back in time": (json.dumps({"t": 0.5, "pose": [0] * 6, "force": GOOD_FORCE}), "goes back in time"),
     "not UTF-8": (b'{"pose": "\xff\xfe"}', "not UTF-8"),
-    "pose true": (json.dumps({"pose": [True, 0, 0, 0, 0, 0], "force": GOOD_FORCE}), "'pose' holds true/false"),
+    "pose true": (json.dumps({"pose": [True, 0, 0, 0, 0, 0], "force": GOOD_FORCE}),
+                  "'pose' holds true/false"),
     "pose all false": (json.dumps({"pose": [False] * 6, "force": GOOD_FORCE}), "'pose' holds true/false"),
-    "force true": (json.dumps({"pose": [0] * 6, "force": [[0, 0, True]] + GOOD_FORCE[1:]}), "'force' holds true/false"),
+    "force true": (json.dumps({"pose": [0] * 6, "force": [[0, 0, True]] + GOOD_FORCE[1:]}),
+                   "'force' holds true/false"),
 }
 
 
@@ -618,7 +638,8 @@ def test_bad_live_line(case):
 
 def test_live_stream_names_the_line_and_stops(capsys, in_tmp, models, monkeypatch):
     good = json.dumps({"t": 1.0, "pose": [0] * 6, "force": GOOD_FORCE}).encode()
-    lines = [good, b"\xff\xfe not text", json.dumps({"t": 0.5, "pose": [0] * 6, "force": GOOD_FORCE}).encode()]
+    lines = [good, b"\xff\xfe not text",
+             json.dumps({"t": 0.5, "pose": [0] * 6, "force": GOOD_FORCE}).encode()]
     monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO(b"\n".join(lines) + b"\n")))
     with _no_exit():
         main(["stream", str(models / "imager.pt"), "-", "--on-error", "skip", "--emit-every", "100"])
@@ -634,17 +655,22 @@ def test_live_stream_names_the_line_and_stops(capsys, in_tmp, models, monkeypatc
 
 NOT_UTF8 = b"\xff\xfe\x00 binary"
 OTHER_READERS = {
-    "training config not UTF-8": ({"bad.toml": NOT_UTF8}, ["pretrain", "good.npz", "-o", "r.pt", "--config", "bad.toml"]),
-    "training config not TOML": ({"bad.toml": b"a = = 1"}, ["pretrain", "good.npz", "-o", "r.pt", "--config", "bad.toml"]),
+    "training config not UTF-8": ({"bad.toml": NOT_UTF8},
+                                  ["pretrain", "good.npz", "-o", "r.pt", "--config", "bad.toml"]),
+    "training config not TOML": ({"bad.toml": b"a = = 1"},
+                                 ["pretrain", "good.npz", "-o", "r.pt", "--config", "bad.toml"]),
     "scene not UTF-8": ({"bad.toml": NOT_UTF8}, ["simulate", "bad.toml", "-o", "x.npz"]),
     "scene not TOML": ({"bad.toml": b"[motion\n"}, ["simulate", "bad.toml", "-o", "x.npz"]),
     "phantom set not UTF-8": ({"bad.toml": NOT_UTF8}, ["phantom", "--set", "bad.toml", "-o", "ph"]),
     "phantom set JSON not UTF-8": ({"bad.json": NOT_UTF8}, ["phantom", "--set", "bad.json", "-o", "ph"]),
-    "camera not UTF-8": ({"bad.json": NOT_UTF8}, ["pose", "track", ".", "--camera", "bad.json", "-o", "p.jsonl"]),
+    "camera not UTF-8": ({"bad.json": NOT_UTF8},
+                         ["pose", "track", ".", "--camera", "bad.json", "-o", "p.jsonl"]),
     "camera a list": ({"bad.json": b"[1]"}, ["pose", "track", ".", "--camera", "bad.json", "-o", "p.jsonl"]),
     "pose rows not UTF-8": ({"bad.jsonl": NOT_UTF8}, ["pose", "accuracy", "bad.jsonl", "good.npz"]),
-    "mri scan .npy garbage": ({"bad.npy": NOT_UTF8}, ["mri-label", "bad.npy", "--spacing-mm", "1,1,1", "-o", "l.nii.gz"]),
-    "mri scan .npz garbage": ({"bad.npz": NOT_UTF8}, ["mri-label", "bad.npz", "--spacing-mm", "1,1,1", "-o", "l.nii.gz"]),
+    "mri scan .npy garbage": ({"bad.npy": NOT_UTF8},
+                              ["mri-label", "bad.npy", "--spacing-mm", "1,1,1", "-o", "l.nii.gz"]),
+    "mri scan .npz garbage": ({"bad.npz": NOT_UTF8},
+                              ["mri-label", "bad.npz", "--spacing-mm", "1,1,1", "-o", "l.nii.gz"]),
     "imager checkpoint garbage": ({"bad.pt": NOT_UTF8}, ["stream", "bad.pt", "good.npz"]),
 }
 
@@ -661,7 +687,8 @@ def test_bad_secondary_input(capsys, in_tmp, case):
 
 @pytest.mark.parametrize("make, words", [
     (lambda p: p.write_bytes(NOT_UTF8), "not a label .npy: not a .npy array"),
-    (lambda p: np.save(p, np.zeros((26, 64, 64), np.uint8)), "label is 26 x 64 x 64, but the published layout"),
+    (lambda p: np.save(p, np.zeros((26, 64, 64), np.uint8)),
+     "label is 26 x 64 x 64, but the published layout"),
     (lambda p: np.save(p, np.array([{"a": 1}], dtype=object), allow_pickle=True), "refusing to unpickle"),
 ], ids=["garbage", "resampled", "pickled"])
 def test_import_label_files(tmp_path, make, words):
@@ -707,7 +734,8 @@ def test_pose_track_refuses_timestamps_that_are_not_rising_finite_seconds(capsys
         (in_tmp / "frames" / f"f{i}.png").write_bytes(b"not a png")
     (in_tmp / "frames" / "timestamps.txt").write_text(TIMESTAMP_CASES[case])
     (in_tmp / "c.json").write_text(json.dumps(CAMERA))
-    fails_clearly(capsys, in_tmp, ["pose", "track", "frames", "--camera", "c.json", "-o", "p.jsonl"], "timestamps.txt")
+    fails_clearly(capsys, in_tmp, ["pose", "track", "frames", "--camera", "c.json", "-o", "p.jsonl"],
+                  "timestamps.txt")
 
 
 @pytest.mark.parametrize("rate", ["nan", "inf", "0", "-30"])
@@ -748,7 +776,8 @@ def test_outputs_get_the_mode_of_a_plain_open(tmp_path, umask, file_mode, dir_mo
     assert (tmp_path / "out" / "f.txt").stat().st_mode & 0o777 == file_mode
 
 
-# ---------------------------------------------------------------------------------------------- zero-sample rule
+# ---------------------------------------------------------------------------------------------- zero-sample
+# rule
 
 def _run_ok(capsys, args) -> tuple[str, str]:
     with _no_exit():
@@ -777,8 +806,10 @@ def test_a_scan_without_touches_images_as_nothing_known(capsys, in_tmp):
     assert [p.steps == 0 for p in preds] == [True] + [False] * (raw.n_scans - 1)
     np.testing.assert_allclose(preds[0].probs.astype(np.float32), 0.25, atol=1e-3)
     np.testing.assert_allclose(preds[0].entropy.astype(np.float32), np.log(4), atol=1e-3)
-    assert all(np.abs(p.probs.astype(np.float32) - 0.25).max() > 0.01 for p in preds[1:])   # touched: informed
-    rows = [json.loads(line) for line in _run_ok(capsys, ["metrics", "pred.npz", "--format", "jsonl"])[0].splitlines()]
+    # touched: informed
+    assert all(np.abs(p.probs.astype(np.float32) - 0.25).max() > 0.01 for p in preds[1:])
+    rows = [json.loads(line)
+            for line in _run_ok(capsys, ["metrics", "pred.npz", "--format", "jsonl"])[0].splitlines()]
     scan_rows = [r for r in rows if r["row"] == "scan"]
     assert len(scan_rows) == raw.n_scans and scan_rows[0]["steps"] == 0
     guided = json.loads(_run_ok(capsys, ["guide", "im.pt", "scans.npz", "--scan", "0", "--k", "1"])[0])

@@ -195,8 +195,8 @@ def test_a_typo_is_a_usage_error_not_a_pager_call(tmp_path, script, args, hint):
     fake.mkdir()
     (fake / "less").write_text("#!/bin/sh\necho paged\n")
     (fake / "less").chmod(0o755)
-    proc = subprocess.run([str(BIN / script), *args], capture_output=True, timeout=60, check=False, cwd=tmp_path,
-                          env={**os.environ, "PATH": f"{BIN}{os.pathsep}{fake}"})
+    proc = subprocess.run([str(BIN / script), *args], capture_output=True, timeout=60, check=False,
+                          cwd=tmp_path, env={**os.environ, "PATH": f"{BIN}{os.pathsep}{fake}"})
     assert proc.returncode == 2 and proc.stdout == b""
     assert hint in proc.stderr.decode()
 

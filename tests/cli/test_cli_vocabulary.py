@@ -23,9 +23,11 @@ MRI_LABEL = ["mri-label", "missing.nii.gz", "-o", "labels.nii.gz"]
 # (command line without the option, old spelling, new spelling, value, check of (exit code, stdout, stderr))
 RENAMED = {
     "phantom --grid-shape": (PHANTOM + ["--spacing-mm", "2,2,2", "-o", "out"], "--shape", "--grid-shape",
-                             "8,32,32", lambda code, out, err: code == 0 and json.loads(out)["shape"] == [8, 32, 32]),
+                             "8,32,32", lambda code, out,
+                             err: code == 0 and json.loads(out)["shape"] == [8, 32, 32]),
     "phantom --spacing-mm": (PHANTOM + ["--grid-shape", "8,32,32", "-o", "out"], "--spacing", "--spacing-mm",
-                             "2,2,2", lambda code, out, err: code == 0 and json.loads(out)["spacing_mm"] == [2, 2, 2]),
+                             "2,2,2", lambda code, out,
+                             err: code == 0 and json.loads(out)["spacing_mm"] == [2, 2, 2]),
     "mri-label --plot": (MRI_LABEL, "--qc", "--plot", "qc.txt",
                          lambda code, out, err: code == 2 and "'qc.txt': expected a .png file" in err),
 }
@@ -83,7 +85,8 @@ def test_every_old_spelling_parses_to_its_new_option(tmp_path, monkeypatch):
     found = {}
     for path, command in walk(cli):
         for param in command.params:
-            if isinstance(param, click.Option) and param.hidden and (param.help or "").startswith("Old spelling"):
+            if isinstance(param, click.Option) and param.hidden and (param.help or "").startswith("Old "
+                                                                                                  "spelling"):
                 (target,) = [p for p in command.params if p.name == param.name.removeprefix("_old_")]
                 found[(path, param.opts[0])] = (command, target)
     assert set(found) == set(ALIASES)
@@ -99,7 +102,8 @@ def test_every_old_spelling_parses_to_its_new_option(tmp_path, monkeypatch):
 def test_mri_label_old_orientation_count_means_all_eight(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     code, _, err = invoke(MRI_LABEL + ["--orientations", "0-7"], tmp_path)
-    assert code == 2 and "--orientations 0,1,2,3,4,5,6,7 needs --grid phantom" in err and not deprecations(err)
+    assert (code == 2 and "--orientations 0,1,2,3,4,5,6,7 needs --grid phantom" in err
+            and not deprecations(err))
     code_old, _, err_old = invoke(MRI_LABEL + ["--orientations", "8"], tmp_path)
     assert code_old == 2 and "--orientations 0,1,2,3,4,5,6,7 needs --grid phantom" in err_old
     assert len(deprecations(err_old)) == 1
@@ -186,10 +190,13 @@ def _complete(env: dict) -> str:
 
 def test_shell_completion_through_the_console_script(tmp_path):
     script = _complete({"_LESS_COMPLETE": "bash_source"})
-    assert "_LESS_COMPLETE=bash_complete" in script and "complete -o nosort -F _less_completion less" in script
+    assert ("_LESS_COMPLETE=bash_complete" in script
+            and "complete -o nosort -F _less_completion less" in script)
     words = _complete({"_LESS_COMPLETE": "bash_complete", "COMP_WORDS": "less phan", "COMP_CWORD": "1"})
     assert words.split() == ["plain,phantom"]
-    files = _complete({"_LESS_COMPLETE": "bash_complete", "COMP_WORDS": "less image predict x", "COMP_CWORD": "3"})
+    files = _complete({"_LESS_COMPLETE": "bash_complete", "COMP_WORDS": "less image predict x",
+                       "COMP_CWORD": "3"})
     assert files.split() == ["file,x"]
-    option = _complete({"_LESS_COMPLETE": "bash_complete", "COMP_WORDS": "less render p.npz -o fig", "COMP_CWORD": "4"})
+    option = _complete({"_LESS_COMPLETE": "bash_complete", "COMP_WORDS": "less render p.npz -o fig",
+                        "COMP_CWORD": "4"})
     assert option.split() == ["file,fig"]

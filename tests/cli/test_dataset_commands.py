@@ -65,7 +65,8 @@ def test_split_by_scan_and_too_few_groups():
 def test_cli_split_writes_files_and_records(run_less, tmp_path):
     scans = random_scanset(n_scans=6, traj_per_scan=1, inserts=[f"I{i}" for i in range(6)])
     save_scans(str(tmp_path / "s.npz"), scans)
-    proc = run_less("split", "s.npz", "--test", "0.34", "--val", "0.17", "--seed", "3", "-o", "out", check=True)
+    proc = run_less("split", "s.npz", "--test", "0.34", "--val", "0.17", "--seed", "3", "-o", "out",
+                    check=True)
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert [r["split"] for r in rows] == ["train", "val", "test"]
     assert sorted(os.listdir(tmp_path / "out")) == ["test.npz", "train.npz", "val.npz"]
@@ -164,7 +165,8 @@ def test_hdf5_missing_robot_position_exit_1_no_output(run_less, tmp_path):
     err = proc.stderr.decode()
     assert proc.returncode == 1 and len(err.strip().splitlines()) == 1
     assert "phantomA_St10D5_1.hdf5: traj_1: missing dataset 'robot/ee_position'" in err
-    assert not (tmp_path / "a.npz").exists() and not [f for f in os.listdir(tmp_path) if f.startswith(".a.npz")]
+    assert not (tmp_path / "a.npz").exists() and not [f for f in os.listdir(tmp_path)
+                                                      if f.startswith(".a.npz")]
     proc = run_less("import", "root", "-o", "a.npz", "--on-error", "skip")
     assert proc.returncode == 0 and load_scans(str(tmp_path / "a.npz")).n_scans == 3
     assert b"skipped" in proc.stderr or b"skipped" in proc.stdout
@@ -175,7 +177,8 @@ def test_subsample_tolerates_empty_trajectories_anywhere():
 
     scans = random_scanset(n_scans=1, traj_per_scan=2, seed=3)
     n, mid = scans.n_steps, int(scans.traj_offsets[1])
-    holey = replace(scans, traj_offsets=np.array([0, 0, mid, n, n]), traj_scan=np.zeros(4, np.int64), traj_attrs={})
+    holey = replace(scans, traj_offsets=np.array([0, 0, mid, n, n]), traj_scan=np.zeros(4, np.int64),
+                    traj_attrs={})
     holey.__post_init__()
     sub = subsample(holey, every=2)
     np.testing.assert_array_equal(sub.traj_lengths(), (scans.traj_lengths() + 1) // 2)

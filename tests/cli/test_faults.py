@@ -90,7 +90,8 @@ def _mount_prefix() -> list[str] | None:
     if not unshare:
         return None
     for prefix in ([unshare, "-m"], [unshare, "-rm"]) if os.geteuid() == 0 else ([unshare, "-rm"],):
-        probe = subprocess.run([*prefix, "sh", "-c", 'd=$(mktemp -d) && mount -t tmpfs -o size=64k tmpfs "$d"'],
+        probe = subprocess.run([*prefix, "sh", "-c",
+                                'd=$(mktemp -d) && mount -t tmpfs -o size=64k tmpfs "$d"'],
                                capture_output=True, timeout=30, check=False)
         if probe.returncode == 0:
             return prefix
@@ -100,20 +101,23 @@ def _mount_prefix() -> list[str] | None:
 PREFIX = _mount_prefix() if ON_LINUX else None
 
 
-def on_small_disk(folder: Path, size_kib: int, args: list[str]) -> tuple[subprocess.CompletedProcess, list[str]]:
+def on_small_disk(folder: Path, size_kib: int,
+                  args: list[str]) -> tuple[subprocess.CompletedProcess, list[str]]:
     """Run ``less ARGS`` in ``folder`` with ``folder/disk`` a fresh tmpfs of ``size_kib`` KiB; the command's
     result and what it left on that disk (listed before the disk goes)."""
     disk = folder / "disk"
     disk.mkdir()
     script = (f"mount -t tmpfs -o size={size_kib}k tmpfs {shlex.quote(str(disk))} || exit 99; "
-              f"{shlex.join([LESS, *map(str, args)])}; rc=$?; ls -A {shlex.quote(str(disk))} > disk.txt; exit $rc")
-    proc = subprocess.run([*PREFIX, "sh", "-c", script], cwd=folder, capture_output=True, text=True, timeout=600,
-                          check=False)
+              f"{shlex.join([LESS, *map(str, args)])}; rc=$?; ls -A {shlex.quote(str(disk))} > disk.txt; "
+              "exit $rc")
+    proc = subprocess.run([*PREFIX, "sh", "-c", script], cwd=folder, capture_output=True, text=True,
+                          timeout=600, check=False)
     assert proc.returncode != 99, proc.stderr
     return proc, (folder / "disk.txt").read_text().split()
 
 
-needs_mount = pytest.mark.skipif(PREFIX is None, reason="cannot mount a tmpfs here (neither as root nor in a user "
+needs_mount = pytest.mark.skipif(PREFIX is None,
+                                 reason="cannot mount a tmpfs here (neither as root nor in a user "
                                                         "namespace: unshare -rm), so no small disk to fill")
 
 
@@ -143,11 +147,13 @@ def test_a_full_disk_under_pretrain_leaves_neither_checkpoint_nor_log(tmp_path):
 
 @needs_mount
 def test_mri_label_writes_its_labels_only_with_its_figure(tmp_path):
-    """The labels fit (on the test's own disk) but the --plot figure does not (a full tmpfs): neither appears."""
+    """The labels fit (on the test's own disk) but the --plot figure does not (a full tmpfs): neither
+    appears."""
     made = subprocess.run([LESS, "mri-label", "--synth", "St12C13", "-o", "scan.nii.gz", "--spacing-mm",
                            "0.8,0.8,0.8"], cwd=tmp_path, capture_output=True, timeout=600, check=False)
     assert made.returncode == 0, made.stderr
-    proc, left = on_small_disk(tmp_path, 8, ["-q", "mri-label", "scan.nii.gz", "-o", "labels.nii.gz", "--plot",
+    proc, left = on_small_disk(tmp_path, 8,
+                               ["-q", "mri-label", "scan.nii.gz", "-o", "labels.nii.gz", "--plot",
                                              "disk/qc.png"])
     _one_error_line(proc, "disk/qc.png")
     assert left == [] and not (tmp_path / "labels.nii.gz").exists()
@@ -166,10 +172,12 @@ def test_image_predict_writes_its_prediction_only_with_its_nifti_folder(tmp_path
     assert left == [] and not (tmp_path / "p.npz").exists()
 
 
-# ---------------------------------------------------------------------------------------------- lost folder, two writers
+# ---------------------------------------------------------------------------------------------- lost folder,
+# two writers
 
 def _start_pretrain(folder: Path, output: str, epochs: int = 400) -> subprocess.Popen:
-    return subprocess.Popen([LESS, "-q", "pretrain", "s.npz", "-o", output, "--epochs", str(epochs), "--dim", "8"],
+    return subprocess.Popen([LESS, "-q", "pretrain", "s.npz", "-o", output, "--epochs", str(epochs), "--dim",
+                             "8"],
                             cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -192,7 +200,8 @@ def test_an_output_folder_removed_mid_run_is_one_line_and_nothing_is_recreated(t
         proc.kill()
     lines = err.strip().splitlines()
     assert proc.returncode == 1 and len(lines) == 1 and "out/rep." in lines[0], err
-    assert ("No such file or directory" in lines[0] or "does not exist" in lines[0]) and "Traceback" not in err
+    assert (("No such file or directory" in lines[0] or "does not exist" in lines[0])
+            and "Traceback" not in err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.npz"]
 
 
@@ -207,10 +216,11 @@ def test_a_second_writer_of_one_output_refuses_at_its_start(tmp_path):
         assert time.monotonic() - t0 < 60
         lines = second.stderr.strip().splitlines()
         assert second.returncode == 1 and len(lines) == 1, second.stderr
-        assert lines[0] == (f"less: error: rep.pt: another less run (process {first.pid}) is writing it (lock "
-                            "rep.pt.lock); wait for it to end or choose another output")
+        assert lines[0] == (f"less: error: rep.pt: another less run (process {first.pid}) is writing it "
+                            "(lock rep.pt.lock); wait for it to end or choose another output")
         assert first.poll() is None                                  # the first run goes on
-        other = subprocess.run([LESS, "-q", "pretrain", "s.npz", "-o", "other.pt", "--epochs", "1", "--dim", "8"],
+        other = subprocess.run([LESS, "-q", "pretrain", "s.npz", "-o", "other.pt", "--epochs", "1", "--dim",
+                                "8"],
                                cwd=tmp_path, capture_output=True, text=True, timeout=300, check=False)
         assert other.returncode == 0, other.stderr                   # another output is free
         first.send_signal(signal.SIGINT)

@@ -52,7 +52,8 @@ def test_prediction_file(run_less, tmp_path):
     assert record["steps"] == {"min": 10.0, "mean": 20.0, "max": 30.0}
     argmax = np.concatenate([p.probs.argmax(0).ravel() for p in scans])      # no threshold: argmax labels
     assert list(record["class_voxels"].values()) == np.bincount(argmax, minlength=4).tolist()
-    assert record["meta"] == {"dim": 3, "model": "toy", "seed": 4} and 0 < record["entropy_mean_nats"] < np.log(4)
+    assert (record["meta"] == {"dim": 3, "model": "toy", "seed": 4}
+            and 0 < record["entropy_mean_nats"] < np.log(4))
 
 
 def test_checkpoints_of_each_kind(run_less, tmp_path):
@@ -66,7 +67,8 @@ def test_checkpoints_of_each_kind(run_less, tmp_path):
     assert imager["kind"] == "imager" and imager["decoder"] == "patch" and imager["model"] == "less"
     assert imager["parameters"] == sum(v.numel() for v in state.values()) > 0
     assert imager["grid"]["shape"] == [3, 48, 48] and imager["epochs"] == 0 and imager["force_units"] == "N"
-    assert imager["labelling"] is None and imager["image"] == {"dim": 3, "slice": -1}     # argmax: none chosen
+    # argmax: none chosen
+    assert imager["labelling"] is None and imager["image"] == {"dim": 3, "slice": -1}
     assert rep["kind"] == "representation" and rep["model"] == "less" and rep["grid"] is None
     assert classical["kind"] == "classical imager" and classical["parameters"] == 0
     assert "threshold" in classical["settings"] and "prior" not in classical["settings"]
@@ -84,7 +86,8 @@ def test_a_file_of_no_kind_is_one_clear_line(run_less, tmp_path):
 
 def test_a_prediction_file_on_stdin_is_told_by_its_schema(run_less, tmp_path):
     probs = np.full((4, 2, 3, 3), 0.25, np.float32)
-    save_predictions(str(tmp_path / "p.npz"), PredictionSet([ScanPrediction(probs, np.zeros(3), np.ones(3))], {}))
+    save_predictions(str(tmp_path / "p.npz"),
+                     PredictionSet([ScanPrediction(probs, np.zeros(3), np.ones(3))], {}))
     piped = run_less("info", "-", "--format", "jsonl", input=(tmp_path / "p.npz").read_bytes(), check=True)
     assert json.loads(piped.stdout) == info(run_less, "p.npz")
     assert json.loads(piped.stdout)["kind"] == "prediction set"
@@ -96,8 +99,10 @@ def test_several_files_name_themselves_and_all_are_read_first(run_less, tmp_path
     proc = run_less("info", "truth.nii.gz", "s.npz", "--format", "jsonl", check=True)
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert [(r["file"], r["kind"]) for r in rows] == [("truth.nii.gz", "label volume"), ("s.npz", "scan set")]
-    assert {k: v for k, v in rows[1].items() if k != "file"} == info(run_less, "s.npz")     # one file: no name
+    # one file: no name
+    assert {k: v for k, v in rows[1].items() if k != "file"} == info(run_less, "s.npz")
     tables = run_less("info", "truth.nii.gz", "s.npz", "--format", "table", check=True).stdout.decode()
-    assert [t.splitlines()[2].split() for t in tables.split("\n\n")] == [["file", "truth.nii.gz"], ["file", "s.npz"]]
+    assert ([t.splitlines()[2].split() for t in tables.split("\n\n")]
+            == [["file", "truth.nii.gz"], ["file", "s.npz"]])
     missing = run_less("info", "s.npz", "gone.npz")
     assert missing.returncode == 1 and not missing.stdout and b"gone.npz: no such file" in missing.stderr

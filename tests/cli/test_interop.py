@@ -34,12 +34,13 @@ def test_info_gives_an_mri_scan_and_its_labels_on_one_grid_in_the_same_axis_orde
 def test_prediction_nifti_holds_probability_maps_and_colour_tables(run_less, tmp_path):
     save_tiny_imager(str(tmp_path / "im.pt"))
     save_scans(str(tmp_path / "s.npz"), random_scanset(n_scans=1, traj_per_scan=2, max_len=6, seed=1))
-    proc = run_less("image", "predict", "im.pt", "s.npz", "-o", "p.npz", "--nifti", "nii", "--format", "jsonl")
+    proc = run_less("image", "predict", "im.pt", "s.npz", "-o", "p.npz", "--nifti", "nii", "--format",
+                    "jsonl")
     assert proc.returncode == 0, proc.stderr.decode()
     files = sorted(p.name for p in (tmp_path / "nii").iterdir())
     stem = "000_St10C5_o0"                    # scan 0, its insert, orientation 0
-    assert files == sorted([f"{stem}_labels.nii.gz", f"{stem}_entropy.nii.gz", "labels.ctbl", "labels_itksnap.txt",
-                            *(f"{stem}_prob_{c}.nii.gz" for c in CLASS_NAMES)])
+    assert files == sorted([f"{stem}_labels.nii.gz", f"{stem}_entropy.nii.gz", "labels.ctbl",
+                            "labels_itksnap.txt", *(f"{stem}_prob_{c}.nii.gz" for c in CLASS_NAMES)])
     assert json.loads(proc.stdout)["nifti_files"] == len(files)
     labels = nib.load(str(tmp_path / "nii" / f"{stem}_labels.nii.gz"))
     assert labels.header.get_intent()[0] == "label"
@@ -49,15 +50,18 @@ def test_prediction_nifti_holds_probability_maps_and_colour_tables(run_less, tmp
     for name in CLASS_NAMES:
         np.testing.assert_array_equal(nib.load(str(tmp_path / "nii" / f"{stem}_prob_{name}.nii.gz")).affine,
                                       labels.affine)
-    np.testing.assert_array_equal(np.asarray(labels.dataobj), probs.argmax(axis=0))  # argmax rule, no threshold
+    # argmax rule, no threshold
+    np.testing.assert_array_equal(np.asarray(labels.dataobj), probs.argmax(axis=0))
 
 
 def test_colour_tables_in_the_formats_slicer_and_itksnap_read():
-    slicer = [line.split() for line in slicer_table(CLASS_NAMES, CLASS_RGBA).splitlines() if not line.startswith("#")]
+    slicer = [line.split() for line in slicer_table(CLASS_NAMES, CLASS_RGBA).splitlines()
+              if not line.startswith("#")]
     assert [row[:2] for row in slicer] == [[str(c), n] for c, n in enumerate(CLASS_NAMES)]
     assert all(len(row) == 6 and all(0 <= int(v) <= 255 for v in row[2:]) for row in slicer)
     assert slicer[0][5] == "0" and slicer[3][2:5] == [str(round(v * 255)) for v in CLASS_RGBA[3][:3]]
     snap = [line for line in itksnap_table(CLASS_NAMES, CLASS_RGBA).splitlines() if not line.startswith("#")]
     fields = [line.split(None, 7) for line in snap]
-    assert [int(f[0]) for f in fields] == [0, 1, 2, 3] and [f[7] for f in fields] == [f'"{n}"' for n in CLASS_NAMES]
+    assert ([int(f[0]) for f in fields] == [0, 1, 2, 3]
+            and [f[7] for f in fields] == [f'"{n}"' for n in CLASS_NAMES])
     assert float(fields[0][4]) == 0.0 and all(float(f[4]) == 1.0 for f in fields[1:])

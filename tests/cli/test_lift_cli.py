@@ -120,7 +120,8 @@ def test_cycle_visits_the_8_orientations_in_order_and_runs_exec(less, emu, tmp_p
 
 def test_cycle_stops_cleanly_when_exec_fails(less, emu, tmp_path):
     assert less("home")[0] == 0
-    failing = f"{sys.executable} -c \"import sys; sys.exit(3 if int(sys.argv[1]) == 2 else 0)\" {{orientation}}"
+    failing = (f"{sys.executable} -c \"import sys; sys.exit(3 if int(sys.argv[1]) == 2 else 0)\" "
+               f"{{orientation}}")
     code, _, err = less("cycle", "--exec", failing)
     assert code == 1 and "cycle stopped at orientation 2: --exec command exited with 3" in err
     assert [g[2] for g in emu.servos[2].goals] == [0, 512, 1024]
@@ -157,13 +158,15 @@ def test_emulate_in_background_with_real_pipes(run_less, tmp_path, cfg_path):
 
     link, log = tmp_path / "lift0", tmp_path / "emu.jsonl"
     emulator = subprocess.Popen([str(BIN / "less"), "lift", "--config", str(cfg_path), "emulate", "--link",
-                                 str(link), "--time-scale", "500", "--log", str(log), "--fault", "overload:2:9"],
+                                 str(link), "--time-scale", "500", "--log", str(log), "--fault",
+                                 "overload:2:9"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert emulator.stdout.readline().strip() == str(link)
         base = ["lift", "--port", link, "--config", cfg_path]
         run_less(*base, "home", check=True)
-        out = run_less(*base, "cycle", "--orientations", "0-7", "--exec", "echo palpate {orientation}", check=True)
+        out = run_less(*base, "cycle", "--orientations", "0-7", "--exec", "echo palpate {orientation}",
+                       check=True)
         visits = [json.loads(line)["target"] for line in out.stdout.splitlines()
                   if json.loads(line)["event"] == "orientation"]
         assert visits == list(range(8)) and b"palpate 7" in out.stderr
@@ -176,7 +179,8 @@ def test_emulate_in_background_with_real_pipes(run_less, tmp_path, cfg_path):
         assert emulator.wait(timeout=10) == 0
     assert not link.exists()
     goals = [json.loads(line) for line in log.read_text().splitlines()]
-    assert [g["goal"] for g in goals if g["event"] == "goal" and g["id"] == 2] == [512 * k for k in range(8)] + [1536]
+    assert ([g["goal"] for g in goals if g["event"] == "goal" and g["id"] == 2]
+            == [512 * k for k in range(8)] + [1536])
 
 
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])

@@ -113,15 +113,18 @@ def test_average_baseline_rows(run_less, tmp_path):
     assert len(base) == 2  # once per distinct test set, not once per seed
     assert all(r["diameter_error_mm_3d"] is not None and r["com_error_mm_3d"] > 0 for r in base)
     assert {r["model"] for r in rows if r["row"] == "group"} == {"less", "average"}
-    by_insert = jsonl(run_less("metrics", *paths, "--baseline-from", train, "--group-by", "insert", "--summary-only"))
+    by_insert = jsonl(run_less("metrics", *paths, "--baseline-from", train, "--group-by", "insert",
+                               "--summary-only"))
     groups = [(g["model"], g["insert"], g["n"]) for g in by_insert if g["row"] == "group"]
-    assert groups == [("less", "St10C5", 2), ("less", "St11C5", 2), ("average", "St10C5", 1), ("average", "St11C5", 1)]
+    assert groups == [("less", "St10C5", 2), ("less", "St11C5", 2), ("average", "St10C5", 1),
+                      ("average", "St11C5", 1)]
 
 
 def test_several_models_make_one_table_with_the_baseline(run_less, tmp_path):
     train = tmp_path / "train.npz"
     save_scans(str(train), random_scanset(n_scans=2))
-    paths = [write_preds(tmp_path / f"{m}.npz", shifts, model=m) for m, shifts in (("less", [0, 1]), ("fm", [2, 2]))]
+    paths = [write_preds(tmp_path / f"{m}.npz", shifts, model=m) for m,
+             shifts in (("less", [0, 1]), ("fm", [2, 2]))]
     args = ("metrics", *paths, "--baseline-from", train, "--group-by", "model", "--summary-only")
     files = [r for r in jsonl(run_less(*args)) if r["row"] == "file"]
     assert [(r["model"], r["n"]) for r in files] == [("less", 2), ("fm", 2), ("average", 2)]
@@ -130,8 +133,10 @@ def test_several_models_make_one_table_with_the_baseline(run_less, tmp_path):
     assert proc.returncode == 0, proc.stderr.decode()
     lines = proc.stdout.decode().splitlines()                       # header, rule, one row per model
     assert len(lines) == 5 and [line.split()[1] for line in lines[2:]] == ["less", "fm", "average"]
-    seeds = [write_preds(tmp_path / f"s{i}.npz", [0, 1], seed=i) for i in range(2)]   # groups pooling files stay
-    out = run_less("metrics", *seeds, "--group-by", "model", "--summary-only", "--format", "table").stdout.decode()
+    # groups pooling files stay
+    seeds = [write_preds(tmp_path / f"s{i}.npz", [0, 1], seed=i) for i in range(2)]
+    out = run_less("metrics", *seeds, "--group-by", "model", "--summary-only", "--format",
+                   "table").stdout.decode()
     assert len(out.split("\n\n")) == 2 and "(n=2)" in out
 
 
@@ -154,7 +159,8 @@ def test_nifti_pair(run_less, tmp_path):
 def test_nifti_grids_must_match(run_less, tmp_path):
     truth = _truth((-2.0, 0.0, 0.0))
     save_nifti(str(tmp_path / "ref.nii.gz"), truth)
-    save_nifti(str(tmp_path / "moved.nii.gz"), LabelVolume(truth.data, truth.origin_mm + 1.0, truth.spacing_mm))
+    save_nifti(str(tmp_path / "moved.nii.gz"),
+               LabelVolume(truth.data, truth.origin_mm + 1.0, truth.spacing_mm))
     save_nifti(str(tmp_path / "small.nii.gz"), LabelVolume(truth.data[:3], truth.origin_mm, truth.spacing_mm))
     for name, words in (("moved.nii.gz", "origin"), ("small.nii.gz", "grid")):
         proc = run_less("metrics", "--truth", "ref.nii.gz", "--pred", name)
@@ -206,10 +212,13 @@ def test_show_picks_the_tables_metrics_in_order(run_less, tmp_path):
     paths = [write_preds(tmp_path / f"s{i}.npz", [i, 1], seed=i) for i in range(2)]
     show = ("--show", "diameter_error_mm_3d,f1_micro_3d", "--show", "com_error_mm_3d")
     lines = run_less("metrics", *paths, "--summary-only", *show, check=True).stdout.decode().splitlines()
-    assert lines[0].split() == ["file", "model", "n", "diameter_error_mm_3d", "f1_micro_3d", "com_error_mm_3d"]
+    assert lines[0].split() == ["file", "model", "n", "diameter_error_mm_3d", "f1_micro_3d",
+                                "com_error_mm_3d"]
     scans = run_less("metrics", paths[0], "--show", "f1_micro_3d,f1_2d", check=True).stdout.decode()
-    assert scans.splitlines()[0].split()[-1] == "f1_2d" and "com_error_mm_3d" not in scans  # scan rows: no micro F1
-    md = run_less("metrics", paths[0], "--summary-only", "--show", "f1_3d", "--format", "markdown", check=True)
+    # scan rows: no micro F1
+    assert scans.splitlines()[0].split()[-1] == "f1_2d" and "com_error_mm_3d" not in scans
+    md = run_less("metrics", paths[0], "--summary-only", "--show", "f1_3d", "--format", "markdown",
+                  check=True)
     assert md.stdout.decode().splitlines()[0].split("|")[-2].strip() == "f1_3d"
     typo = run_less("metrics", paths[0], "--show", "com_error_3d")
     assert typo.returncode == 2 and b"did you mean 'com_error_mm_3d'" in typo.stderr and not typo.stdout
@@ -224,9 +233,10 @@ def _prefix_file(path, record_scans: bool):
     for s in range(2):
         truth = _truth((-2.0, 1.0 * s, -1.0))
         for steps, shift in ((4, 6), (8, 6), (12, 1)):
-            images.append(ScanPrediction(probs=_onehot(np.roll(truth.data, shift, axis=2)), origin_mm=truth.origin_mm,
-                                         spacing_mm=truth.spacing_mm, truth=truth.data, insert=f"St1{s}C5",
-                                         orientation=0, steps=steps, scan=s if record_scans else -1))
+            images.append(ScanPrediction(probs=_onehot(np.roll(truth.data, shift, axis=2)),
+                                         origin_mm=truth.origin_mm, spacing_mm=truth.spacing_mm,
+                                         truth=truth.data, insert=f"St1{s}C5", orientation=0, steps=steps,
+                                         scan=s if record_scans else -1))
     save_predictions(str(path), PredictionSet(images, {"dim": 3, "model": "less"}))
     return path
 
@@ -241,10 +251,11 @@ def test_a_steps_file_is_scored_on_whole_scans_not_on_each_prefix(run_less, tmp_
     scans = [r for r in rows if r["row"] == "scan"]
     assert [(r["scan"], r["steps"]) for r in scans] == [(0, 12), (1, 12)]
     summary = next(r for r in rows if r["row"] == "file")
-    expected = next(r for r in jsonl(run_less("metrics", whole.name, "--format", "jsonl")) if r["row"] == "file")
+    expected = next(r for r in jsonl(run_less("metrics", whole.name, "--format", "jsonl"))
+                    if r["row"] == "file")
     assert summary["f1_3d_n"] == 2 and summary["f1_micro_3d"] == pytest.approx(expected["f1_micro_3d"])
-    assert "steps.npz: 6 images of 2 scans (prefixes from image predict --steps/--every); each scan is scored " \
-           "once, on its whole sequence" in proc.stderr.decode()
+    assert ("steps.npz: 6 images of 2 scans (prefixes from image predict --steps/--every); each scan is "
+            "scored once, on its whole sequence") in proc.stderr.decode()
 
 
 def test_image_predict_steps_then_metrics_counts_the_scans(run_less, tmp_path):

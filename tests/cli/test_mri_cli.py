@@ -26,8 +26,9 @@ def synth_files(tmp_path_factory):
 
     folder = tmp_path_factory.mktemp("mri")
     less = Path(sys.executable).parent / "less"
-    subprocess.run([str(less), "mri-label", "--synth", "St12C13", "-o", "scan.nii.gz", "--truth-out", "truth.nii.gz",
-                    "--spacing-mm", SYNTH_SPACING, "--seed", "3", "--contrast", "silicone-brighter"],
+    subprocess.run([str(less), "mri-label", "--synth", "St12C13", "-o", "scan.nii.gz", "--truth-out",
+                    "truth.nii.gz", "--spacing-mm", SYNTH_SPACING, "--seed", "3", "--contrast",
+                    "silicone-brighter"],
                    cwd=folder, check=True, capture_output=True)
     return folder
 
@@ -43,8 +44,8 @@ def _one_line_error(proc) -> str:
 
 def test_synth_label_metrics_roundtrip(run_less, synth_files, tmp_path):
     scan, truth = synth_files / "scan.nii.gz", synth_files / "truth.nii.gz"
-    proc = run_less("mri-label", scan, "-o", "labels.nii.gz", "--report", "--format", "jsonl", "--plot", "qc.png",
-                    check=True)
+    proc = run_less("mri-label", scan, "-o", "labels.nii.gz", "--report", "--format", "jsonl", "--plot",
+                    "qc.png", check=True)
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     contrast = next(r for r in rows if r["row"] == "contrast")
     assert contrast["silicone_brighter"] is True and contrast["silicone"] > contrast["hydrogel"]
@@ -85,19 +86,21 @@ def test_synth_label_metrics_roundtrip(run_less, synth_files, tmp_path):
     lateral = (true_post - foot) - ((true_post - foot) @ up) * up
     assert np.linalg.norm(lateral) < 0.5 * 0.7
     assert abs(post["diameter_mm"] - 2 * PILLAR_RADIUS_MM) < 0.25 * 0.7 and post["height_mm"] > 0.0
-    metrics = run_less("metrics", "--truth", truth, "--pred", "labels.nii.gz", "--format", "jsonl", check=True)
+    metrics = run_less("metrics", "--truth", truth, "--pred", "labels.nii.gz", "--format", "jsonl",
+                       check=True)
     first = json.loads(metrics.stdout.decode().splitlines()[0])
     assert first["f1_3d"] > 0.93
 
 
 def test_phantom_grid_writes_eight_orientations(run_less, synth_files, tmp_path):
-    run_less("mri-label", synth_files / "scan.nii.gz", "-o", "grid.nii.gz", "--grid", "phantom", "--orientations", "0-7",
-             check=True)
+    run_less("mri-label", synth_files / "scan.nii.gz", "-o", "grid.nii.gz", "--grid", "phantom",
+             "--orientations", "0-7", check=True)
     vols = [load_nifti_labels(str(tmp_path / f"grid_{k}.nii.gz")) for k in range(8)]
     assert not (tmp_path / "grid.nii.gz").exists()
     for vol in vols:
         assert vol.shape == (26, 128, 128)
-        np.testing.assert_allclose(vol.origin_mm, label_grid_origin((26, 128, 128), (0.9, 0.4774, 0.4774)), atol=1e-4)
+        np.testing.assert_allclose(vol.origin_mm, label_grid_origin((26, 128, 128), (0.9, 0.4774, 0.4774)),
+                                   atol=1e-4)
         assert (vol.data == INCLUSION).sum() > 100
     # a 90 degree step maps the centred square grid onto itself: orientation 2 is orientation 0 turned x -> y
     turned = np.rot90(vols[0].data, k=1, axes=(2, 1))
@@ -122,8 +125,8 @@ def test_inclusion_shape_option(run_less, synth_files, tmp_path):
     truth = load_nifti_labels(str(synth_files / "truth.nii.gz")).data == INCLUSION
     out = {}
     for shape in ("image", "ball"):
-        run_less("mri-label", synth_files / "scan.nii.gz", "-o", f"{shape}.nii.gz", "--inclusion-shape", shape,
-                 check=True)
+        run_less("mri-label", synth_files / "scan.nii.gz", "-o", f"{shape}.nii.gz", "--inclusion-shape",
+                 shape, check=True)
         out[shape] = load_nifti_labels(str(tmp_path / f"{shape}.nii.gz")).data == INCLUSION
         assert dice(out[shape], truth) > 0.93
     assert (out["image"] != out["ball"]).any()
@@ -211,7 +214,8 @@ def test_bias_degree_option_reaches_the_correction(run_less, synth_files, tmp_pa
     truth = load_nifti_labels(str(synth_files / "truth.nii.gz")).data
     out = {}
     for degree in ("0", "3"):
-        run_less("mri-label", synth_files / "scan.nii.gz", "-o", f"d{degree}.nii.gz", "--bias-degree", degree, check=True)
+        run_less("mri-label", synth_files / "scan.nii.gz", "-o", f"d{degree}.nii.gz", "--bias-degree", degree,
+                 check=True)
         out[degree] = load_nifti_labels(str(tmp_path / f"d{degree}.nii.gz")).data
     assert (out["0"] != out["3"]).any()
     assert dice(out["0"] == INCLUSION, truth == INCLUSION) > 0.9
@@ -225,9 +229,10 @@ def test_given_pillar_diameter_is_drawn_and_the_measured_one_reported(run_less, 
 
     rows = {}
     for name, extra in (("blind", ()), ("given", ("--pillar-diameter-mm", "4.4"))):
-        proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", f"{name}.nii.gz", "--report", "--format",
-                        "jsonl", *extra, check=True)
-        (rows[name],) = [r for r in map(json.loads, proc.stdout.decode().splitlines()) if r["row"] == "pillar"]
+        proc = run_less("mri-label", synth_files / "scan.nii.gz", "-o", f"{name}.nii.gz", "--report",
+                        "--format", "jsonl", *extra, check=True)
+        (rows[name],) = [r for r in map(json.loads, proc.stdout.decode().splitlines())
+                         if r["row"] == "pillar"]
     assert rows["given"]["diameter_mm"] == 4.4 and "measured_diameter_mm" not in rows["blind"]
     assert rows["given"]["measured_diameter_mm"] == rows["blind"]["diameter_mm"]
     assert abs(rows["blind"]["diameter_mm"] - 2 * PILLAR_RADIUS_MM) < 0.25 * 0.7
@@ -238,8 +243,8 @@ def test_given_pillar_diameter_is_drawn_and_the_measured_one_reported(run_less, 
 
 
 def test_phantom_command_writes_synthetic_mri(run_less, tmp_path):
-    proc = run_less("phantom", "--set", "single", "--names", "St8C5", "--orientations", "0", "--mri", "-o", "ph",
-                    "--format", "jsonl", check=True)
+    proc = run_less("phantom", "--set", "single", "--names", "St8C5", "--orientations", "0", "--mri", "-o",
+                    "ph", "--format", "jsonl", check=True)
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     mri_rows = [r for r in rows if "mri" in r]
     assert len(mri_rows) == 1 and mri_rows[0]["insert"] == "St8C5"

@@ -58,18 +58,22 @@ BAD_VALUES = {
     "pretrain --epochs -1": (["pretrain", "s.npz", "-o", "r.pt", "--epochs", "-1"], "'--epochs'"),
     "pretrain --lr -1": (["pretrain", "s.npz", "-o", "r.pt", "--lr", "-1"], "'--lr'"),
     "pretrain --model foo": (["pretrain", "s.npz", "-o", "r.pt", "--model", "foo"], "'--model'"),
-    "pretrain --model lesss": (["pretrain", "s.npz", "-o", "r.pt", "--model", "lesss"], "did you mean 'less'"),
+    "pretrain --model lesss": (["pretrain", "s.npz", "-o", "r.pt", "--model", "lesss"],
+                               "did you mean 'less'"),
     "pretrain --dim 0": (["pretrain", "s.npz", "-o", "r.pt", "--dim", "0"], "'--dim'"),
     "pretrain --set unknown key": (["pretrain", "s.npz", "-o", "r.pt", "--set", "train.epoch=3"],
                                    "did you mean 'epochs'"),
     "pretrain --set bad value": (["pretrain", "s.npz", "-o", "r.pt", "--set", "ssl.k_query=0"], "'--set'"),
     "pretrain --set bare key": (["pretrain", "s.npz", "-o", "r.pt", "--set", "batch_size=0"], "'--set'"),
-    "image fit --epochs 0": (["image", "fit", "s.npz", "--rep", "r.pt", "-o", "i.pt", "--epochs", "0"], "'--epochs'"),
+    "image fit --epochs 0": (["image", "fit", "s.npz", "--rep", "r.pt", "-o", "i.pt", "--epochs", "0"],
+                             "'--epochs'"),
     "image fit --decoder foo": (["image", "fit", "s.npz", "--rep", "r.pt", "-o", "i.pt", "--decoder", "foo"],
                                 "'--decoder'"),
-    "image fit --set unknown key": (["image", "fit", "s.npz", "--rep", "r.pt", "-o", "i.pt", "--set", "image.widht=8"],
+    "image fit --set unknown key": (["image", "fit", "s.npz", "--rep", "r.pt", "-o", "i.pt", "--set",
+                                     "image.widht=8"],
                                     "did you mean 'width'"),
-    "image fit --dim 5 (click's own)": (["image", "fit", "s.npz", "--rep", "r.pt", "-o", "i.pt", "--dim", "5"],
+    "image fit --dim 5 (click's own)": (["image", "fit", "s.npz", "--rep", "r.pt", "-o", "i.pt", "--dim",
+                                         "5"],
                                         "'--dim'"),
 }
 
@@ -89,8 +93,8 @@ def test_the_same_bad_value_in_a_config_file_is_a_data_error_naming_the_file(sca
     proc = _less("pretrain", "s.npz", "-o", "r.pt", "--config", "bad.toml", cwd=scans)
     assert proc.returncode == 1 and proc.stderr.strip() == \
         "less: error: bad.toml: setting train.epochs = -1 is invalid: must be >= 1"
-    fixed = _less("pretrain", "s.npz", "-o", "r.pt", "--config", "bad.toml", "--epochs", "1", "--dim", "8", "-q",
-                  cwd=scans)
+    fixed = _less("pretrain", "s.npz", "-o", "r.pt", "--config", "bad.toml", "--epochs", "1", "--dim", "8",
+                  "-q", cwd=scans)
     assert fixed.returncode == 0, fixed.stderr           # an option over the file's value repairs it
 
 
@@ -101,7 +105,8 @@ def test_pretrain_help_names_every_encoder_and_the_defaults_say_they_are_the_pap
     pretrain = runner.invoke(cli, ["pretrain", "--help"], terminal_width=200).stdout
     assert all(name in pretrain for name in ENCODERS), "name each registered encoder in --model's help"
     fit = runner.invoke(cli, ["image", "fit", "--help"], terminal_width=200).stdout
-    assert "100, the paper's" in pretrain and "300, the paper's" in fit and "--epochs 5 for a first look" in fit
+    assert ("100, the paper's" in pretrain and "300, the paper's" in fit
+            and "--epochs 5 for a first look" in fit)
 
 
 def _groups(command: click.Command, path: str = ""):
@@ -126,6 +131,7 @@ def test_threads_and_jobs_take_auto(scans):
     from factories import TINY_SCENE
 
     (scans / "tiny.toml").write_text(TINY_SCENE)
-    proc = _less("-v", "simulate", "tiny.toml", "-o", "x.npz", "--jobs", "auto", "--format", "jsonl", cwd=scans)
+    proc = _less("-v", "simulate", "tiny.toml", "-o", "x.npz", "--jobs", "auto", "--format", "jsonl",
+                 cwd=scans)
     assert proc.returncode == 0 and json.loads(proc.stdout)["jobs"] >= 1 and "--threads auto" in proc.stderr
     assert _less("simulate", "tiny.toml", "-o", "y.npz", "--jobs", "0", cwd=scans).returncode == 2

@@ -1,4 +1,5 @@
-"""``less pose`` through the installed console script: render -> track -> accuracy, calibrate, apply, errors."""
+"""``less pose`` through the installed console script: render -> track -> accuracy, calibrate, apply,
+errors."""
 
 import json
 import subprocess
@@ -22,8 +23,8 @@ def frames_dir(tmp_path_factory):
     from conftest import BIN
 
     root = tmp_path_factory.mktemp("pose")
-    proc = subprocess.run([str(BIN / "less"), "-q", "pose", "render", "--frames", "4", "--step", "25", "--seed", "3",
-                           "-o", str(root / "frames")], capture_output=True, check=False)
+    proc = subprocess.run([str(BIN / "less"), "-q", "pose", "render", "--frames", "4", "--step", "25",
+                           "--seed", "3", "-o", str(root / "frames")], capture_output=True, check=False)
     assert proc.returncode == 0, proc.stderr.decode()
     return root / "frames"
 
@@ -93,9 +94,11 @@ def _write_streams(tmp_path, rng):
     est = tmp_path / "est.jsonl"
     noisy = pos + rng.normal(0, 0.5, pos.shape)
     est.write_text("".join(json.dumps({"frame": i, "t": float(t[i]), "position_mm": noisy[i].tolist(),
-                                       "rotvec_rad": rv[i].tolist(), "ok": True}) + "\n" for i in range(len(t))))
+                                       "rotvec_rad": rv[i].tolist(), "ok": True}) + "\n"
+                                       for i in range(len(t))))
     robot = tmp_path / "robot.npz"
-    np.savez(robot, time_s=t, position_mm=pos @ rot_true.T + t_true, rotation=rot_true @ rotations.rotvec_to_matrix(rv))
+    np.savez(robot, time_s=t, position_mm=pos @ rot_true.T + t_true,
+             rotation=rot_true @ rotations.rotvec_to_matrix(rv))
     return est, robot, rot_true, t_true
 
 

@@ -73,7 +73,8 @@ def _run(args, cwd):
 
 def test_training_in_a_log_shows_each_epoch_and_verbose_adds_no_cursor_codes(tmp_path):
     save_scans(str(tmp_path / "s.npz"), random_scanset())
-    proc = _run(["pretrain", "s.npz", "-o", "r.pt", "--epochs", "3", "--dim", "8", "--format", "jsonl"], tmp_path)
+    proc = _run(["pretrain", "s.npz", "-o", "r.pt", "--epochs", "3", "--dim", "8", "--format", "jsonl"],
+                tmp_path)
     assert proc.returncode == 0, proc.stderr
     epochs = [line for line in proc.stderr.splitlines() if line.startswith("less: train: epoch ")]
     assert [line.split(",")[0] for line in epochs] == [f"less: train: epoch {i}/3" for i in (1, 2, 3)]
@@ -82,7 +83,8 @@ def test_training_in_a_log_shows_each_epoch_and_verbose_adds_no_cursor_codes(tmp
                 tmp_path)
     assert loud.returncode == 0 and not any(c in loud.stderr for c in CURSOR)
     assert "less: epoch 1/2: " in loud.stderr                   # -v: the batches of each epoch, as lines too
-    quiet = _run(["-q", "pretrain", "s.npz", "-o", "q.pt", "--epochs", "2", "--dim", "8", "--format", "jsonl"],
+    quiet = _run(["-q", "pretrain", "s.npz", "-o", "q.pt", "--epochs", "2", "--dim", "8", "--format",
+                  "jsonl"],
                  tmp_path)
     assert quiet.returncode == 0 and quiet.stderr == ""
 
@@ -92,7 +94,8 @@ def test_simulate_in_a_log_shows_its_scans_by_tenths(tmp_path):
     proc = _run(["simulate", "tiny.toml", "-o", "x.npz", "--jobs", "1", "--format", "jsonl"], tmp_path)
     assert proc.returncode == 0, proc.stderr
     lines = proc.stderr.splitlines()
-    assert lines == [f"less: scans: {i}/4 scans ({25 * i} %)" + lines[i - 1].split("%)", 1)[1] for i in (1, 2, 3, 4)]
+    assert lines == [f"less: scans: {i}/4 scans ({25 * i} %)" + lines[i - 1].split("%)", 1)[1]
+                     for i in (1, 2, 3, 4)]
     assert not any(c in proc.stderr for c in CURSOR)
 
 
@@ -101,7 +104,8 @@ def test_a_terminal_still_gets_a_bar(tmp_path):
     (tmp_path / "tiny.toml").write_text(TINY_SCENE)
     leader, follower = os.openpty()
     try:
-        proc = subprocess.run([LESS, "simulate", "tiny.toml", "-o", "x.npz", "--jobs", "1", "--format", "jsonl"],
+        proc = subprocess.run([LESS, "simulate", "tiny.toml", "-o", "x.npz", "--jobs", "1", "--format",
+                               "jsonl"],
                               cwd=tmp_path, stdout=subprocess.PIPE, stderr=follower, timeout=600, check=False)
         os.close(follower)
         follower = None

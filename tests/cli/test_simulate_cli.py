@@ -27,8 +27,8 @@ def test_simulate_then_info_subsample_concat_split(run_less, tmp_path):
     run_less("concat", "shard0.npz", "shard1.npz", "-o", "joined.npz", check=True)
     joined = load_scans(str(tmp_path / "joined.npz"))
     assert np.array_equal(joined.force, raw.force) and np.array_equal(joined.pose, raw.pose)
-    split = run_less("split", "raw.npz", "--by", "insert", "--test", "0.5", "-o", "split", "--format", "jsonl",
-                     check=True)
+    split = run_less("split", "raw.npz", "--by", "insert", "--test", "0.5", "-o", "split", "--format",
+                     "jsonl", check=True)
     rows = [json.loads(line) for line in split.stdout.decode().splitlines()]
     assert sum(r["scans"] for r in rows) == 4
 
@@ -49,7 +49,8 @@ def test_simulate_overrides_and_errors(run_less, tmp_path):
     assert missing.returncode == 1 and b"nope.toml: no such scene file" in missing.stderr
 
 
-def test_jobs_default_to_the_cores_at_most_one_a_scan_and_follow_the_load_only_when_asked(tmp_path, monkeypatch):
+def test_jobs_default_to_the_cores_at_most_one_a_scan_and_follow_the_load_only_when_asked(tmp_path,
+                                                                                        monkeypatch):
     from click.testing import CliRunner
 
     from lesscli import threads
@@ -63,15 +64,16 @@ def test_jobs_default_to_the_cores_at_most_one_a_scan_and_follow_the_load_only_w
                                      (2.2, "[0]", ["--jobs", "auto"]), (2.2, "[0, 4]", ["--jobs", "auto"])):
         monkeypatch.setattr(threads, "other_load", lambda starting=0.0, load=load: load + starting)
         res = CliRunner().invoke(cli, ["simulate", str(tmp_path / "tiny.toml"), "-o", str(tmp_path / "x.npz"),
-                                       "--set", f"phantoms.orientations={orientations}", "--set", "motion.n_traj=1",
-                                       "--format", "jsonl", *jobs])
+                                       "--set", f"phantoms.orientations={orientations}", "--set",
+                                       "motion.n_traj=1", "--format", "jsonl", *jobs])
         assert res.exit_code == 0, res.output
         record = json.loads(res.stdout.strip().splitlines()[-1])
         runs[load, orientations, bool(jobs)] = (record["scans"], record["jobs"], record["threads"])
     # three cores: a worker each, but never more workers than scans, whatever the load; --jobs auto: one
     # free core (load 2.2), one worker
     assert runs == {(0.0, "[0]", False): (2, 2, 1), (0.0, "[0, 4]", False): (4, 3, 1),
-                    (2.2, "[0]", False): (2, 2, 1), (2.2, "[0]", True): (2, 1, 1), (2.2, "[0, 4]", True): (4, 1, 1)}
+                    (2.2, "[0]", False): (2, 2, 1), (2.2, "[0]", True): (2, 1, 1),
+                    (2.2, "[0, 4]", True): (4, 1, 1)}
 
 
 def test_thread_limit_reaches_the_blas_that_scipy_loads_later():
@@ -85,6 +87,7 @@ def test_thread_limit_reaches_the_blas_that_scipy_loads_later():
             "from threadpoolctl import threadpool_info\n"
             "print(json.dumps({i['filepath']: i['num_threads'] for i in threadpool_info()}))")
     env = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
-    out = subprocess.run([sys.executable, "-c", "import json\n" + code], env=env, capture_output=True, check=True)
+    out = subprocess.run([sys.executable, "-c", "import json\n" + code], env=env, capture_output=True,
+                         check=True)
     pools = json.loads(out.stdout)
     assert any("scipy" in path for path in pools) and set(pools.values()) == {1}, pools

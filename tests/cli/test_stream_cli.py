@@ -46,20 +46,23 @@ def test_replay_matches_batch_prediction_and_writes_frames(files, run_less, tmp_
     preds = load_predictions(str(tmp_path / "pred.npz"))
     for final, pred in zip(finals, preds.scans):
         assert final["inclusion_voxels"] == int((pred.label == 3).sum())
-        assert final["entropy_mean_nats"] == pytest.approx(float(pred.entropy.astype(np.float64).mean()), abs=2e-3)
+        assert final["entropy_mean_nats"] == pytest.approx(float(pred.entropy.astype(np.float64).mean()),
+                                                           abs=2e-3)
 
 
 def test_live_malformed_lines_are_reported_with_their_number_and_skipped(files, run_less):
     folder, _ = files
     rng = np.random.default_rng(0)
-    lines = [_live_line(rng, 0.0), "{not json", _live_line(rng, 0.02), json.dumps({"t": 0.03, "pose": [1, 2, 3]}),
-             "", json.dumps({"t": 0.04, "pose": [0, 0, -1, 0, 0, 0], "force": [[1, 2, 3]]}),
+    lines = [_live_line(rng, 0.0), "{not json", _live_line(rng, 0.02),
+             json.dumps({"t": 0.03, "pose": [1, 2, 3]}), "",
+             json.dumps({"t": 0.04, "pose": [0, 0, -1, 0, 0, 0], "force": [[1, 2, 3]]}),
              json.dumps({"t": "soon", "pose": [0, 0, -1, 0, 0, 0], "force": [[0, 0, 1]] * 30}),
              _live_line(rng, 0.05)]
     proc = run_less("stream", folder / "im.pt", "-", "--emit-every", "2", input="\n".join(lines).encode())
     err = proc.stderr.decode()
     assert proc.returncode == 0, err
-    for number, what in ((2, "not JSON"), (4, "missing 'force'"), (6, "'force' has 3 values"), (7, "'t' must be")):
+    for number, what in ((2, "not JSON"), (4, "missing 'force'"), (6, "'force' has 3 values"),
+                         (7, "'t' must be")):
         assert f"line {number}: {what}" in err
     rows = _records(proc)
     assert [r["step"] for r in rows] == [2, 3] and rows[-1]["t"] == 0.05
@@ -70,7 +73,8 @@ def test_live_stop_on_error_exits_1_without_traceback(files, run_less):
     folder, _ = files
     rng = np.random.default_rng(1)
     text = "\n".join([_live_line(rng, 0.0), _live_line(rng, 0.01), "[1, 2]", _live_line(rng, 0.03)])
-    proc = run_less("stream", folder / "im.pt", "-", "--emit-every", "1", "--on-error", "stop", input=text.encode())
+    proc = run_less("stream", folder / "im.pt", "-", "--emit-every", "1", "--on-error", "stop",
+                    input=text.encode())
     err = proc.stderr.decode()
     assert proc.returncode == 1
     assert "line 3: expected a JSON object" in err and "Traceback" not in err
@@ -86,14 +90,15 @@ def test_stream_bad_model_is_one_line_error(files, run_less, tmp_path):
 
 
 def test_bench_stream_tiny_run_and_bad_input(run_less):
-    proc = run_less("bench", "stream", "--steps", "20,40", "--updates", "3", "--full-repeats", "1", "--dim", "2",
-                    "--width", "8,16", "--threads", "1", "--format", "jsonl", check=True)
+    proc = run_less("bench", "stream", "--steps", "20,40", "--updates", "3", "--full-repeats", "1", "--dim",
+                    "2", "--width", "8,16", "--threads", "1", "--format", "jsonl", check=True)
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert [(r["width"], r["steps"]) for r in rows] == [(8, 20), (8, 40), (16, 20), (16, 40)]
     for r in rows:
         assert r["dim"] == 2 and r["updates"] == 3 and r["threads"] == 1
         assert 0 < r["incremental_median_ms"] <= r["incremental_p99_ms"]
-        assert r["full_median_ms"] > 0 and r["speedup_median"] == r["full_median_ms"] / r["incremental_median_ms"]
+        assert (r["full_median_ms"] > 0
+                and r["speedup_median"] == r["full_median_ms"] / r["incremental_median_ms"])
         assert r["deferred_refresh10_mean_ms"] > 0 and r["particles_per_update"] > 0
     assert all("rate_hz" not in r for r in rows)              # back to back unless --rate
     bad = run_less("bench", "stream", "--steps", "0,5")
@@ -111,7 +116,8 @@ def test_bench_stream_tiny_run_and_bad_input(run_less):
 
 def test_stream_and_guide_label_with_the_models_rule(files, run_less, tmp_path):
     """The labelling rule stored in the checkpoint (threshold, smallest kept inclusion region) is the one
-    ``stream`` and ``guide`` use, as ``image predict`` does; ``--threshold``/``--min-volume-mm3`` override it."""
+    ``stream`` and ``guide`` use, as ``image predict`` does; ``--threshold``/``--min-volume-mm3`` override
+    it."""
     from imaging_factory import tiny_imager
 
     from lesscli.io.checkpoint import save_checkpoint
@@ -161,8 +167,8 @@ def test_stream_guide_and_predict_smooth_as_the_model_says(files, run_less, tmp_
         rows = _records(run_less("stream", tmp_path / "smooth.pt", folder / "s.npz", *opts, check=True))
         streamed = [max((r for r in rows if r["scan"] == s), key=lambda r: r["step"])["inclusion_voxels"]
                     for s in range(scans.n_scans)]
-        run_less("image", "predict", tmp_path / "smooth.pt", folder / "s.npz", "-o", tmp_path / "p.npz", *opts,
-                 check=True)
+        run_less("image", "predict", tmp_path / "smooth.pt", folder / "s.npz", "-o", tmp_path / "p.npz",
+                 *opts, check=True)
         predicted = [int((p.label == 3).sum()) for p in load_predictions(str(tmp_path / "p.npz")).scans]
         assert streamed == predicted
         return predicted

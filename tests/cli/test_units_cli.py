@@ -36,7 +36,8 @@ def files(tmp_path_factory):
         save_scans(str(folder / f"{kind}.npz"), _variant(scans, kind))
     make_representation(str(folder / "rep.pt"), scans, dim=8)
     imager, stats, config = tiny_imager(dim=2)
-    save_checkpoint(str(folder / "im.pt"), imager.state_dict(), config, {**stats, "data": signature(scans)}, [])
+    save_checkpoint(str(folder / "im.pt"), imager.state_dict(), config, {**stats, "data": signature(scans)},
+                    [])
     return folder
 
 
@@ -60,21 +61,24 @@ def test_image_predict_refuses_a_mismatched_scan_set(files, run_less, kind):
 
 
 def test_image_fit_refuses_scans_that_do_not_match_the_representation(files, run_less):
-    proc = run_less("image", "fit", "counts.npz", "--rep", "rep.pt", "-o", "fit.pt", "--epochs", "1", cwd=files)
+    proc = run_less("image", "fit", "counts.npz", "--rep", "rep.pt", "-o", "fit.pt", "--epochs", "1",
+                    cwd=files)
     _refused(proc, "counts.npz", "rep.pt", KINDS["counts"], files, "fit.pt")
 
 
 def test_pretrain_refuses_a_validation_set_that_does_not_match_the_training_set(files, run_less):
-    proc = run_less("pretrain", "ok.npz", "--val", "layout.npz", "-o", "rep2.pt", "--epochs", "1", "--dim", "8",
-                    cwd=files)
+    proc = run_less("pretrain", "ok.npz", "--val", "layout.npz", "-o", "rep2.pt", "--epochs", "1", "--dim",
+                    "8", cwd=files)
     _refused(proc, "layout.npz", "ok.npz", KINDS["layout"], files, "rep2.pt")
 
 
 def test_stream_guide_and_noise_sweep_refuse_a_mismatched_scan_set(files, run_less):
-    _refused(run_less("stream", "im.pt", "counts.npz", cwd=files), "counts.npz", "im.pt", KINDS["counts"], files)
-    _refused(run_less("guide", "im.pt", "counts.npz", cwd=files), "counts.npz", "im.pt", KINDS["counts"], files)
-    proc = run_less("noise-sweep", "im.pt", "metres.npz", "--pos-mm", "0", "--ang-rad", "0", "--plot", "n.png",
-                    cwd=files)
+    _refused(run_less("stream", "im.pt", "counts.npz", cwd=files), "counts.npz", "im.pt", KINDS["counts"],
+             files)
+    _refused(run_less("guide", "im.pt", "counts.npz", cwd=files), "counts.npz", "im.pt", KINDS["counts"],
+             files)
+    proc = run_less("noise-sweep", "im.pt", "metres.npz", "--pos-mm", "0", "--ang-rad", "0", "--plot",
+                    "n.png", cwd=files)
     _refused(proc, "metres.npz", "im.pt", KINDS["metres"], files, "n.png")
 
 
@@ -94,8 +98,8 @@ def test_implausible_poses_and_forces_are_refused_naming_the_file(files, run_les
     huge.force[..., 2] += 1e30
     degrees = copy.deepcopy(scans)
     degrees.pose[:, 5] = 45.0
-    for name, bad, what in (("far.npz", far, "from the phantom's centre"), ("huge.npz", huge, "sensor counts"),
-                            ("deg.npz", degrees, "in degrees")):
+    for name, bad, what in (("far.npz", far, "from the phantom's centre"),
+                            ("huge.npz", huge, "sensor counts"), ("deg.npz", degrees, "in degrees")):
         save_scans(str(tmp_path / name), bad)
         proc = run_less("image", "predict", files / "im.pt", name, "-o", "p.npz", cwd=tmp_path)
         _refused(proc, name, name, what, tmp_path, "p.npz")

@@ -76,7 +76,8 @@ def test_label_codes_and_geometry():
     k, i, j = np.argwhere(vol.data == 3)[0]
     z, y, x = vol.origin_mm + np.array([k, i, j]) * vol.spacing_mm
     # canvas (17.4, 0.24) rotated by -90 deg -> (0.24, -17.4); mirrored in x -> pose (-0.24, -17.4)
-    assert z == pytest.approx(0.0) and x == pytest.approx(-0.24, abs=0.5) and y == pytest.approx(-17.4, abs=0.5)
+    assert (z == pytest.approx(0.0) and x == pytest.approx(-0.24, abs=0.5)
+            and y == pytest.approx(-17.4, abs=0.5))
     flipped = label_volume(raw, "St12C13", 2, "st12c13_0.npy", top_slice="first")
     assert np.argwhere(flipped.data == 3)[0][0] == 0  # the stored top slice now sits deepest
     big = label_volume(raw, "bst12d30", 0, "bst12d30_0.npy")
@@ -166,13 +167,15 @@ def test_broken_file_fails_or_is_skipped_by_name(tmp_path):
     root = write_root(str(tmp_path / "r"), n_traj=2)
     bad = os.path.join(root, "poke_trial", "phantomA_St12C13_2.hdf5")
     break_file(bad)
-    with pytest.raises(DataError, match=r"phantomA_St12C13_2\.hdf5: traj_1: missing dataset 'robot/ee_position'"):
+    with pytest.raises(DataError,
+                       match=r"phantomA_St12C13_2\.hdf5: traj_1: missing dataset 'robot/ee_position'"):
         import_published(root, ImportOptions())
     records = []
     scans = import_published(root, ImportOptions(), on_error="skip", report=records.append)
     assert scans.n_scans == 3
     skipped = [r for r in records if r["status"] == "skipped"]
-    assert len(skipped) == 1 and "St12C13_2" in skipped[0]["file"] and "robot/ee_position" in skipped[0]["error"]
+    assert (len(skipped) == 1 and "St12C13_2" in skipped[0]["file"]
+            and "robot/ee_position" in skipped[0]["error"])
 
 
 def test_inconsistent_timestamps_are_an_error(tmp_path):
@@ -182,7 +185,8 @@ def test_inconsistent_timestamps_are_an_error(tmp_path):
         t = h5["traj_0/robot/timestamps"][()]
         t[50] = t[10]
         h5["traj_0/robot/timestamps"][...] = t
-    with pytest.raises(DataError, match="St10D5_1.hdf5: traj_0: 'robot/timestamps' is not finite and non-decreasing"):
+    with pytest.raises(DataError,
+                       match="St10D5_1.hdf5: traj_0: 'robot/timestamps' is not finite and non-decreasing"):
         import_published(root, ImportOptions())
 
 

@@ -22,7 +22,8 @@ def _arrays_and_meta(path):
     return arrays, meta
 
 
-@pytest.mark.parametrize("compression", [zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED], ids=["stored", "deflated"])
+@pytest.mark.parametrize("compression", [zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED],
+                         ids=["stored", "deflated"])
 def test_cli_import_from_zip_equals_import_from_extracted_folder(tmp_path, run_less, compression):
     archive = zip_root(write_root(str(tmp_path / "src")), str(tmp_path / "dataset_poke.zip"),
                        "dataset_poke", compression)
@@ -30,8 +31,8 @@ def test_cli_import_from_zip_equals_import_from_extracted_folder(tmp_path, run_l
         zf.extractall(tmp_path / "unzipped")
     for shard in ("0/1", "1/2"):
         a = run_less("import", archive, "-o", tmp_path / "z.npz", "--shard", shard, check=True)
-        b = run_less("import", tmp_path / "unzipped" / "dataset_poke", "-o", tmp_path / "f.npz", "--shard", shard,
-                     check=True)
+        b = run_less("import", tmp_path / "unzipped" / "dataset_poke", "-o", tmp_path / "f.npz", "--shard",
+                     shard, check=True)
         assert a.stdout == b.stdout                        # same files, same names, same labels, same counts
         za, zmeta = _arrays_and_meta(tmp_path / "z.npz")
         fa, fmeta = _arrays_and_meta(tmp_path / "f.npz")

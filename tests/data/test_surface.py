@@ -31,7 +31,8 @@ def pressed_scan(top, n_traj: int = 30, steps: int = 40, seed: int = 0, noise_n:
     force[..., 2] += (STIFF_N_PER_MM * depth**1.5 / 30)[..., None]
     force[:bad, 1:, :, 2] += 0.5
     n = n_traj * steps
-    return ScanSet(pose=pose.reshape(n, 6).astype(np.float32), force=force.reshape(n, 30, 3).astype(np.float32),
+    return ScanSet(pose=pose.reshape(n, 6).astype(np.float32),
+                   force=force.reshape(n, 30, 3).astype(np.float32),
                    time_s=np.tile(np.arange(steps) * 0.01, n_traj),
                    traj_offsets=np.arange(n_traj + 1, dtype=np.int64) * steps,
                    traj_scan=np.zeros(n_traj, np.int64), scan_insert=np.array(["St12C9"]),
@@ -86,7 +87,8 @@ def test_a_tilted_top_and_a_tilted_pad_give_the_depth_under_every_taxel():
 
 def test_no_contact_keeps_the_frames_zero_and_sparse_scans_still_find_the_top():
     scans = pressed_scan(lambda x, y: np.zeros_like(x))
-    quiet = replace(scans, force=np.random.default_rng(2).normal(0, 0.005, scans.force.shape).astype(np.float32))
+    quiet = replace(scans,
+                    force=np.random.default_rng(2).normal(0, 0.005, scans.force.shape).astype(np.float32))
     assert sf.surfaces(quiet)[0] == sf.Surface()
     sparse = pressed_scan(lambda x, y: np.full_like(x, 0.8), steps=8)   # 0.8 mm per step
     assert sf.surfaces(sparse)[0].a_mm == pytest.approx(0.8, abs=0.4)
@@ -103,7 +105,8 @@ def test_the_online_surface_reaches_the_batch_surface_once_every_touch_has_ended
     first = online.push(scans.pose[0], scans.force[0], 0.0)
     assert first[2] == pytest.approx(scans.pose[0, 2])                  # nothing seen yet: the frame's zero
     for i in range(1, scans.n_steps):
-        online.push(scans.pose[i], scans.force[i], i * 0.01)              # live time runs on: touches end at lift-off
+        # live time runs on: touches end at lift-off
+        online.push(scans.pose[i], scans.force[i], i * 0.01)
         if i == 39:                                                     # the first touch, before it ends
             top = 0.6 + 0.02 * scans.pose[0, 1]
             assert online.surface.onsets == 0 and -0.5 < online.surface.a_mm - top < 0.0

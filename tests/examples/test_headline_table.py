@@ -25,11 +25,14 @@ def _row(file, model, f1_3d, f1_2d, com=1.0, row="file"):
 
 
 def _records(tmp_path):
-    rows = [_row(f"w/pred_img_less_s{s}_on_single.npz", "less", f, f + 0.1) for s, f in enumerate((0.5, 0.6, 0.7))]
-    rows += [_row(f"w/pred_img_less_s{s}_on_multiple.npz", "less", f, f) for s, f in enumerate((0.3, 0.3, 0.6))]
+    rows = [_row(f"w/pred_img_less_s{s}_on_single.npz", "less", f, f + 0.1) for s,
+            f in enumerate((0.5, 0.6, 0.7))]
+    rows += [_row(f"w/pred_img_less_s{s}_on_multiple.npz", "less", f, f) for s,
+             f in enumerate((0.3, 0.3, 0.6))]
     rows += [_row("w/pred_forcemap_on_single.npz", "forcemap", 0.4, 0.5),
              _row("w/pred_forcemap_on_single.npz", "average", None, None, com=9.0),
-             _row("w/pred_img_less_s0_on_single.npz", "less", 0.99, 0.99, row="group")]   # group rows: ignored
+             # group rows: ignored
+             _row("w/pred_img_less_s0_on_single.npz", "less", 0.99, 0.99, row="group")]
     path = tmp_path / "acc.jsonl"
     path.write_text("".join(json.dumps(r) + "\n" for r in rows))
     return path
@@ -42,12 +45,13 @@ def test_seeds_of_one_imager_pool_into_mean_and_spread(tmp_path):
     assert single["f1_micro_3d_std"] == statistics.stdev([0.5, 0.6, 0.7])
     assert "diameter_error_mm_2d" not in single and single["diameter_error_mm_3d"] == 2.0
     assert groups[("single", "average")]["n"] == 1 and groups[("single", "average")]["com_error_mm_2d"] == 9.0
-    assert set(groups) == {("single", "less"), ("multiple", "less"), ("single", "forcemap"), ("single", "average")}
+    assert set(groups) == {("single", "less"), ("multiple", "less"), ("single", "forcemap"),
+                           ("single", "average")}
 
 
 def test_the_table_leads_with_2d_and_gives_each_imager_its_ratio(tmp_path):
-    out = subprocess.run([sys.executable, str(SCRIPT), str(_records(tmp_path))], capture_output=True, text=True,
-                         check=True).stdout
+    out = subprocess.run([sys.executable, str(SCRIPT), str(_records(tmp_path))], capture_output=True,
+                         text=True, check=True).stdout
     header = next(line for line in out.splitlines() if line.startswith("| set |"))
     assert header.split("|")[3].strip() == "2D F1"
     ratio = next(line for line in out.splitlines() if line.startswith("| less |"))

@@ -21,7 +21,8 @@ def _module():
 
 
 def _record(trial, scores):
-    return {"trial": trial, "val": {k: {"f1_micro_3d": f1, "com_error_mm_3d": com} for k, (f1, com) in scores.items()}}
+    return {"trial": trial,
+            "val": {k: {"f1_micro_3d": f1, "com_error_mm_3d": com} for k, (f1, com) in scores.items()}}
 
 
 def test_the_best_validation_f1_wins_then_the_smaller_centroid_error():
@@ -63,10 +64,13 @@ def test_a_tiny_search_writes_its_log_and_the_chosen_config(tmp_path):
     space = tmp_path / "space.toml"
     space.write_text('[common]\npretrain = ["--epochs", "1", "--set", "n_freq=2"]\n'
                      'fit = ["--epochs", "1", "--set", "image.patch_px=8", "--set", "image.width=8"]\n'
-                     'turns = [1, 2]\n[[trial]]\npretrain = ["--dim", "8"]\n[[trial]]\npretrain = ["--dim", "4"]\n')
-    cmd = [sys.executable, str(SCRIPT), "run", "--model", "less-taxel", "--space", str(space), "--train", "tr.npz",
-           "--val", "va.npz", "--work", "work", "--log", "log.jsonl", "-o", "best.toml", "--less", str(BIN / "less")]
-    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, check=False, env={"OMP_NUM_THREADS": "1",
+                     'turns = [1, 2]\n[[trial]]\npretrain = ["--dim", "8"]\n[[trial]]\npretrain = ["--dim", '
+                     '"4"]\n')
+    cmd = [sys.executable, str(SCRIPT), "run", "--model", "less-taxel", "--space", str(space), "--train",
+           "tr.npz", "--val", "va.npz", "--work", "work", "--log", "log.jsonl", "-o", "best.toml", "--less",
+           str(BIN / "less")]
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, check=False,
+                          env={"OMP_NUM_THREADS": "1",
                                                                                   "PATH": str(BIN)})
     assert proc.returncode == 0, proc.stderr
     log = [json.loads(line) for line in (tmp_path / "log.jsonl").read_text().splitlines()]
@@ -78,6 +82,7 @@ def test_a_tiny_search_writes_its_log_and_the_chosen_config(tmp_path):
     printed = subprocess.run([sys.executable, str(SCRIPT), "args", str(tmp_path / "best.toml"), "pretrain"],
                              capture_output=True, text=True, check=True).stdout.split()
     assert printed == config["pretrain"]
-    again = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, check=False, env={"OMP_NUM_THREADS": "1",
+    again = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, check=False,
+                           env={"OMP_NUM_THREADS": "1",
                                                                                    "PATH": str(BIN)})
     assert again.returncode == 0 and again.stderr == ""            # a rerun reads the log, trains nothing

@@ -1,4 +1,5 @@
-"""The pty servo emulator driven by the real ``dynamixel_sdk`` (no monkeypatching), directly and via the bus."""
+"""The pty servo emulator driven by the real ``dynamixel_sdk`` (no monkeypatching), directly and via the
+bus."""
 
 import time
 

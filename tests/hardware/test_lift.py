@@ -27,7 +27,8 @@ def rig(config: LiftConfig | None = None, homed: bool = True):
     config = config or load_config(None, **FAST)
     emulator = ServoEmulator(lift_servos(config), time_scale=TIME_SCALE)
     records = []
-    with (PtyEmulator(emulator) as pty, DynamixelBus(pty.port, config.baud, config.retries, config.latency_ms) as bus,
+    with (PtyEmulator(emulator) as pty,
+          DynamixelBus(pty.port, config.baud, config.retries, config.latency_ms) as bus,
           ScissorLift(bus, config, emit=records.append) as lift):
         lift.records = records
         if homed:
@@ -217,7 +218,8 @@ def test_property_goals_never_leave_the_height_limits(start_homed, commands):
                 pass
         heights = lift_heights(emu, config)
     slack_mm = 0.05  # one encoder tick is ~0.01 mm here
-    assert all(config.min_height_mm - slack_mm <= h <= config.max_height_mm + slack_mm for h in heights), heights
+    assert all(config.min_height_mm - slack_mm <= h <= config.max_height_mm + slack_mm
+               for h in heights), heights
 
 
 @pytest.mark.hardware

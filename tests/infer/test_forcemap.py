@@ -72,7 +72,8 @@ def hand_calibration() -> fm.Calibration:
 def test_map_peak_and_detection_within_1mm_of_known_bump(yaw_deg):
     scans, (tx, ty) = touch_scans(bump, math.radians(yaw_deg))
     touches = fm.scan_touches(scans, 0, fm.taxel_layout(scans.meta, "synthetic"))
-    np.testing.assert_allclose(np.sort(touches.xy_mm[:, 0]), np.sort(tx.ravel()), atol=1e-3)   # taxels in place
+    # taxels in place
+    np.testing.assert_allclose(np.sort(touches.xy_mm[:, 0]), np.sort(tx.ravel()), atol=1e-3)
     np.testing.assert_allclose(np.sort(touches.xy_mm[:, 1]), np.sort(ty.ravel()), atol=1e-3)
     fmap = fm.stiffness_map(touches, sigma_mm=2.0)
     peak = np.unravel_index(np.argmax(np.where(fmap.contact, fmap.residual, -np.inf)), fmap.residual.shape)
@@ -103,7 +104,8 @@ def _assert_nothing_found(probs: np.ndarray, cal: fm.Calibration) -> None:
     assert probs.shape[0] == 4 and np.isfinite(probs).all()
     np.testing.assert_allclose(probs.sum(axis=0), 1.0, atol=1e-5)
     assert probs[3].max() < 1e-6
-    assert np.abs(probs[:3] - np.asarray(cal.prior[0][0])[:, None, None, None]).max() < 1e-6   # untouched prior
+    # untouched prior
+    assert np.abs(probs[:3] - np.asarray(cal.prior[0][0])[:, None, None, None]).max() < 1e-6
     assert np.isfinite(entropy(probs)).all() and entropy(probs).min() > 0.5   # uncertain, not confident
 
 
@@ -114,7 +116,8 @@ def test_no_or_grazing_contact_finds_nothing(depth_mm):
     assert len(touches.stiffness_n_per_mm) == 0
     assert fm.stiffness_map(touches, 2.0) is None and fm.detect(None, 3.0).shape == (0, 3)
     cal = hand_calibration()
-    _assert_nothing_found(fm.scan_probs(cal, touches, (4, 16, 16), (-9.0, -10.0, -10.0), (3.0, 1.3, 1.3)), cal)
+    _assert_nothing_found(fm.scan_probs(cal, touches, (4, 16, 16), (-9.0, -10.0, -10.0), (3.0, 1.3, 1.3)),
+                          cal)
 
 
 def test_scan_without_steps_and_prefixes_give_finite_empty_predictions():
@@ -153,17 +156,19 @@ def test_cli_round_trip_on_held_out_simulated_inserts(tmp_path, run_less):
     (slope ~0.5 on the diameter) errs by at most half the 8-16 mm diameter spread times 0.5 (2 mm);
     sqrt(2.35^2 + 2^2) ~ 3.1 mm, and 4 mm leaves a label voxel (1.8 mm deep) of margin.
     """
-    _ok(run_less("simulate", "examples/scenes/quick.toml", "-o", tmp_path / "raw.npz", "--set", "motion.n_traj=25",
-                 "--set", "phantoms.set=single", "--set", f"phantoms.names={json.dumps(SMALL_SET)}",
-                 "--set", "phantoms.orientations=[0,4]", cwd=REPO))
+    _ok(run_less("simulate", "examples/scenes/quick.toml", "-o", tmp_path / "raw.npz", "--set",
+                 "motion.n_traj=25", "--set", "phantoms.set=single", "--set",
+                 f"phantoms.names={json.dumps(SMALL_SET)}", "--set", "phantoms.orientations=[0,4]", cwd=REPO))
     parts = split(subsample(load_scans(str(tmp_path / "raw.npz")), every=50), "insert", 0.25, 0.0,
                   np.random.default_rng(0))
     for key, part in parts.items():
         save_scans(str(tmp_path / f"{key}.npz"), part)
     fit = _ok(run_less("image", "fit", "train.npz", "--model", "forcemap", "-o", "forcemap.pt"))[0]
-    assert fit["model"] == "forcemap" and fit["sigma_mm"] in fm.SIGMAS_MM and fit["threshold"] in fm.THRESHOLDS
+    assert (fit["model"] == "forcemap" and fit["sigma_mm"] in fm.SIGMAS_MM
+            and fit["threshold"] in fm.THRESHOLDS)
     ckpt = torch.load(tmp_path / "forcemap.pt", weights_only=True)
-    assert ckpt["config"]["model"] == "forcemap" and ckpt["history"][-1]["command"].startswith("less image fit")
+    assert ckpt["config"]["model"] == "forcemap" and ckpt["history"][-1]["command"].startswith("less image "
+                                                                                               "fit")
     _ok(run_less("image", "predict", "forcemap.pt", "test.npz", "-o", "pred.npz"))
     assert load_predictions(str(tmp_path / "pred.npz")).meta["model"] == "forcemap"
     rows = _ok(run_less("metrics", "pred.npz", "--group-by", "model", "--summary-only", "--format", "jsonl"))
@@ -175,7 +180,8 @@ def test_cli_round_trip_on_held_out_simulated_inserts(tmp_path, run_less):
 
 def test_bad_checkpoint_and_missing_sensor_layout_are_one_line_errors(tmp_path, run_less):
     scans, _ = touch_scans(bump, n_pokes=10)
-    scans.labels, scans.scan_label = [sphere_labels(shape=(4, 16, 16), spacing=(3.0, 4.0, 4.0))], np.array([0])
+    scans.labels, scans.scan_label = [sphere_labels(shape=(4, 16, 16),
+                                                    spacing=(3.0, 4.0, 4.0))], np.array([0])
     save_scans(str(tmp_path / "scans.npz"), scans)
     scans.meta = {**scans.meta, "sensor": {"name": "unknown"}}
     save_scans(str(tmp_path / "nosensor.npz"), scans)
@@ -185,7 +191,8 @@ def test_bad_checkpoint_and_missing_sensor_layout_are_one_line_errors(tmp_path, 
     del cal["prior"]
     torch.save({"format": "less.checkpoint", "version": 1, "model_state": {}, "norm_stats": {}, "history": [],
                 "config": {"model": "forcemap", "forcemap": cal}}, tmp_path / "broken.pt")
-    assert "malformed" in _one_line_error(run_less("image", "predict", "broken.pt", "scans.npz", "-o", "p.npz"),
+    assert "malformed" in _one_line_error(run_less("image", "predict", "broken.pt", "scans.npz", "-o",
+                                                   "p.npz"),
                                           "broken.pt")
     assert "sensor" in _one_line_error(run_less("image", "fit", "nosensor.npz", "--model", "forcemap",
                                                 "-o", "fm.pt"), "nosensor.npz")

@@ -85,8 +85,8 @@ def test_guide_cli_lines_and_overlay(tmp_path, run_less):
 
     save_tiny_imager(str(tmp_path / "im.pt"))
     save_scans(str(tmp_path / "p.npz"), random_scanset(n_scans=2, traj_per_scan=3, max_len=6, seed=5))
-    proc = run_less("guide", "im.pt", "p.npz", "--scan", "1", "--k", "3", "--plot", "ov.png", "--score", "inclusion",
-                    check=True)
+    proc = run_less("guide", "im.pt", "p.npz", "--scan", "1", "--k", "3", "--plot", "ov.png", "--score",
+                    "inclusion", check=True)
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert [r["rank"] for r in rows] == [1, 2, 3] and {r["scan"] for r in rows} == {1}
     assert (tmp_path / "ov.png").stat().st_size > 1000

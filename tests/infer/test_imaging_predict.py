@@ -26,7 +26,8 @@ from lesscli.types import ImageGrid
 def _fit(tmp_path, train, name="less", dim=2, epochs=1):
     make_representation(str(tmp_path / f"rep_{name}.pt"), train, name=name)
     cfg = load_config(ImageFitConfig, None, [], {"image.dim": dim, "image.width": 8, "image.patch_px": 8,
-                                                 "train.epochs": epochs, "train.lr": 1e-2, "train.device": "cpu"})
+                                                 "train.epochs": epochs, "train.lr": 1e-2,
+                                                 "train.device": "cpu"})
     out = str(tmp_path / f"img_{name}_{dim}.pt")
     summary = fit_imager(train, None, str(tmp_path / f"rep_{name}.pt"), cfg, out)
     return out, summary
@@ -44,7 +45,8 @@ def test_2d_target_is_the_inclusion_centre_slice():
     k = inclusion_slice(vol.data)
     assert abs(vol.origin_mm[0] + k * vol.spacing_mm[0] - (-9.0)) <= vol.spacing_mm[0] / 2
     sl = target_volume(vol, 2)
-    assert sl.shape == (1, 128, 128) and sl.origin_mm[0] == pytest.approx(vol.origin_mm[0] + k * vol.spacing_mm[0])
+    assert (sl.shape == (1, 128, 128)
+            and sl.origin_mm[0] == pytest.approx(vol.origin_mm[0] + k * vol.spacing_mm[0]))
     assert np.array_equal(target_volume(vol, 2, 3).data[0], vol.data[3])
     with pytest.raises(DataError, match="slice 40"):
         target_volume(vol, 2, 40)
@@ -62,7 +64,8 @@ def test_grow_covers_a_larger_phantom(tmp_path):
     train = learnable_scanset(4, 0)
     path, _ = _fit(tmp_path, train)
     large = learnable_scanset(1, 1, shape=(6, 32, 32), spacing=(2.0, 3.8, 3.8))   # 122 mm field of view
-    large.pose[:, 0] = np.where(large.pose[:, 0] < -20, large.pose[:, 0] - 25, large.pose[:, 0])   # reach x < -45
+    # reach x < -45
+    large.pose[:, 0] = np.where(large.pose[:, 0] < -20, large.pose[:, 0] - 25, large.pose[:, 0])
     results = {}
     for grow in (False, True):
         imager, ckpt = load_imager(path)
@@ -119,7 +122,8 @@ def test_turns_need_a_centred_square_grid_and_a_learned_imager():
     off_centre = ImageGrid((1, 48, 48), (0.0, -20.0, -23.5), (0.9, 1.0, 1.0))
     imager, stats, config = tiny_imager(dim=2, grid=off_centre)
     scans = random_scanset(n_scans=1, seed=3, with_labels=False)
-    with pytest.raises(LessError, match=r"scan 0: --turns needs a square label grid centred on the insert's axis"):
+    with pytest.raises(LessError,
+                       match=r"scan 0: --turns needs a square label grid centred on the insert's axis"):
         predict(imager, {"config": config, "norm_stats": stats}, scans, PredictOptions(turns=2))
     with pytest.raises(LessError, match="turns must be one of 1, 2, 4"):
         quarter_turns(3)

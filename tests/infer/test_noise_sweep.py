@@ -68,7 +68,8 @@ def _shifting_predictor(spacing_px_mm):
             truth = scans.label_of(s)
             label = np.roll(truth.data, shift, axis=2)
             probs = np.eye(4, dtype=np.float32)[label].transpose(3, 0, 1, 2)
-            preds.append(ScanPrediction(probs, truth.origin_mm, truth.spacing_mm, truth=truth.data, label=label))
+            preds.append(ScanPrediction(probs, truth.origin_mm, truth.spacing_mm, truth=truth.data,
+                                        label=label))
         return PredictionSet(preds, {"dim": 3})
 
     return predict_fn
@@ -103,16 +104,17 @@ def imager(tmp_path, run_less):
     save_scans(str(tmp_path / "nolabels.npz"),
                replace(learnable_scanset(2, 32), scan_label=-np.ones(2, np.int64), labels=[]))
     make_representation(str(tmp_path / "rep.pt"), learnable_scanset(6, 10), dim=8)
-    proc = run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "img.pt", "--dim", "2", "--epochs", "4",
-                    "--lr", "1e-2", "--device", "cpu", "--set", "image.width=8", "--set", "image.patch_px=8",
-                    "--format", "jsonl", env=ONE_THREAD)
+    proc = run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "img.pt", "--dim", "2", "--epochs",
+                    "4", "--lr", "1e-2", "--device", "cpu", "--set", "image.width=8", "--set",
+                    "image.patch_px=8", "--format", "jsonl", env=ONE_THREAD)
     assert proc.returncode == 0, proc.stderr.decode(errors="replace")
     return tmp_path / "img.pt"
 
 
 def test_noise_sweep_command_writes_one_record_per_cell_and_a_plot(tmp_path, run_less, imager):
-    proc = run_less("noise-sweep", "img.pt", "test.npz", "--pos-mm", "0,2", "--ang-rad", "0,0.1", "--repeats", "2",
-                    "--seed", "1", "--plot", "noise.png", "--device", "cpu", "--format", "jsonl", env=ONE_THREAD)
+    proc = run_less("noise-sweep", "img.pt", "test.npz", "--pos-mm", "0,2", "--ang-rad", "0,0.1", "--repeats",
+                    "2", "--seed", "1", "--plot", "noise.png", "--device", "cpu", "--format", "jsonl",
+                    env=ONE_THREAD)
     assert proc.returncode == 0, proc.stderr.decode(errors="replace")
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert [(r["pos_mm"], r["ang_rad"]) for r in rows] == [(0, 0), (2, 0), (0, 0.1), (2, 0.1)]
@@ -120,8 +122,8 @@ def test_noise_sweep_command_writes_one_record_per_cell_and_a_plot(tmp_path, run
     assert all(r["dim"] == 2 and r["model"] == "less" for r in rows)
     assert all(r["f1_micro"] is None or 0.0 <= r["f1_micro"] <= 1.0 for r in rows)
     _png_is_not_blank(tmp_path / "noise.png")
-    again = run_less("noise-sweep", "img.pt", "test.npz", "--pos-mm", "0,2", "--ang-rad", "0,0.1", "--repeats", "2",
-                     "--seed", "1", "--device", "cpu", "--format", "jsonl", env=ONE_THREAD)
+    again = run_less("noise-sweep", "img.pt", "test.npz", "--pos-mm", "0,2", "--ang-rad", "0,0.1",
+                     "--repeats", "2", "--seed", "1", "--device", "cpu", "--format", "jsonl", env=ONE_THREAD)
     assert again.stdout == proc.stdout                       # seeded: the same records
 
 

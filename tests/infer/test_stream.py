@@ -47,8 +47,8 @@ def batch_logits(imager: Imager, stats: dict, pose: np.ndarray, force: np.ndarra
     """Batch prediction on the first k samples, normalised exactly as ScanDataset does."""
     mean, std = np.asarray(stats["force_mean"]), np.asarray(stats["force_std"])
     f = ((force[:k].reshape(k, -1).astype(np.float64) - mean) / std).astype(np.float32)
-    item = {"pose": torch.from_numpy(np.ascontiguousarray(pose[:k], np.float32)), "force": torch.from_numpy(f),
-            "scan_index": 0}
+    item = {"pose": torch.from_numpy(np.ascontiguousarray(pose[:k], np.float32)),
+            "force": torch.from_numpy(f), "scan_index": 0}
     with torch.no_grad():
         return imager(collate([item]))[0]
 
@@ -110,7 +110,8 @@ def test_untouched_image_is_uniform_and_only_nearby_pixels_change():
     grid = stream.grid
     x = grid.origin_mm[2] + cols * grid.spacing_mm[2]
     y = grid.origin_mm[1] + rows * grid.spacing_mm[1]
-    reach = RADIUS_MM + 4 * 1.0 + 1.0                            # field + half a patch (8 px of 1 mm) + a pixel
+    # field + half a patch (8 px of 1 mm) + a pixel
+    reach = RADIUS_MM + 4 * 1.0 + 1.0
     assert changed.any() and np.hypot(x + 12, y + 12).max() <= reach * math.sqrt(2)
     assert not changed[:, -10:].any()                           # the far side stays untouched
 
@@ -193,7 +194,9 @@ def test_prime_then_deferred_pushes_match_batch(case):
         stream.push(pose[i], force[i])
         if i % 7 == 0:
             k = i + 1
-            assert float((stream.logits() - batch_logits(imager, stats, pose, force, k)).abs().max()) <= LOGIT_TOL
+            assert (float((stream.logits() - batch_logits(imager, stats, pose, force, k)).abs().max())
+                    <= LOGIT_TOL)
     assert stream.dirty.any() or case.get("cap")     # the last pushes are still waiting to be decoded
-    assert float((stream.logits() - batch_logits(imager, stats, pose, force, len(pose))).abs().max()) <= LOGIT_TOL
+    assert (float((stream.logits() - batch_logits(imager, stats, pose, force, len(pose))).abs().max())
+            <= LOGIT_TOL)
     assert stream.flush() == 0                       # reading the image flushed every deferred decode

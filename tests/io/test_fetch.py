@@ -35,12 +35,14 @@ class Archive(http.server.BaseHTTPRequestHandler):
     def do_GET(self):
         self.log.append((self.path, self.headers.get("Range")))
         if self.path.startswith("/api/records/") and self.path.rsplit("/", 1)[1] in self.records:
-            return self._send(200, json.dumps(self.records[self.path.rsplit("/", 1)[1]]).encode(), "application/json")
+            return self._send(200, json.dumps(self.records[self.path.rsplit("/", 1)[1]]).encode(),
+                              "application/json")
         name = self.path.removeprefix("/files/")
         if name not in self.files:
             return self._send(404, b"not found", "text/plain")
         data = self.served.get(name, self.files[name])
-        start = int(self.headers["Range"].removeprefix("bytes=").rstrip("-")) if self.headers.get("Range") else 0
+        start = (int(self.headers["Range"].removeprefix("bytes=").rstrip("-")) if self.headers.get("Range")
+                 else 0)
         start = 0 if name in self.whole else start
         if start:
             self.send_response(206)
@@ -136,7 +138,8 @@ def test_a_mismatch_of_a_joined_download_says_a_fresh_fetch_may_help(archive, ru
     (tmp_path / "data" / "bad.zip.part").write_bytes(b"stale bytes of another version")
     proc = run_less("fetch", CORRUPT, "-o", tmp_path / "data", "--base-url", base)
     err = [line for line in proc.stderr.decode().strip().splitlines() if "%)" not in line]   # not progress
-    assert proc.returncode == 1 and len(err) == 1 and "joined from 2 transfers" in err[0] and "fresh" in err[0]
+    assert (proc.returncode == 1 and len(err) == 1 and "joined from 2 transfers" in err[0]
+            and "fresh" in err[0])
     assert list((tmp_path / "data").iterdir()) == []
 
 
@@ -165,7 +168,8 @@ def test_dead_link_and_unknown_record_are_one_line_errors(archive, run_less, tmp
 
 def test_record_files_reads_both_shapes_of_the_description():
     new = {"files": [{"key": "a.zip", "size": 3, "checksum": "md5:" + "A" * 32,
-                      "links": {"self": "/api/records/7/files/a.zip", "content": "/api/records/7/files/a.zip/content"}}]}
+                      "links": {"self": "/api/records/7/files/a.zip",
+                                "content": "/api/records/7/files/a.zip/content"}}]}
     old = {"files": [{"filename": "a.zip", "filesize": 3, "checksum": "a" * 32}]}
     entries = {"files": {"entries": {"a.zip": {"key": "a.zip", "size": 3, "checksum": "md5:" + "a" * 32}}}}
     got = [record_files(d, "http://h/", "7")[0] for d in (new, old, entries)]

@@ -20,7 +20,8 @@ PROBS = np.array([[0.60, 0.05, 0.10, 0.25],     # inclusion likely, not the like
     (0.5, [0, 1, 3, 1]),
     (0.35, [0, 3, 3, 1]),          # 0.40 > 0.35: inclusion; 0.25 is not
     (0.2, [3, 3, 3, 1]),           # 0.25 > 0.2: inclusion although background is likelier
-    (0.0, [3, 3, 3, 2]),           # every voxel where pillar or inclusion has any weight, the larger of the two
+    # every voxel where pillar or inclusion has any weight, the larger of the two
+    (0.0, [3, 3, 3, 2]),
 ])
 def test_threshold_labels_a_class_exactly_where_it_exceeds_it(threshold, expected):
     got = labels_from_probs(PROBS, threshold)

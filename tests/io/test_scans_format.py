@@ -63,7 +63,8 @@ def _write_raw(path, arrays):
 
 
 @pytest.mark.parametrize("mutate, message", [
-    (lambda a: a.update(force=a["force"][:, :, :2]), r"'force' has shape \(\d+, 30, 2\), expected \(N, T, 3\)"),
+    (lambda a: a.update(force=a["force"][:, :, :2]),
+     r"'force' has shape \(\d+, 30, 2\), expected \(N, T, 3\)"),
     (lambda a: a["force"].__setitem__((3, 0, 2), np.nan), "'force' has NaN or inf at step 3"),
     (lambda a: a.update(meta=np.array(json.dumps({**json.loads(str(a["meta"])), "version": 9}))),
      "unsupported less.scans version 9"),
@@ -111,9 +112,10 @@ def test_saving_and_loading_make_no_full_size_copy_of_the_steps(tmp_path):
     scans = random_scanset(n_scans=1, traj_per_scan=1)
     n = 400_000
     big = type(scans)(pose=np.zeros((n, 6), np.float32), force=np.ones((n, scans.n_taxels, 3), np.float32),
-                      time_s=np.zeros(n), traj_offsets=np.array([0, n], np.int64), traj_scan=np.zeros(1, np.int64),
-                      scan_insert=scans.scan_insert, scan_orientation=scans.scan_orientation,
-                      scan_label=scans.scan_label, labels=scans.labels, meta=scans.meta)
+                      time_s=np.zeros(n), traj_offsets=np.array([0, n], np.int64),
+                      traj_scan=np.zeros(1, np.int64), scan_insert=scans.scan_insert,
+                      scan_orientation=scans.scan_orientation, scan_label=scans.scan_label,
+                      labels=scans.labels, meta=scans.meta)
     path = str(tmp_path / "big.npz")
     for run in (lambda: save_scans(path, big, compress=False), lambda: load_scans(path)):
         tracemalloc.start()

@@ -54,7 +54,8 @@ def test_cli_glb_from_nifti_has_a_node_per_class(tmp_path, run_less, sphere):
     assert inc.extents == pytest.approx([2 * RADIUS_MM * 1e-3] * 3, rel=0.1)
     assert inc.centroid == pytest.approx([-0.003, -0.011, -0.002], abs=1e-4)
     stl = run_less("mesh", "s.nii.gz", "-o", "s.stl", "--classes", "inclusion", "--smooth", "4")
-    assert stl.returncode == 0 and trimesh.load(str(tmp_path / "s.stl")).extents == pytest.approx([12.0] * 3, rel=0.1)
+    assert (stl.returncode == 0
+            and trimesh.load(str(tmp_path / "s.stl")).extents == pytest.approx([12.0] * 3, rel=0.1))
 
 
 @pytest.mark.parametrize("ext", ["stl", "ply"])

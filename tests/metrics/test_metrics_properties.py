@@ -49,7 +49,8 @@ def test_micro_f1_over_a_set_agrees_with_sklearn_on_the_concatenation():
     pairs = [(rng.random((2, 8, 8)) < 0.2, rng.random((2, 8, 8)) < q) for q in (0.1, 0.3, 0.0, 0.5)]
     rows = [score_masks(p, t, np.zeros(3), np.ones(3)) for p, t in pairs]
     (summary,) = summarise(rows)
-    expected = f1_score(np.concatenate([t.ravel() for _, t in pairs]), np.concatenate([p.ravel() for p, _ in pairs]))
+    expected = f1_score(np.concatenate([t.ravel() for _, t in pairs]),
+                        np.concatenate([p.ravel() for p, _ in pairs]))
     assert summary["f1_micro_3d"] == pytest.approx(expected)
     assert summary["f1_3d"] == pytest.approx(np.mean([r["f1_3d"] for r in rows if r["f1_3d"] is not None]))
 
@@ -60,8 +61,8 @@ def test_dice_agrees_with_monai():
     rng = np.random.default_rng(3)
     a, b = rng.random((4, 10, 10)) < 0.3, rng.random((4, 10, 10)) < 0.4
     ours = dice(a, b)
-    theirs = monai_metrics.compute_dice(torch.as_tensor(a[None, None]).float(), torch.as_tensor(b[None, None]).float(),
-                                        include_background=True)
+    theirs = monai_metrics.compute_dice(torch.as_tensor(a[None, None]).float(),
+                                        torch.as_tensor(b[None, None]).float(), include_background=True)
     assert ours == pytest.approx(float(theirs.reshape(-1)[0]))
 
 

@@ -44,7 +44,8 @@ def test_sphere_of_radius_two_voxels_on_a_unit_grid():
     assert row["diameter_true_mm_3d"] == pytest.approx(4.0)
     np.testing.assert_allclose(centroid_mm(mask, origin, spacing), [-5.0, 8.0, 12.0])
     assert row["slice_2d"] == 5 and row["slice_z_mm"] == -5.0 and row["area_true_mm2"] == 13.0
-    assert diameter_mm(mask, spacing, "corners") == pytest.approx(math.sqrt(26.0))  # (-2.5, -0.5) to (2.5, 0.5)
+    # (-2.5, -0.5) to (2.5, 0.5)
+    assert diameter_mm(mask, spacing, "corners") == pytest.approx(math.sqrt(26.0))
     assert row["f1_3d"] == 1.0 and row["com_error_mm_3d"] == 0.0 and row["diameter_error_mm_3d"] == 0.0
 
 
@@ -56,7 +57,8 @@ def test_sphere_of_16_mm_on_the_default_grid():
     assert row["volume_true_mm3"] == pytest.approx(4 / 3 * math.pi * 8.0**3, rel=0.03)
     np.testing.assert_allclose(centroid_mm(vol.data == INCLUSION, vol.origin_mm, vol.spacing_mm),
                                [-11.0, 2.0, -3.0], atol=0.05)
-    assert row["diameter_true_mm_3d"] == pytest.approx(all_pairs_diameter_mm(vol.data == INCLUSION, vol.spacing_mm))
+    assert (row["diameter_true_mm_3d"]
+            == pytest.approx(all_pairs_diameter_mm(vol.data == INCLUSION, vol.spacing_mm)))
 
 
 @pytest.mark.parametrize("points, expected", [("centres", 1.25), ("corners", math.sqrt(3.25))])
@@ -141,15 +143,17 @@ UNIT = np.ones(3)
 @pytest.mark.parametrize("pred, truth, expected", [
     (FULL, FULL, {"precision_3d": 1.0, "recall_3d": 1.0, "f1_3d": 1.0, "arse_3d": 0.0, "com_error_mm_3d": 0.0,
                   "diameter_error_mm_3d": 0.0, "volume_error_mm3": 0.0, "f1_2d": 1.0, "area_error_mm2": 0.0}),
-    (EMPTY, FULL, {"precision_3d": None, "recall_3d": 0.0, "f1_3d": 0.0, "arse_3d": 2.0, "com_error_mm_3d": None,
+    (EMPTY, FULL,
+     {"precision_3d": None, "recall_3d": 0.0, "f1_3d": 0.0, "arse_3d": 2.0, "com_error_mm_3d": None,
                    "diameter_error_mm_3d": None, "volume_error_mm3": 24.0, "f1_2d": 0.0, "precision_2d": None,
                    "com_error_mm_2d": None, "area_error_mm2": 12.0, "slice_2d": 0}),
-    (FULL, EMPTY, {"precision_3d": 0.0, "recall_3d": None, "f1_3d": 0.0, "arse_3d": 2.0, "com_error_mm_3d": None,
-                   "diameter_error_mm_3d": None, "volume_error_mm3": 24.0, "f1_2d": None, "area_error_mm2": None,
-                   "slice_2d": None, "truth_empty_2d": True}),
+    (FULL, EMPTY,
+     {"precision_3d": 0.0, "recall_3d": None, "f1_3d": 0.0, "arse_3d": 2.0, "com_error_mm_3d": None,
+                   "diameter_error_mm_3d": None, "volume_error_mm3": 24.0, "f1_2d": None,
+                   "area_error_mm2": None, "slice_2d": None, "truth_empty_2d": True}),
     (EMPTY, EMPTY, {"precision_3d": None, "recall_3d": None, "f1_3d": None, "arse_3d": None,
-                    "com_error_mm_3d": None, "diameter_error_mm_3d": None, "volume_error_mm3": 0.0, "f1_2d": None,
-                    "area_error_mm2": None, "truth_empty_3d": True, "pred_empty_3d": True}),
+                    "com_error_mm_3d": None, "diameter_error_mm_3d": None, "volume_error_mm3": 0.0,
+                    "f1_2d": None, "area_error_mm2": None, "truth_empty_3d": True, "pred_empty_3d": True}),
 ], ids=["both", "pred-empty", "truth-empty", "neither"])
 def test_empty_rules(pred, truth, expected):
     row = score_masks(pred, truth, np.zeros(3), UNIT)
@@ -195,7 +199,8 @@ def test_average_baseline_predicts_the_training_mean():
     assert base.diameter_mm_3d == pytest.approx(3 * math.sqrt(2))
     np.testing.assert_allclose(base.centroid_mm_3d, [1.5, 4.0, 4.0])
     np.testing.assert_allclose(base.centroid_mm_2d, [4.0, 4.0])
-    test = _label_box((0, 2, 2), (1, 4, 6))   # 2 x 4 pixels in slice 0: diameter hypot(1, 3), centroid (0, 2.5, 3.5)
+    # 2 x 4 pixels in slice 0: diameter hypot(1, 3), centroid (0, 2.5, 3.5)
+    test = _label_box((0, 2, 2), (1, 4, 6))
     row = score_baseline(base, test.data, test.origin_mm, test.spacing_mm)
     assert row["diameter_error_mm_3d"] == pytest.approx(abs(3 * math.sqrt(2) - math.hypot(1, 3)))
     assert row["com_error_mm_3d"] == pytest.approx(math.sqrt(1.5**2 + 1.5**2 + 0.5**2))
@@ -214,7 +219,8 @@ def test_average_baseline_is_scored_as_the_mean_sphere_painted_on_the_truth_grid
     truth = {(0, y, x) for y in (2, 3) for x in (2, 3, 4, 5)}
     tp = len(truth.intersection(inside))                    # (0, 3, 3), (0, 3, 4), (0, 3, 5)
     # 9 voxels in each of slices 0 and 3 (dy^2 + dx^2 <= 2.25), 13 in slices 1 and 2 (<= 4.25)
-    assert (row["tp_3d"], row["fp_3d"], row["fn_3d"]) == (tp, len(inside) - tp, len(truth) - tp) == (3, 44 - 3, 5)
+    assert (row["tp_3d"], row["fp_3d"], row["fn_3d"]) == (tp, len(inside) - tp,
+                                                          len(truth) - tp) == (3, 44 - 3, 5)
     assert row["f1_3d"] == pytest.approx(2 * 3 / (2 * 3 + 41 + 5))
     # 2D: the mean disc (centre (4, 4), the mean largest-slice diameter) on the truth's largest slice 0
     d2 = base.diameter_mm_2d

@@ -49,7 +49,8 @@ def reference_sequence(enc: ParticleEncoder, batch: Batch) -> ParticleSequence:
     index = g.index[bi, pi]
     shift = torch.zeros(pi.shape[0], 1, POSE_DIM)
     shift[:, 0, :2] = xy[pi]
-    pose, force, count = batch.pose[bi[:, None], index] - shift, batch.force[bi[:, None], index], g.count[bi, pi]
+    pose, force, count = (batch.pose[bi[:, None], index] - shift, batch.force[bi[:, None], index],
+                          g.count[bi, pi])
     packed = pack_padded_sequence(enc.fle(pose, force), count, batch_first=True, enforce_sorted=False)
     z = pad_packed_sequence(enc.gru(packed)[0], batch_first=True, total_length=index.shape[1])[0]
     return ParticleSequence(bi, pi, z, pose, force, g.mask[bi, pi], count, tuple(g.count.shape), xy)
@@ -57,7 +58,8 @@ def reference_sequence(enc: ParticleEncoder, batch: Batch) -> ParticleSequence:
 
 def reference_final_states(enc: ParticleEncoder, batch: Batch) -> torch.Tensor:
     """(B, P, d_z): every particle advanced slot by slot by the GRU cell where the slot is a real step."""
-    g = gather_receptive_field(batch.pose[..., :2], batch.valid, enc.xy_mm, enc.receptive_field_mm, enc.max_steps)
+    g = gather_receptive_field(batch.pose[..., :2], batch.valid, enc.xy_mm, enc.receptive_field_mm,
+                               enc.max_steps)
     b, p, c = g.index.shape
     shift = torch.zeros(p, POSE_DIM)
     shift[:, :2] = enc.xy_mm

@@ -104,8 +104,8 @@ def test_cli_global_taxel_pretrain_fit_predict_round_trip(run_less, tmp_path):
     run_less("pretrain", "tr.npz", "-o", "rep.pt", "--model", "global-taxel", "--epochs", "1", "--dim", "8",
              "--set", "n_freq=2", "--set", "map_pitch_mm=5", "--device", "cpu", check=True, env=env)
     fit = json.loads(run_less("image", "fit", "tr.npz", "--val", "va.npz", "--rep", "rep.pt", "-o", "img.pt",
-                              "--epochs", "2", "--set", "image.width=8", "--device", "cpu", "--format", "jsonl",
-                              check=True, env=env).stdout)
+                              "--epochs", "2", "--set", "image.width=8", "--device", "cpu", "--format",
+                              "jsonl", check=True, env=env).stdout)
     assert fit["encoder"] == "global-taxel" and fit["decoder"] == "global"
     run_less("image", "predict", "img.pt", "va.npz", "-o", "pred.npz", "--device", "cpu", check=True, env=env)
     preds = load_predictions(str(tmp_path / "pred.npz"))

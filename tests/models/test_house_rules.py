@@ -35,7 +35,8 @@ def test_models_touch_no_files():
     for path in MODELS.glob("*.py"):
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.Call):
-                name = node.func.attr if isinstance(node.func, ast.Attribute) else getattr(node.func, "id", "")
+                name = (node.func.attr if isinstance(node.func, ast.Attribute)
+                        else getattr(node.func, "id", ""))
                 if name in FILE_CALLS:
                     calls.append((path.name, node.lineno, name))
     assert calls == []

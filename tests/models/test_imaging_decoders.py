@@ -15,7 +15,8 @@ SPACING = (0.9, 0.4774, 0.4774)
 
 def _grid(shape=(1, 64, 64), spacing=SPACING):
     d, h, w = shape
-    return ImageGrid(shape, (-(d - 1) * spacing[0], -(h - 1) / 2 * spacing[1], -(w - 1) / 2 * spacing[2]), spacing)
+    return ImageGrid(shape, (-(d - 1) * spacing[0], -(h - 1) / 2 * spacing[1], -(w - 1) / 2 * spacing[2]),
+                     spacing)
 
 
 def _pixel_xy_mm(grid):
@@ -204,7 +205,8 @@ def test_neighbour_context_reads_only_the_particles_within_its_reach():
     whether they saw anything, never with a particle two spacings away; context=0 reads itself only."""
     torch.manual_seed(0)
     n, d = 5, 6
-    xy = torch.stack(torch.meshgrid(torch.arange(n) * 6.0, torch.arange(n) * 6.0, indexing="xy"), -1).reshape(-1, 2)
+    xy = torch.stack(torch.meshgrid(torch.arange(n) * 6.0, torch.arange(n) * 6.0, indexing="xy"),
+                     -1).reshape(-1, 2)
     z, seen = torch.randn(1, n * n, d), torch.ones(1, n * n, dtype=torch.bool)
     dec = PatchDecoder(d_z=d, dim=2, patch_px=8, width=8, context=3).eval()
     base = dec.with_context(z, seen)

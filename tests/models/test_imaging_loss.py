@@ -84,7 +84,8 @@ def test_class_absent_from_truth_and_prediction_scores_one():
 
 
 def test_class_absent_from_truth_but_predicted_is_charged():
-    logits = torch.tensor([[[2.0, -1.0, 5.0], [-1.0, 2.0, -5.0]]]).transpose(1, 2)   # voxel 0 argmax = class 2
+    # voxel 0 argmax = class 2
+    logits = torch.tensor([[[2.0, -1.0, 5.0], [-1.0, 2.0, -5.0]]]).transpose(1, 2)
     target = torch.tensor([[0, 1]])
     probs = torch.softmax(logits, 1)
     y = torch.nn.functional.one_hot(target, 3).movedim(-1, 1).float()
@@ -121,7 +122,8 @@ def test_dice_per_scan_weighs_a_small_inclusion_like_a_large_one():
 
 def test_dice_per_scan_applies_the_empty_class_rule_per_scan():
     # class 1 absent from scan 0's truth and argmax (score 1 there), present in scan 1
-    logits = torch.tensor([[[3.0, -3.0], [3.0, -3.0]], [[-3.0, 3.0], [3.0, -3.0]]]).transpose(1, 2)  # (2, C=2, S=2)
+    # (2, C=2, S=2)
+    logits = torch.tensor([[[3.0, -3.0], [3.0, -3.0]], [[-3.0, 3.0], [3.0, -3.0]]]).transpose(1, 2)
     target = torch.tensor([[0, 0], [1, 0]])
     probs = torch.softmax(logits, 1)
     y = torch.nn.functional.one_hot(target, 2).movedim(-1, 1).float()

@@ -23,7 +23,8 @@ def make_batch(gen: torch.Generator, b: int = 2, length: int = 30, f: int = 6, s
                dtype=torch.float32) -> Batch:
     """Random batch with x-y on a 0.25 mm lattice in [-span, span] and ragged valid prefixes."""
     pose = torch.zeros(b, length, 6, dtype=dtype)
-    pose[..., :2] = torch.round((torch.rand(b, length, 2, generator=gen) * 2 - 1) * span_mm / QUANTUM_MM) * QUANTUM_MM
+    pose[..., :2] = torch.round((torch.rand(b, length, 2, generator=gen) * 2 - 1)
+                                * span_mm / QUANTUM_MM) * QUANTUM_MM
     pose[..., 2] = -torch.rand(b, length, generator=gen, dtype=dtype) * 3
     pose[..., 5] = torch.rand(b, length, generator=gen, dtype=dtype)
     force = torch.randn(b, length, f, generator=gen, dtype=dtype)
@@ -199,7 +200,8 @@ def finite_loss_and_grads(model, batch):
     loss = model(batch, torch.Generator().manual_seed(0))
     loss.backward()
     grads = [p.grad for p in model.parameters()]
-    return bool(torch.isfinite(loss)), all(g is not None and bool(torch.isfinite(g).all()) for g in grads), loss
+    return bool(torch.isfinite(loss)), all(g is not None and bool(torch.isfinite(g).all())
+                                           for g in grads), loss
 
 
 @pytest.mark.parametrize("case", ["all_outside", "single_step", "some_empty", "all_padding_but_one"])
@@ -209,7 +211,8 @@ def test_degenerate_batches_give_finite_loss_and_gradients(case):
     if case == "all_outside":
         batch.pose[..., 0] += 500.0
     elif case == "single_step":
-        batch = Batch(batch.pose[:, :1], batch.force[:, :1], torch.ones(2, 1, dtype=torch.bool), batch.scan_index)
+        batch = Batch(batch.pose[:, :1], batch.force[:, :1], torch.ones(2, 1, dtype=torch.bool),
+                      batch.scan_index)
     elif case == "all_padding_but_one":
         batch.valid[:] = False
         batch.valid[0, 0] = True
@@ -246,7 +249,8 @@ def test_gradcheck_tiny_model_float64():
     enc = ParticleEncoder(force_dim=3, dim=3, spacing_mm=5.0, grid_extent_mm=10.0, receptive_field_mm=6.0,
                           n_freq=1).double()
     model = ForcePredictor(enc, ForceDecoder(3, 3, 1).double(), k_input=3, k_query=3)
-    batch = make_batch(torch.Generator().manual_seed(13), b=1, length=6, f=3, span_mm=8.0, dtype=torch.float64)
+    batch = make_batch(torch.Generator().manual_seed(13), b=1, length=6, f=3, span_mm=8.0,
+                       dtype=torch.float64)
     names = [n for n, _ in model.named_parameters()]
     params = tuple(p.detach().clone().requires_grad_(True) for p in model.parameters())
     force = batch.force.clone().requires_grad_(True)

@@ -19,7 +19,8 @@ RTOL = 1e-5                      # float32 rounding, relative to the largest val
 
 def _grid(shape, spacing=SPACING):
     d, h, w = shape
-    return ImageGrid(shape, (-(d - 1) * spacing[0], -(h - 1) / 2 * spacing[1], -(w - 1) / 2 * spacing[2]), spacing)
+    return ImageGrid(shape, (-(d - 1) * spacing[0], -(h - 1) / 2 * spacing[1], -(w - 1) / 2 * spacing[2]),
+                     spacing)
 
 
 def _reference(dec: PatchDecoder, states, grid: ImageGrid) -> torch.Tensor:
@@ -47,8 +48,8 @@ def _close(got: torch.Tensor, want: torch.Tensor) -> bool:
 
 
 def _float64(dec: PatchDecoder, states, readout: torch.Tensor):
-    return (copy.deepcopy(dec).double(), SimpleNamespace(z=states.z.double(), xy_mm=states.xy_mm, seen=states.seen),
-            readout.double())
+    return (copy.deepcopy(dec).double(),
+            SimpleNamespace(z=states.z.double(), xy_mm=states.xy_mm, seen=states.seen), readout.double())
 
 
 @pytest.mark.parametrize("dim,patch_px,depth", [(2, 16, 1), (3, 16, 13), (3, 8, 5), (3, 32, 26)])
@@ -76,7 +77,8 @@ def test_training_step_equals_decoding_every_patch(dim, patch_px, depth, stitch,
     if seen_share == 0.0:
         assert torch.equal(got, torch.zeros_like(got))
         for name, grad in got_grads.items():
-            assert grad is None or (torch.isfinite(grad).all() and torch.equal(grad, torch.zeros_like(grad))), name
+            assert grad is None or (torch.isfinite(grad).all()
+                                    and torch.equal(grad, torch.zeros_like(grad))), name
         return
     assert _close(got, want)
     for name, grad in got_grads.items():
@@ -86,7 +88,8 @@ def test_training_step_equals_decoding_every_patch(dim, patch_px, depth, stitch,
 def test_training_step_resamples_patches_onto_another_spacing():
     """On a grid with another spacing the zero patches of unseen particles are resampled too; same result."""
     gen = torch.Generator().manual_seed(5)
-    dec = PatchDecoder(d_z=6, n_classes=3, dim=3, patch_px=16, depth_px=6, patch_spacing_mm=SPACING, width=8).train()
+    dec = PatchDecoder(d_z=6, n_classes=3, dim=3, patch_px=16, depth_px=6, patch_spacing_mm=SPACING,
+                       width=8).train()
     xy = torch.tensor([[0.0, 0.0], [5.0, -3.0], [-7.0, 4.0]])
     states = SimpleNamespace(z=torch.randn(2, 3, 6, generator=gen), xy_mm=xy,
                              seen=torch.tensor([[True, False, True], [False, False, True]]))
@@ -125,7 +128,8 @@ def test_training_keeps_parameters_and_checkpoints_as_they_were():
     """Parameters, gradients and state-dict tensors stay in plain memory, so checkpoints load in both ways."""
     dec = PatchDecoder(d_z=6, n_classes=4, dim=3, patch_px=16, depth_px=13, width=16).train()
     keys = list(dec.state_dict())
-    states = SimpleNamespace(z=torch.randn(2, 3, 6), xy_mm=torch.tensor([[0.0, 0.0], [4.0, 1.0], [-3.0, 2.0]]),
+    states = SimpleNamespace(z=torch.randn(2, 3, 6),
+                             xy_mm=torch.tensor([[0.0, 0.0], [4.0, 1.0], [-3.0, 2.0]]),
                              seen=torch.tensor([[True, False, True], [True, True, False]]))
     dec(states, _grid((13, 40, 40))).sum().backward()
     torch.optim.Adam(dec.parameters(), lr=1e-2).step()

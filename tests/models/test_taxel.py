@@ -27,7 +27,8 @@ def independent_taxel_xy(pose: np.ndarray, layout) -> np.ndarray:
     out = []
     for x, y, _z, roll, pitch, yaw in pose:
         rx = np.array([[1, 0, 0], [0, math.cos(roll), -math.sin(roll)], [0, math.sin(roll), math.cos(roll)]])
-        ry = np.array([[math.cos(pitch), 0, math.sin(pitch)], [0, 1, 0], [-math.sin(pitch), 0, math.cos(pitch)]])
+        ry = np.array([[math.cos(pitch), 0, math.sin(pitch)], [0, 1, 0],
+                       [-math.sin(pitch), 0, math.cos(pitch)]])
         rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
         r = rz @ ry @ rx
         out.append([[x + r[0, 0] * u + r[0, 1] * v, y + r[1, 0] * u + r[1, 1] * v] for u, v in layout])
@@ -151,7 +152,8 @@ def test_training_evaluation_and_streaming_steps_agree(contrast):
 
 
 @pytest.mark.parametrize("contrast", ["step", "plane"])
-@pytest.mark.parametrize("case", ["zero_contact", "grazing", "no_force", "huge_force", "pad_above", "one_taxel"])
+@pytest.mark.parametrize("case",
+                         ["zero_contact", "grazing", "no_force", "huge_force", "pad_above", "one_taxel"])
 def test_hard_cases_stay_finite(case, contrast):
     enc = _encoder(map_contrast=contrast)
     gen = torch.Generator().manual_seed(2)
@@ -299,7 +301,8 @@ def test_less_taxel_without_layout_is_a_clear_error():
 
 
 def test_cli_less_taxel_pretrain_fit_predict_round_trip(run_less, tmp_path):
-    """Through the CLI: pretrain --model less-taxel, image fit --val (threshold chosen and stored), predict."""
+    """Through the CLI: pretrain --model less-taxel, image fit --val (threshold chosen and stored),
+    predict."""
     from imaging_factory import learnable_scanset
 
     from lesscli.io.scans import save_scans
@@ -324,7 +327,8 @@ def test_cli_less_taxel_pretrain_fit_predict_round_trip(run_less, tmp_path):
 
     preds = load_predictions(str(tmp_path / "pred.npz"))
     assert preds.meta["model"] == "less-taxel" and preds.meta["threshold"] == fit["threshold"]
-    assert preds.meta["min_volume_mm3"] == fit["min_volume_mm3"] and preds.meta["smooth_mm"] == fit["smooth_mm"]
+    assert (preds.meta["min_volume_mm3"] == fit["min_volume_mm3"]
+            and preds.meta["smooth_mm"] == fit["smooth_mm"])
     assert all(np.isfinite(p.probs.astype(np.float32)).all() for p in preds.scans)
 
 

@@ -13,13 +13,15 @@ from mri_family import Case, generate
 
 pydicom = pytest.importorskip("pydicom")
 
-SLOPE, INTERCEPT = 0.0005, -2.0          # stored = (value - intercept) / slope fits uint16 for values in [-2, 30]
+# stored = (value - intercept) / slope fits uint16 for values in [-2, 30]
+SLOPE, INTERCEPT = 0.0005, -2.0
 ORIGIN_LPS = np.array([-31.0, 12.5, -40.0])
 DS_DECIMALS = 8                           # decimal strings hold at most 16 characters
 
 
 def _cosines(angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    """Row and column directions (LPS) of an axial-oblique plane: rotated about the patient's z, then tilted."""
+    """Row and column directions (LPS) of an axial-oblique plane: rotated about the patient's z, then
+    tilted."""
     a, tilt = math.radians(angle_deg), math.radians(10.0)
     row = np.array([math.cos(a), math.sin(a), 0.0])
     col = np.array([-math.sin(a) * math.cos(tilt), math.cos(a) * math.cos(tilt), math.sin(tilt)])
@@ -27,7 +29,8 @@ def _cosines(angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def expected_affine(spacing_mm, angle_deg: float) -> np.ndarray:
-    """Index (column, row, slice) -> RAS mm, derived from the DICOM definitions (x_LPS = P + i dc row + j dr col)."""
+    """Index (column, row, slice) -> RAS mm, derived from the DICOM definitions (x_LPS = P + i dc row + j dr
+    col)."""
     row, col = _cosines(angle_deg)
     normal = np.cross(row, col)
     dc, dr, ds = spacing_mm
@@ -69,7 +72,8 @@ def write_series(folder, stored: np.ndarray, spacing_mm, angle_deg: float, order
     SeriesInstanceUID (a new series per call, numbered ``number``).
 
     File k of the write order holds slice order[k] and is named ``names[k]`` (default IM<k>). Slice s lies
-    ``at[s]`` slices along the normal (default s) in the plane turned by ``angles[s]`` (default ``angle_deg``).
+    ``at[s]`` slices along the normal (default s) in the plane turned by ``angles[s]`` (default
+    ``angle_deg``).
     """
     from pydicom.uid import MRImageStorage, generate_uid
 
@@ -117,7 +121,8 @@ def write_multiframe(path, stored: np.ndarray, spacing_mm, angle_deg: float, ord
         PixelValueTransformationSequence=Sequence([item(RescaleSlope=SLOPE, RescaleIntercept=INTERCEPT,
                                                         RescaleType="US")]))])
     ds.PerFrameFunctionalGroupsSequence = Sequence([item(PlanePositionSequence=Sequence([item(
-        ImagePositionPatient=[f"{v:.{DS_DECIMALS - 2}f}" for v in ORIGIN_LPS + (s if at is None else at[s]) * ds_mm
+        ImagePositionPatient=[f"{v:.{DS_DECIMALS - 2}f}"
+                              for v in ORIGIN_LPS + (s if at is None else at[s]) * ds_mm
                               * normal])]))
         for s in order])
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -139,7 +144,8 @@ def test_reader_recovers_values_geometry_and_slice_order(tmp_path):
     values = np.random.default_rng(0).uniform(-1.0, 25.0, (7, 6, 5))
     stored, recovered = quantised(values)
     spacing = (0.6, 0.5, 1.2)
-    write_series(tmp_path / "s", stored, spacing, 30.0, order=[3, 0, 4, 1, 2], names=["b", "e", "a", "d", "c"])
+    write_series(tmp_path / "s", stored, spacing, 30.0, order=[3, 0, 4, 1, 2],
+                 names=["b", "e", "a", "d", "c"])
     (tmp_path / "s" / "notes.txt").write_text("not DICOM")
     scan = load_scan(str(tmp_path / "s"))
     assert scan.kind == "dicom" and scan.data.shape == (7, 6, 5)
@@ -162,8 +168,8 @@ def test_dicom_in_any_file_order_labels_like_the_nifti(run_less, tmp_path, scan_
                  names=[f"{int(v):03d}.dcm" for v in np.random.default_rng(2).permutation(n)])
     write_multiframe(tmp_path / "enhanced" / "IM0", stored, spacing, -25.0, order=shuffled)
     write_series(tmp_path / "export" / "SE1", stored, spacing, -25.0, order=list(range(n)))
-    write_series(tmp_path / "export" / "SE2", stored[:, :, :3], (1.0, 1.0, 5.0), 0.0, order=range(3), number=2,
-                 description="localizer")
+    write_series(tmp_path / "export" / "SE2", stored[:, :, :3], (1.0, 1.0, 5.0), 0.0, order=range(3),
+                 number=2, description="localizer")
     nifti = nib.Nifti1Image(recovered.astype(np.float32), expected_affine(spacing, -25.0))
     nib.save(nifti, tmp_path / "scan.nii.gz")
     labels = {}
@@ -201,7 +207,8 @@ def test_a_folder_of_several_series_reads_the_one_chosen(tmp_path, nested):
                        names=[f"a{k}" for k in range(5)], number=3, description="T2 SPACE")
     write_series(folder("P1", "ST1", "SE1"), _series_values((7, 6, 3), seed=1)[0], (1.0, 1.0, 5.0), 0.0,
                  order=range(3), names=[f"b{k}" for k in range(3)], number=1, description="localizer")
-    with pytest.raises(DataError, match=r": 2 series in this folder \(1 'localizer': 3 images; 3 'T2 SPACE': 5 "
+    with pytest.raises(DataError,
+                       match=r": 2 series in this folder \(1 'localizer': 3 images; 3 'T2 SPACE': 5 "
                                         r"images\); choose one with --series"):
         load_scan(str(tmp_path / "s"))
     for chosen in ("3", uid):
@@ -211,8 +218,10 @@ def test_a_folder_of_several_series_reads_the_one_chosen(tmp_path, nested):
     with pytest.raises(DataError, match=r"no series '7' in this folder \(its series: 1, 3\)"):
         load_scan(str(tmp_path / "s"), series="7")
     again = write_series(folder("P1", "ST2", "SE3"), stored, spacing, 30.0, order=range(5),
-                         names=[f"c{k}" for k in range(5)], number=3, description="T2 SPACE")   # a second exam's
-    with pytest.raises(DataError, match=r"2 series numbered '3' in this folder; give the SeriesInstanceUID of one"):
+                         # a second exam's
+                         names=[f"c{k}" for k in range(5)], number=3, description="T2 SPACE")
+    with pytest.raises(DataError,
+                       match=r"2 series numbered '3' in this folder; give the SeriesInstanceUID of one"):
         load_scan(str(tmp_path / "s"), series="3")
     np.testing.assert_allclose(load_scan(str(tmp_path / "s"), series=again).data, recovered, atol=1e-4)
 
@@ -221,7 +230,8 @@ def test_a_folder_of_several_series_reads_the_one_chosen(tmp_path, nested):
     ("missing", r"not evenly spaced \(2\.400 mm between IM2 and IM3, 1\.200 mm elsewhere\): a slice missing"),
     ("repeated", r"IM2 and IM3 lie at the same slice position .*several images per position"),
     ("turned", r"IM0 and IM3 have different orientations"),
-    ("missing frame", r"not evenly spaced \(2\.400 mm between x\.dcm frame 4 and x\.dcm frame 1, 1\.200 mm elsewhere"),
+    ("missing frame",
+     r"not evenly spaced \(2\.400 mm between x\.dcm frame 4 and x\.dcm frame 1, 1\.200 mm elsewhere"),
 ])
 def test_a_series_that_is_not_one_volume_is_refused_naming_its_files(run_less, tmp_path, fault, message):
     """A slice missing, two images at one position (echoes) or a slice in another plane: one line naming the
@@ -275,8 +285,10 @@ def test_info_describes_a_dicom_series_and_a_nifti_scan(run_less, tmp_path, scan
     image, spacing = scan_volume
     stored, recovered = quantised(image)
     write_series(tmp_path / "export" / "SE1", stored, spacing, -25.0, order=range(stored.shape[2]))
-    write_series(tmp_path / "export" / "SE2", stored[:, :, :3], (1.0, 1.0, 5.0), 0.0, order=range(3), number=2)
-    nib.save(nib.Nifti1Image(recovered.astype(np.float32), expected_affine(spacing, -25.0)), tmp_path / "scan.nii.gz")
+    write_series(tmp_path / "export" / "SE2", stored[:, :, :3], (1.0, 1.0, 5.0), 0.0, order=range(3),
+                 number=2)
+    nib.save(nib.Nifti1Image(recovered.astype(np.float32), expected_affine(spacing, -25.0)),
+             tmp_path / "scan.nii.gz")
     records = {}
     for source, options in (("export", ("--series", "1")), ("scan.nii.gz", ())):
         proc = run_less("info", source, *options, "--format", "jsonl", check=True)

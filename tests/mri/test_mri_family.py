@@ -4,8 +4,8 @@ The rows span the family's ranges by design (pillar 1.5-4 mm wide and 1-15 mm ta
 1-3 of them, base up or down, rotations, voxels 0.4-1.2 mm anisotropic, both contrasts, noise
 0.02-0.1, bias 0.1-0.4); their seeds are not among those the segmentation was tuned on (0-99 of
 ``draw_case``). Acceptance: Dice insert >= 0.97, inclusion >= 0.93 and, where the pillar is at least 2
-voxels wide, pillar >= 0.80, per inclusion. The wide sweep behind the table of docs/results/mri-label-family.md is
-``examples/mri_family.py``.
+voxels wide, pillar >= 0.80, per inclusion. The wide sweep behind the table of
+docs/results/mri-label-family.md is ``examples/mri_family.py``.
 """
 
 from __future__ import annotations
@@ -46,19 +46,21 @@ CASES = {
         silicone_brighter=True, noise=0.02, bias=0.1),
     "three-inclusions-anisotropic-bright-base-up": Case(
         seed=502, spacing_mm=(1.2, 0.5, 0.8), inclusion_mm=(6.5, 11.0, 16.0), pillar_mm=2.5,
-        pillar_height_mm=(14.0, 8.0, 2.0), base_up=True, silicone_brighter=True, noise=0.06, bias=0.3, yaw_deg=37.0),
+        pillar_height_mm=(14.0, 8.0, 2.0), base_up=True, silicone_brighter=True, noise=0.06, bias=0.3,
+        yaw_deg=37.0),
     "two-inclusions-thick-slices-dark-noisy": Case(
-        seed=503, spacing_mm=(1.2, 0.6, 0.6), inclusion_mm=(8.0, 14.0), pillar_mm=3.0, pillar_height_mm=(3.0, 12.0),
-        noise=0.1, bias=0.25),
+        seed=503, spacing_mm=(1.2, 0.6, 0.6), inclusion_mm=(8.0, 14.0), pillar_mm=3.0,
+        pillar_height_mm=(3.0, 12.0), noise=0.1, bias=0.25),
     "2mm-pillar-2.2-voxels-strong-bias": Case(
         seed=504, spacing_mm=(0.5, 0.9, 0.9), inclusion_mm=(12.0,), pillar_mm=2.0, pillar_height_mm=(6.0,),
         noise=0.02, bias=0.4, yaw_deg=0.0),
     "thin-pillar-under-2-voxels": Case(
-        seed=505, spacing_mm=(0.8, 1.2, 1.1), inclusion_mm=(10.0, 9.0), pillar_mm=1.6, pillar_height_mm=(5.0, 9.0),
-        silicone_brighter=True, base_up=True, noise=0.05, bias=0.2),
+        seed=505, spacing_mm=(0.8, 1.2, 1.1), inclusion_mm=(10.0, 9.0), pillar_mm=1.6,
+        pillar_height_mm=(5.0, 9.0), silicone_brighter=True, base_up=True, noise=0.05, bias=0.2),
     "tilted-6deg-two-inclusions-bright-base-up": Case(
-        seed=506, spacing_mm=(0.9, 0.7, 0.7), inclusion_mm=(9.0, 13.0), pillar_mm=2.4, pillar_height_mm=(11.0, 4.0),
-        base_up=True, silicone_brighter=True, noise=0.05, bias=0.3, tilt_deg=6.0, tilt_azimuth_deg=115.0),
+        seed=506, spacing_mm=(0.9, 0.7, 0.7), inclusion_mm=(9.0, 13.0), pillar_mm=2.4,
+        pillar_height_mm=(11.0, 4.0), base_up=True, silicone_brighter=True, noise=0.05, bias=0.3,
+        tilt_deg=6.0, tilt_azimuth_deg=115.0),
     "tilted-10deg-anisotropic-dark-noisy": Case(
         seed=507, spacing_mm=(1.1, 0.6, 0.8), inclusion_mm=(7.0, 12.0, 15.0), pillar_mm=3.5,
         pillar_height_mm=(2.0, 13.0, 7.0), noise=0.09, bias=0.2, tilt_deg=10.0, tilt_azimuth_deg=250.0),
@@ -82,7 +84,8 @@ SHORT_OF_ACCEPTANCE: dict[str, str] = {}
 PILLAR_NOT_FOUND: dict[str, str] = {}
 
 
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=SHORT_OF_ACCEPTANCE[n]))
+@pytest.mark.parametrize("name",
+                         [pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=SHORT_OF_ACCEPTANCE[n]))
                                   if n in SHORT_OF_ACCEPTANCE else n for n in sorted(CASES)])
 def test_dice_meets_acceptance(results, name):
     vol, seg = results[name]
@@ -99,7 +102,8 @@ def test_contrast_found_and_no_warnings(results, name):
     vol, seg = results[name]
     assert seg.silicone_brighter == vol.case.silicone_brighter
     if name in PILLAR_NOT_FOUND:
-        assert len(seg.warnings) == 1 and "no pillar found under the inclusion" in seg.warnings[0], PILLAR_NOT_FOUND[name]
+        assert (len(seg.warnings) == 1
+                and "no pillar found under the inclusion" in seg.warnings[0]), PILLAR_NOT_FOUND[name]
     else:
         assert seg.warnings == []
 
@@ -107,7 +111,8 @@ def test_contrast_found_and_no_warnings(results, name):
 @pytest.mark.parametrize("name", list(CASES))
 def test_base_surface_is_found_within_a_quarter_slice(results, name):
     """The base's surface found under the posts (`Segmentation.base_surface`): its normal along the insert
-    axis (tilted or not), pointing into the base, and the plane within a quarter of a slice of the true one."""
+    axis (tilted or not), pointing into the base, and the plane within a quarter of a slice of the true
+    one."""
     vol, seg = results[name]
     base = seg.base_surface
     assert base is not None and float(np.dot(base.normal, vol.axis_mm)) < -(1.0 - 1e-3)
@@ -116,12 +121,15 @@ def test_base_surface_is_found_within_a_quarter_slice(results, name):
 
 # Posts whose measures miss those bounds today, with why (strict).
 POST_OFF: dict[str, str] = {
-    "coarse-1.2mm-4mm-pillar-1mm-tall-16mm-bright": "a 4 mm post 1 mm tall in 1.2 mm slices is measured 3.46 mm "
-    "wide: no slab of its own, its radius fitted to the silicone the blur spreads into the ball's and the base's, "
-    "the base's surface found 0.16 mm short of it (3.34 mm before its slabs were centred on the slices, 3.17 mm "
-    "before the ball's fit left its cap out, 3.56 mm while "
-    "the fit started at the plane under the ball, whose excess made up for that; its Dice meets the target: its "
-    "truth is one slice, 8 voxels)",
+    "coarse-1.2mm-4mm-pillar-1mm-tall-16mm-bright": "a 4 mm post 1 mm tall in 1.2 mm slices is measured 3.46 "
+                                                    "mm wide: no slab of its own, its radius fitted to the "
+                                                    "silicone the blur spreads into the ball's and the "
+                                                    "base's, the base's surface found 0.16 mm short of it "
+                                                    "(3.34 mm before its slabs were centred on the slices, "
+                                                    "3.17 mm before the ball's fit left its cap out, 3.56 mm "
+                                                    "while the fit started at the plane under the ball, "
+                                                    "whose excess made up for that; its Dice meets the "
+                                                    "target: its truth is one slice, 8 voxels)",
 }
 
 
@@ -159,10 +167,11 @@ def test_a_thin_post_beside_the_skin_is_found():
 
 
 def test_a_small_sphere_read_elongated_is_told_not_lost_silently():
-    """Family seed 1016 tilted (`mri_family.py --tilted`, 6.5 degrees): its 6.3 mm sphere at 1.11 mm voxels and
-    noise 0.085 opens, under the smaller ball, to 45 voxels spread 1.68 times more along one axis than across
-    (over MAX_ELONGATION), so it is not taken for an inclusion; it lies in the filling and off the other
-    inclusion's axis, and one warning names the voxel of its centre (upright it is found, 0.941). The other
+    """Family seed 1016 tilted (`mri_family.py --tilted`, 6.5 degrees): its 6.3 mm sphere at 1.11 mm voxels
+    and noise 0.085 opens, under the smaller ball, to 45 voxels spread 1.68 times more along one axis than
+    across (over MAX_ELONGATION), so it is not taken for an inclusion; it lies in the filling and off the
+    other inclusion's axis, and one warning names the voxel of its centre (upright it is found, 0.941). The
+    other
     inclusion is labelled."""
     from mri_family import draw_case, tilted
 
@@ -178,14 +187,16 @@ def test_a_small_sphere_read_elongated_is_told_not_lost_silently():
 
 
 def test_a_bases_silicone_without_posts_is_not_told_as_a_small_inclusion():
-    """Family seed 1091 of `mri_family.py --near-skin --floating` (ramp): no post, the sphere 0.54 mm under the
-    skin. Under the shell set aside at the outer surface, the base's silicone opens under the smaller ball to a
-    flat piece of 1971 voxels, elongated and off the sphere's axis; with no post no base surface is found to set
-    it aside, and it was told as a small inclusion that is not round. A piece whose centre lies within the
-    thickest skin (and a voxel) of the insert's outer surface is the skin's or the base's: the sphere's "no
+    """Family seed 1091 of `mri_family.py --near-skin --floating` (ramp): no post, the sphere 0.54 mm under
+    the skin. Under the shell set aside at the outer surface, the base's silicone opens under the smaller ball
+    to a flat piece of 1971 voxels, elongated and off the sphere's axis; with no post no base surface is found
+    to set it aside, and it was told as a small inclusion that is not round. A piece whose centre lies within
+    the thickest skin (and a voxel) of the insert's outer surface is the skin's or the base's: the sphere's
+    "no
     pillar" warning alone is left."""
     vol = generate(Case(seed=1091, spacing_mm=(1.11, 1.19, 1.19), inclusion_mm=(11.4,), pillar_mm=0.0,
-                        pillar_height_mm=(10.6,), silicone_brighter=True, noise=0.044, bias=0.33, skin_gap_mm=0.54))
+                        pillar_height_mm=(10.6,), silicone_brighter=True, noise=0.044, bias=0.33,
+                        skin_gap_mm=0.54))
     seg = segment(vol.image, vol.spacing_mm, where="seed 1091 without posts")
     (warning,) = seg.warnings
     assert warning.startswith("pillar not connected: no pillar found under the inclusion")
@@ -230,15 +241,16 @@ def test_a_small_sphere_opened_to_a_few_voxels_is_round():
 
 
 SMALL_ON_THICK = {
-    # a 6.9 mm sphere on a 3.77 mm post at 1.13 mm voxels (mri_family.py --small-coarse, seed 4909): the post's
+    # a 6.9 mm sphere on a 3.77 mm post at 1.13 mm voxels (mri_family.py --small-coarse, seed 4909): the
+    # post's
     # blur beside it misfit the ball (1.45), whose image surface scored 0.895
     "6.9mm-on-3.8mm-post": Case(seed=4909, spacing_mm=(1.13, 1.09, 1.12), inclusion_mm=(6.9, 10.1, 11.8),
                                 pillar_mm=3.77, pillar_height_mm=(13.0, 8.3, 7.4), noise=0.07, bias=0.13,
                                 partial_volume="box"),
     # a 6.7 mm sphere on a 2.19 mm post at 1.17 mm voxels, base up, bright silicone (seed 4907): 0.922
-    "6.7mm-on-2.2mm-post": Case(seed=4907, spacing_mm=(1.09, 1.17, 1.07), inclusion_mm=(6.7, 7.7), pillar_mm=2.19,
-                                pillar_height_mm=(10.4, 8.7), base_up=True, silicone_brighter=True, noise=0.077,
-                                bias=0.336, partial_volume="box"),
+    "6.7mm-on-2.2mm-post": Case(seed=4907, spacing_mm=(1.09, 1.17, 1.07), inclusion_mm=(6.7, 7.7),
+                                pillar_mm=2.19, pillar_height_mm=(10.4, 8.7), base_up=True,
+                                silicone_brighter=True, noise=0.077, bias=0.336, partial_volume="box"),
 }
 
 
@@ -255,7 +267,8 @@ def test_a_small_sphere_on_a_thick_post_is_drawn_as_its_ball(name):
 
 
 POST_PIECES = {
-    # a 3.84 mm post at 1.14 mm voxels, noise 0.075: a round piece of it under its 13.9 mm inclusion holds more
+    # a 3.84 mm post at 1.14 mm voxels, noise 0.075: a round piece of it under its 13.9 mm inclusion holds
+    # more
     # than half the main ball's volume; every such piece taken drew it as a third inclusion (pillar 0.92)
     20: "box",
     # a 2.48 mm post's foot on the base, under a 15.3 mm inclusion: 1.01 of the ball's volume and, its voxels
@@ -300,8 +313,9 @@ def test_short_pillar_at_thick_slices_in_a_clean_scan(seed):
 
     The trace's slabs are one slice each here; slabs bounded at voxel centres mixed two slices and read
     the level next to the base a slice off (or saw no pillar at all)."""
-    vol = generate(Case(seed=seed, spacing_mm=(1.16, 0.83, 0.41), inclusion_mm=(8.2, 11.0, 12.9), pillar_mm=1.94,
-                        pillar_height_mm=(5.1, 1.5, 5.3), base_up=True, silicone_brighter=True, noise=0.0, bias=0.3))
+    vol = generate(Case(seed=seed, spacing_mm=(1.16, 0.83, 0.41), inclusion_mm=(8.2, 11.0, 12.9),
+                        pillar_mm=1.94, pillar_height_mm=(5.1, 1.5, 5.3), base_up=True,
+                        silicone_brighter=True, noise=0.0, bias=0.3))
     seg = segment(vol.image, vol.spacing_mm, where="clean")
     assert seg.warnings == []
     assert all(row["dice_pillar"] >= MIN_DICE["pillar"] for row in inclusion_scores(seg.labels, vol))
@@ -358,8 +372,10 @@ BALLS_A_SLICE_OFF_THE_BASE = {
     # a 9.5 mm sphere on a 2.6 mm post 1.1 mm tall at 0.95 mm slices, bright silicone: misfit 2.2, the image's
     # surface took the base's blurred slice around the post (inclusion 0.978, pillar 0.50)
     "9.5mm-1.1mm-off": Case(seed=904, spacing_mm=(0.95, 1.15, 1.15), inclusion_mm=(9.5,), pillar_mm=2.6,
-                            pillar_height_mm=(1.1,), silicone_brighter=True, noise=0.03, partial_volume="box"),
-    # a 14 mm sphere on a 2.5 mm post 1.2 mm tall at 1.0 mm slices, dark silicone: misfit 1.65 (inclusion 0.984)
+                            pillar_height_mm=(1.1,), silicone_brighter=True, noise=0.03,
+                            partial_volume="box"),
+    # a 14 mm sphere on a 2.5 mm post 1.2 mm tall at 1.0 mm slices, dark silicone: misfit 1.65 (inclusion
+    # 0.984)
     "14mm-1.2mm-off": Case(seed=906, spacing_mm=(1.0, 1.2, 1.1), inclusion_mm=(14.0,), pillar_mm=2.5,
                            pillar_height_mm=(1.2,), noise=0.04, partial_volume="box"),
 }
@@ -377,7 +393,8 @@ def test_a_ball_a_slice_off_the_base_leaves_the_bases_blur_out_of_its_fit(name):
     assert inclusion_scores(seg.labels, vol)[0]["dice_inclusion"] >= 0.99
 
 
-LONE_SHORT_POSTS = [(voxel, post, tall) for voxel in (0.6, 0.95) for post in (2.0, 3.0) for tall in (1.2, 2.0)]
+LONE_SHORT_POSTS = [(voxel, post, tall) for voxel in (0.6, 0.95) for post in (2.0, 3.0)
+                    for tall in (1.2, 2.0)]
 
 
 def test_a_lone_short_posts_diameter_holds_no_excess_from_the_balls_curve():
@@ -417,11 +434,13 @@ def test_posts_all_short_are_drawn_from_their_fits_not_their_own_slabs():
     The posts of such a scan took the median cross-section of their own few slabs, pooled; the blur
     carries much of a post a slab or two tall into its inclusion's and the base's slabs, and these came
     out 0.04-0.11 mm thin (so did the posts of all six such volumes of the family's seeds 0-6099 and
-    7000-7149 under the box, by 0.01-0.23 mm). They now take the median of their radii fitted to all their silicone (`_post_radius`): -0.03 to
+    7000-7149 under the box, by 0.01-0.23 mm). They now take the median of their radii fitted to all their
+    silicone (`_post_radius`): -0.03 to
     +0.03 mm here. At 0.6 mm voxels the slabs read these posts within 0.02 mm and the fits within 0.06."""
     for k, (post, talls) in enumerate(ALL_SHORT_POSTS):
         vol = generate(Case(seed=804 + k, spacing_mm=(0.95,) * 3, inclusion_mm=(8.0, 10.0, 9.0)[:len(talls)],
-                            pillar_mm=post, pillar_height_mm=talls, noise=0.0, bias=0.1, partial_volume="box"))
+                            pillar_mm=post, pillar_height_mm=talls, noise=0.0, bias=0.1,
+                            partial_volume="box"))
         seg = segment(vol.image, vol.spacing_mm, where="short posts")
         assert seg.warnings == []
         errors = [row["post_diameter_error_mm"] for row in post_errors(seg.posts, vol)]
@@ -429,21 +448,23 @@ def test_posts_all_short_are_drawn_from_their_fits_not_their_own_slabs():
 
 
 def test_a_short_posts_radius_holds_in_a_tilted_noisy_scan():
-    """A 3.5 mm post 1.6 mm tall under an 11 mm ball, 0.9 x 0.6 x 0.6 mm voxels, noise 0.07, the insert tilted 5
-    degrees off the slices (four azimuths): each post drawn within a quarter of an in-plane voxel of its
+    """A 3.5 mm post 1.6 mm tall under an 11 mm ball, 0.9 x 0.6 x 0.6 mm voxels, noise 0.07, the insert tilted
+    5 degrees off the slices (four azimuths): each post drawn within a quarter of an in-plane voxel of its
     diameter, as the same scans untilted are.
 
-    The fit of a short post's radius (`_post_radius`) read each core voxel's excess over its slab's ring level.
-    In a tilted scan a slab's voxels spread over its depth, and about the base's surface, where the level
-    climbs from the hydrogel's to the silicone's within a slab, that one level was the wrong background for
-    most of them: these posts came out -0.61, -0.02, -0.55 and -0.48 mm (seed 36 of the family's `--tilted`,
-    a 3.9 mm post 1.4 mm tall tilted 5 degrees: -0.34 +- 0.12 mm over eight noise draws, +0.08 untilted). Each
-    voxel's background is now the ring's level at its own depth, read over half-slabs and interpolated: where
-    the slices are normal to the axis every voxel lies at a half-slab's depth and reads its slab's level as
+    The fit of a short post's radius (`_post_radius`) read each core voxel's excess over its slab's ring
+    level. In a tilted scan a slab's voxels spread over its depth, and about the base's surface, where the
+    level climbs from the hydrogel's to the silicone's within a slab, that one level was the wrong background
+    for most of them: these posts came out -0.61, -0.02, -0.55 and -0.48 mm (seed 36 of the family's
+    `--tilted`, a 3.9 mm post 1.4 mm tall tilted 5 degrees: -0.34 +- 0.12 mm over eight noise draws, +0.08
+    untilted). Each voxel's background is now the ring's level at its own depth, read over half-slabs and
+    interpolated: where the slices are normal to the axis every voxel lies at a half-slab's depth and reads
+    its slab's level as
     before."""
     for seed in range(600, 604):
-        case = Case(seed=seed, spacing_mm=(0.9, 0.6, 0.6), inclusion_mm=(11.0,), pillar_mm=3.5, pillar_height_mm=(1.6,),
-                    noise=0.07, bias=0.15, silicone_brighter=True, tilt_deg=5.0, tilt_azimuth_deg=40.0 + 50 * (seed - 600))
+        case = Case(seed=seed, spacing_mm=(0.9, 0.6, 0.6), inclusion_mm=(11.0,), pillar_mm=3.5,
+                    pillar_height_mm=(1.6,), noise=0.07, bias=0.15, silicone_brighter=True, tilt_deg=5.0,
+                    tilt_azimuth_deg=40.0 + 50 * (seed - 600))
         vol = generate(case)
         seg = segment(vol.image, vol.spacing_mm, where="tilted short post")
         (error,) = post_errors(seg.posts, vol)
@@ -452,9 +473,9 @@ def test_a_short_posts_radius_holds_in_a_tilted_noisy_scan():
 
 
 def test_a_posts_base_is_found_as_closely_in_a_tilted_noisy_scan():
-    """A 2.9 mm post 4.5 mm tall under a 12.5 mm ball, 0.93 x 0.92 x 0.95 mm voxels, noise 0.09, the insert tilted
-    3 degrees off the slices (six azimuths): each post's height within a tenth of a slice of the truth, as the
-    same scans upright are (-0.083 to +0.005 mm).
+    """A 2.9 mm post 4.5 mm tall under a 12.5 mm ball, 0.93 x 0.92 x 0.95 mm voxels, noise 0.09, the insert
+    tilted 3 degrees off the slices (six azimuths): each post's height within a tenth of a slice of the truth,
+    as the same scans upright are (-0.083 to +0.005 mm).
 
     The slabs along a tilted axis were as thick as a voxel's extent along it, a little more than the planes of
     voxel centres are apart along it, so a slab caught one plane and now and then a part of the next; a ring
@@ -463,8 +484,9 @@ def test_a_posts_base_is_found_as_closely_in_a_tilted_noisy_scan():
     -0.215 to +0.047 mm here. Each slab now holds one plane where the tilt is small enough for the planes to
     stay apart across the ring: -0.030 to +0.042 mm."""
     for seed in range(610, 616):
-        case = Case(seed=seed, spacing_mm=(0.93, 0.92, 0.95), inclusion_mm=(12.5,), pillar_mm=2.9, pillar_height_mm=(4.5,),
-                    noise=0.09, bias=0.2, tilt_deg=3.0, tilt_azimuth_deg=20.0 + 60 * (seed - 610), partial_volume="box")
+        case = Case(seed=seed, spacing_mm=(0.93, 0.92, 0.95), inclusion_mm=(12.5,), pillar_mm=2.9,
+                    pillar_height_mm=(4.5,), noise=0.09, bias=0.2, tilt_deg=3.0,
+                    tilt_azimuth_deg=20.0 + 60 * (seed - 610), partial_volume="box")
         vol = generate(case)
         seg = segment(vol.image, vol.spacing_mm, where="tilted post")
         (error,) = post_errors(seg.posts, vol)
@@ -472,10 +494,11 @@ def test_a_posts_base_is_found_as_closely_in_a_tilted_noisy_scan():
 
 
 def test_a_tilted_volume_keeps_its_tissues_and_tells_where_its_axis_and_feet_lie():
-    """`Case(tilt_deg=...)`: the insert tilted off array axis 0 holds each tissue's volume (the octagonal prism's,
-    the posts' up to their spheres' surfaces, the spheres'; within 1 % at 0.4 mm voxels, 3 % for the posts, of
-    some 65 mm^3 of 0.064 mm^3 voxels), each inclusion's centre and foot lie on the line along `Volume.axis_mm`
-    through them, the centre in the inclusion and the foot at the base's surface (pillar voxels just above it,
+    """`Case(tilt_deg=...)`: the insert tilted off array axis 0 holds each tissue's volume (the octagonal
+    prism's, the posts' up to their spheres' surfaces, the spheres'; within 1 % at 0.4 mm voxels, 3 % for the
+    posts, of some 65 mm^3 of 0.064 mm^3 voxels), each inclusion's centre and foot lie on the line along
+    `Volume.axis_mm` through them, the centre in the inclusion and the foot at the base's surface (pillar
+    voxels just above it,
     none below), and no slice is left undecided."""
     import dataclasses
 
@@ -484,7 +507,8 @@ def test_a_tilted_volume_keeps_its_tissues_and_tells_where_its_axis_and_feet_lie
     r = 0.5 * upright.pillar_mm
 
     def under_sphere(big: float) -> float:
-        """A post's volume between its sphere's lowest plane and its surface (the sphere of radius ``big``)."""
+        """A post's volume between its sphere's lowest plane and its surface (the sphere of radius
+        ``big``)."""
         return math.pi * r * r * big - 2.0 * math.pi / 3.0 * (big ** 3 - (big * big - r * r) ** 1.5)
 
     posts = sum(math.pi * r * r * h + under_sphere(0.5 * d) for h, d in zip(upright.pillar_height_mm,
@@ -492,7 +516,8 @@ def test_a_tilted_volume_keeps_its_tissues_and_tells_where_its_axis_and_feet_lie
     spheres = sum(math.pi / 6.0 * d ** 3 for d in upright.inclusion_mm)
     side = upright.width_mm * math.tan(math.pi / 8)
     for base_up in (False, True):
-        vol = generate(dataclasses.replace(upright, base_up=base_up, tilt_deg=7.0, tilt_azimuth_deg=33.0), image=False)
+        vol = generate(dataclasses.replace(upright, base_up=base_up, tilt_deg=7.0, tilt_azimuth_deg=33.0),
+                       image=False)
         voxel = float(np.prod(vol.spacing_mm))
         prism = 2.0 * (1.0 + math.sqrt(2.0)) * side * side * vol.height_mm
         for label, volume, rel in ((INSERT, prism - posts - spheres, 0.01), (PILLAR, posts, 0.03),
@@ -513,7 +538,8 @@ def test_a_tilted_volume_keeps_its_tissues_and_tells_where_its_axis_and_feet_lie
         assert not vol.undecided_slices().any()
 
 
-KNOWN_DIAMETER_POSTS = [(pv, voxel, post) for pv in ("box", "ramp") for voxel in (0.8, 1.1) for post in (2.0, 3.0)]
+KNOWN_DIAMETER_POSTS = [(pv, voxel, post) for pv in ("box", "ramp") for voxel in (0.8, 1.1)
+                        for post in (2.0, 3.0)]
 
 
 def test_a_given_diameter_draws_noisy_lone_short_posts_that_wide_where_the_scan_finds_them():
@@ -531,7 +557,8 @@ def test_a_given_diameter_draws_noisy_lone_short_posts_that_wide_where_the_scan_
         vol = generate(Case(seed=660 + k, spacing_mm=(voxel,) * 3, inclusion_mm=(9.0,), pillar_mm=post,
                             pillar_height_mm=(1.5,), noise=0.1, bias=0.3, partial_volume=pv))
         blind = segment(vol.image, vol.spacing_mm, where="lone short post")
-        given = segment(vol.image, vol.spacing_mm, SegmentParams(pillar_diameter_mm=post), where="lone short post")
+        given = segment(vol.image, vol.spacing_mm, SegmentParams(pillar_diameter_mm=post),
+                        where="lone short post")
         assert blind.warnings == given.warnings == [] and len(blind.posts) == len(given.posts) == 1
         (drawn,), (measured,) = given.posts, blind.posts
         assert drawn.radius_mm == 0.5 * post and drawn.measured_radius_mm == measured.radius_mm
@@ -543,7 +570,8 @@ def test_a_given_diameter_draws_noisy_lone_short_posts_that_wide_where_the_scan_
     assert min(given_dice) >= MIN_DICE["pillar"] and np.mean(given_dice) > np.mean(blind_dice)
     floating = generate(Case(seed=506, spacing_mm=(0.9, 0.8, 0.8), inclusion_mm=(9.0, 12.0), pillar_mm=0.0,
                              pillar_height_mm=(4.0, 8.0), noise=0.05, bias=0.2))
-    seg = segment(floating.image, floating.spacing_mm, SegmentParams(pillar_diameter_mm=3.0), where="floating")
+    seg = segment(floating.image, floating.spacing_mm, SegmentParams(pillar_diameter_mm=3.0),
+                  where="floating")
     assert not (seg.labels == PILLAR).any() and seg.posts == [] and len(seg.warnings) == 2
 
 
@@ -580,13 +608,15 @@ def test_a_thin_post_under_a_sphere_just_under_the_skin_is_found():
     least CLEAR_POST_RADIUS_MM now decides against a short gap or a trace under 3 slabs on the other side."""
     for k, (spacing, gap, up) in enumerate(THIN_SKIN_CASES):
         vol = generate(Case(seed=740 + k, spacing_mm=spacing, inclusion_mm=(12.0,), pillar_mm=1.5,
-                            pillar_height_mm=(10.0 - gap + 0.8,), skin_gap_mm=gap, base_up=up, noise=0.05, bias=0.25))
+                            pillar_height_mm=(10.0 - gap + 0.8,), skin_gap_mm=gap, base_up=up, noise=0.05,
+                            bias=0.25))
         seg = segment(vol.image, vol.spacing_mm, where=f"thin post, sphere {gap} mm under the skin")
         assert seg.warnings == [], (spacing, gap, up)
         assert inclusion_scores(seg.labels, vol)[0]["dice_pillar"] >= MIN_DICE["pillar"], (spacing, gap, up)
 
 
-CLEAR_RING_POSTS = [(slices, tall, inclusion) for slices in (1.1, 1.2) for tall in (1.3, 1.8) for inclusion in (10.0, 14.0)]
+CLEAR_RING_POSTS = [(slices, tall, inclusion) for slices in (1.1, 1.2) for tall in (1.3, 1.8)
+                    for inclusion in (10.0, 14.0)]
 
 
 def test_a_short_posts_base_surface_is_read_clear_of_its_ball(monkeypatch):
@@ -599,9 +629,9 @@ def test_a_short_posts_base_surface_is_read_clear_of_its_ball(monkeypatch):
     (On 16 more such scans without noise: mean error -0.053 -> -0.007 mm, mean absolute 0.081 -> 0.058 mm.)"""
     from lesscli.mri import pillar
 
-    volumes = [generate(Case(seed=720 + k, spacing_mm=(slices, 0.9, 0.9), inclusion_mm=(inclusion,), pillar_mm=2.5,
-                             pillar_height_mm=(tall,), silicone_brighter=bool(k % 2), noise=0.03, bias=0.2,
-                             partial_volume="box"))
+    volumes = [generate(Case(seed=720 + k, spacing_mm=(slices, 0.9, 0.9), inclusion_mm=(inclusion,),
+                             pillar_mm=2.5, pillar_height_mm=(tall,), silicone_brighter=bool(k % 2),
+                             noise=0.03, bias=0.2, partial_volume="box"))
                for k, (slices, tall, inclusion) in enumerate(CLEAR_RING_POSTS)]
 
     def base_errors():
@@ -623,7 +653,8 @@ def test_a_short_posts_base_surface_is_read_clear_of_its_ball(monkeypatch):
     assert abs(clear.mean()) < abs(crossing.mean())
 
 
-ONE_MM_POSTS = [(slices, post, inclusion) for slices in (0.95, 1.15) for post in (2.5, 3.5) for inclusion in (9.0, 14.0)]
+ONE_MM_POSTS = [(slices, post, inclusion) for slices in (0.95, 1.15) for post in (2.5, 3.5)
+                for inclusion in (9.0, 14.0)]
 
 
 def test_a_lone_post_1mm_tall_is_found_and_fitted_across_its_gap():
@@ -640,8 +671,9 @@ def test_a_lone_post_1mm_tall_is_found_and_fitted_across_its_gap():
     thin."""
     errors = []
     for k, (slices, post, inclusion) in enumerate(ONE_MM_POSTS):
-        vol = generate(Case(seed=660 + k, spacing_mm=(slices, 0.8, 0.8), inclusion_mm=(inclusion,), pillar_mm=post,
-                            pillar_height_mm=(1.0,), noise=0.02, bias=0.1, partial_volume="box"))
+        vol = generate(Case(seed=660 + k, spacing_mm=(slices, 0.8, 0.8), inclusion_mm=(inclusion,),
+                            pillar_mm=post, pillar_height_mm=(1.0,), noise=0.02, bias=0.1,
+                            partial_volume="box"))
         seg = segment(vol.image, vol.spacing_mm, where="1 mm post")
         assert seg.warnings == []
         errors.append(post_errors(seg.posts, vol)[0]["post_diameter_error_mm"])
@@ -695,14 +727,14 @@ def test_floating_family_inclusions_get_no_post_and_a_warning_each(seed):
 
 FLOATING_UNDER_SKIN = {     # seeds of `examples/mri_family.py --near-skin --floating --partial-volume box`
     32: Case(seed=32, spacing_mm=(0.78, 1.03, 0.76), inclusion_mm=(9.8, 12.7, 8.6), pillar_mm=0.0,
-             pillar_height_mm=(12.2, 11.9, 9.0), base_up=True, silicone_brighter=True, noise=0.028, bias=0.369,
-             partial_volume="box", skin_gap_mm=0.51),
+             pillar_height_mm=(12.2, 11.9, 9.0), base_up=True, silicone_brighter=True, noise=0.028,
+             bias=0.369, partial_volume="box", skin_gap_mm=0.51),
     51: Case(seed=51, spacing_mm=(1.17, 1.13, 0.73), inclusion_mm=(15.1, 13.1, 6.4), pillar_mm=0.0,
-             pillar_height_mm=(12.6, 14.2, 12.2), base_up=True, silicone_brighter=True, noise=0.057, bias=0.177,
-             partial_volume="box", skin_gap_mm=1.37),
+             pillar_height_mm=(12.6, 14.2, 12.2), base_up=True, silicone_brighter=True, noise=0.057,
+             bias=0.177, partial_volume="box", skin_gap_mm=1.37),
     97: Case(seed=97, spacing_mm=(0.79, 0.67, 0.98), inclusion_mm=(7.7, 7.0, 13.3), pillar_mm=0.0,
-             pillar_height_mm=(14.1, 5.1, 2.5), base_up=False, silicone_brighter=True, noise=0.097, bias=0.337,
-             partial_volume="box", skin_gap_mm=0.76),
+             pillar_height_mm=(14.1, 5.1, 2.5), base_up=False, silicone_brighter=True, noise=0.097,
+             bias=0.337, partial_volume="box", skin_gap_mm=0.76),
     86: Case(seed=86, spacing_mm=(0.69, 1.03, 1.03), inclusion_mm=(14.9, 15.5, 13.0), pillar_mm=0.0,
              pillar_height_mm=(6.0, 7.6, 2.9), base_up=False, silicone_brighter=True, noise=0.096, bias=0.246,
              partial_volume="box", skin_gap_mm=1.61),
@@ -714,10 +746,10 @@ FLOATING_UNDER_SKIN = {     # seeds of `examples/mri_family.py --near-skin --flo
 
 @pytest.mark.parametrize("seed", sorted(FLOATING_UNDER_SKIN))
 def test_a_floating_sphere_just_under_the_skin_gets_no_post(seed):
-    """Spheres without posts, the highest 0.5-1.4 mm under the skin: no post has anything to say for the base's
-    side, and the gap to the skin, or a trace of a slab or two across it, is where a post was looked for. With
-    the ball taken out as fitted (its fit leaves out that cap), what was left there read as a post of
-    0.50-0.71 mm, over MIN_RADIUS_MM, and 1-6 voxels were drawn in place of a warning. The post's radius is
+    """Spheres without posts, the highest 0.5-1.4 mm under the skin: no post has anything to say for the
+    base's side, and the gap to the skin, or a trace of a slab or two across it, is where a post was looked
+    for. With the ball taken out as fitted (its fit leaves out that cap), what was left there read as a post
+    of 0.50-0.71 mm, over MIN_RADIUS_MM, and 1-6 voxels were drawn in place of a warning. The post's radius is
     now fitted with the ball's, and a post too short to measure on its own slabs must show one so fitted
     before it takes the scan's pooled radius (`section._post_radius`, `section._pooled_radii`). Under 86's and
     1019's spheres a trace of noise 10-17 mm long read a disc of 0.48 and 0.26 mm on its slabs and a cylinder
@@ -745,7 +777,8 @@ def test_qc_shows_each_inclusion_with_the_pillar_outlined(run_less, tmp_path):
 
 @pytest.mark.parametrize("seed", [744, 745])
 def test_one_slice_pillar_under_a_single_inclusion_is_found_on_the_base_side(seed):
-    """1.08 mm slices, low noise: a 3.8 mm pillar 1.2 mm tall under a lone 15.5 mm inclusion (pillar Dice 0.80).
+    """1.08 mm slices, low noise: a 3.8 mm pillar 1.2 mm tall under a lone 15.5 mm inclusion (pillar Dice
+    0.80).
 
     The inclusion found holds the pillar's one slice, so no slab lies between it and the base: the
     base side was then decided by the skin side's noise (wrong), and no gap was left to measure the
@@ -791,9 +824,9 @@ def test_short_posts_at_thick_slices_are_each_found():
       an inclusion with a short gap holding silicone now counts that gap's post, not its other side;
     - the body's voxels run on past the ball took the base's silicone into the ball's fit (0.2 mm into the
       post) and, drawn from the image's surface, into the inclusion."""
-    dice = [_lone_post_dice(Case(seed=seed, spacing_mm=(slices, 1.2, 1.2), inclusion_mm=(inclusion,), pillar_mm=post,
-                                 pillar_height_mm=(tall,), base_up=base_up, silicone_brighter=brighter, noise=0.04,
-                                 bias=0.2, partial_volume="box"))
+    dice = [_lone_post_dice(Case(seed=seed, spacing_mm=(slices, 1.2, 1.2), inclusion_mm=(inclusion,),
+                                 pillar_mm=post, pillar_height_mm=(tall,), base_up=base_up,
+                                 silicone_brighter=brighter, noise=0.04, bias=0.2, partial_volume="box"))
             for seed, slices, post, tall, inclusion, base_up, brighter in SHORT_POSTS_THICK_SLICES]
     assert np.median(dice) >= MIN_DICE["pillar"]
 
@@ -805,9 +838,10 @@ def test_a_short_post_in_a_scan_without_noise_is_found():
 
     Without noise the inclusion's body ran on through the post into the base on half of them; one post was
     not found (its gap's last voxel, half air, read as hydrogel) and another drawn 0.6 mm thin."""
-    dice = [_lone_post_dice(Case(seed=seed, spacing_mm=(1.11, 1.19, 1.19), inclusion_mm=(11.4,), pillar_mm=2.7,
-                                 pillar_height_mm=(1.2,), base_up=bool(seed % 2), silicone_brighter=seed % 3 != 0,
-                                 noise=0.005, bias=0.0, partial_volume="box"))
+    dice = [_lone_post_dice(Case(seed=seed, spacing_mm=(1.11, 1.19, 1.19), inclusion_mm=(11.4,),
+                                 pillar_mm=2.7, pillar_height_mm=(1.2,), base_up=bool(seed % 2),
+                                 silicone_brighter=seed % 3 != 0, noise=0.005, bias=0.0,
+                                 partial_volume="box"))
             for seed in range(980, 986)]
     assert np.median(dice) >= MIN_DICE["pillar"]
 
@@ -850,8 +884,9 @@ def test_a_spheroid_keeps_the_image_surface():
 FACE_CASES = {
     # 1.11 mm slices under 1.19 mm voxels, bright skin: the layer the skin's level is read in (1-2 mm deep
     # then) held no slice at the end faces, which kept the global dark-tissue threshold there (0.972 before)
-    "bright-skin-1.11mm-slices": Case(seed=763, spacing_mm=(1.11, 1.19, 1.19), inclusion_mm=(11.4,), pillar_mm=2.7,
-                                      pillar_height_mm=(6.0,), silicone_brighter=True, noise=0.044, bias=0.2),
+    "bright-skin-1.11mm-slices": Case(seed=763, spacing_mm=(1.11, 1.19, 1.19), inclusion_mm=(11.4,),
+                                      pillar_mm=2.7, pillar_height_mm=(6.0,), silicone_brighter=True,
+                                      noise=0.044, bias=0.2),
     # dark skin at noise 0.094: air reads the noise's mean, and half-way between it and the skin lay a
     # tenth of the contrast above a half-filled voxel; the end faces came out a slice inside (0.966, 0.969)
     "dark-skin-noisy-a": Case(seed=763, spacing_mm=(1.0, 0.98, 0.98), inclusion_mm=(10.4,), pillar_mm=3.9,
@@ -877,8 +912,9 @@ def test_box_partial_volume_keeps_a_thin_posts_silicone_and_the_ramp_adds_to_it(
     diameter = 1.8
     excess = {}
     for pv in ("box", "ramp"):
-        case = Case(seed=3, spacing_mm=spacing, inclusion_mm=(10.0,), pillar_mm=diameter, pillar_height_mm=(12.0,),
-                    noise=0.0, bias=0.0, silicone_brighter=True, yaw_deg=17.0, partial_volume=pv)
+        case = Case(seed=3, spacing_mm=spacing, inclusion_mm=(10.0,), pillar_mm=diameter,
+                    pillar_height_mm=(12.0,), noise=0.0, bias=0.0, silicone_brighter=True, yaw_deg=17.0,
+                    partial_volume=pv)
         vol = generate(case)
         post = vol.truth == PILLAR
         rows = np.nonzero(post.any(axis=(1, 2)))[0][3:-3]           # slabs away from the base and the ball
@@ -912,7 +948,8 @@ def test_box_partial_volume_leaves_a_flat_surface_near_a_voxel_centre_undecided(
         return mri_family._box_fills(-np.ones(shape), a0 - level, grid, np.ones(3), at)[0]
 
     below, above = shares(centre - offset), shares(centre + offset)
-    assert (a0[:, 0, 0] <= centre - offset).sum() != (a0[:, 0, 0] <= centre + offset).sum()   # the truth moves
+    # the truth moves
+    assert (a0[:, 0, 0] <= centre - offset).sum() != (a0[:, 0, 0] <= centre + offset).sum()
     assert np.array_equal(below, above) == same
     assert 0.05 < 0.5 / mri_family.BOX_POINTS < 0.08          # the two offsets bracket the band
 
@@ -957,8 +994,10 @@ def test_the_ramp_draws_a_post_as_a_wider_one_the_scan_cannot_tell_apart(voxel_m
 
 @pytest.mark.parametrize("base_up", [False, True])
 def test_volume_base_index_is_where_the_truths_pillar_starts(base_up):
-    """`Volume.base_index`: the pillar's truth holds the slices on the filling's side of it and none past it."""
-    vol = generate(Case(seed=7, spacing_mm=(0.83, 0.9, 0.9), pillar_height_mm=(4.0,), base_up=base_up, noise=0.0))
+    """`Volume.base_index`: the pillar's truth holds the slices on the filling's side of it and none past
+    it."""
+    vol = generate(Case(seed=7, spacing_mm=(0.83, 0.9, 0.9), pillar_height_mm=(4.0,), base_up=base_up,
+                        noise=0.0))
     rows = np.nonzero((vol.truth == PILLAR).any(axis=(1, 2)))[0]
     nearest = rows.max() if base_up else rows.min()                 # the pillar's slice next to the base
     assert 0.0 < (vol.base_index - nearest) * (1 if base_up else -1) < 1.0
@@ -966,7 +1005,8 @@ def test_volume_base_index_is_where_the_truths_pillar_starts(base_up):
 
 @pytest.mark.parametrize("base_up", [False, True])
 def test_volume_outer_indices_bound_the_truths_insert(base_up):
-    """`Volume.outer_indices`: the truth's insert holds the slices between the two faces and none past them."""
+    """`Volume.outer_indices`: the truth's insert holds the slices between the two faces and none past
+    them."""
     vol = generate(Case(seed=7, spacing_mm=(0.83, 0.9, 0.9), base_up=base_up, noise=0.0), image=False)
     rows = np.nonzero((vol.truth > 0).any(axis=(1, 2)))[0]
     lo, hi = sorted(vol.outer_indices())
@@ -976,8 +1016,9 @@ def test_volume_outer_indices_bound_the_truths_insert(base_up):
 
 @pytest.mark.parametrize("gap, left_out", [(0.05, True), (0.08, False)])
 def test_insert_scores_leave_out_a_slice_undecided_at_an_outer_face(gap, left_out):
-    """`insert_scores`: the slice whose centres lie within the box's half sub-voxel step of an outer face (moved
-    there, the truth as drawn) is left out of `dice_insert_decided`, and one a little further is not; `dice_insert`
+    """`insert_scores`: the slice whose centres lie within the box's half sub-voxel step of an outer face
+    (moved there, the truth as drawn) is left out of `dice_insert_decided`, and one a little further is not;
+    `dice_insert`
     keeps it."""
     import dataclasses
 
@@ -994,7 +1035,8 @@ def test_insert_scores_leave_out_a_slice_undecided_at_an_outer_face(gap, left_ou
 
 
 def test_family_script_rows_and_footer(tmp_path):
-    """`examples/mri_family.py` (the table and counts of docs/results/mri-label-family.md): one box volume, its rows and the footer."""
+    """`examples/mri_family.py` (the table and counts of docs/results/mri-label-family.md): one box volume,
+    its rows and the footer."""
     import subprocess
     import sys
     from pathlib import Path
@@ -1008,10 +1050,11 @@ def test_family_script_rows_and_footer(tmp_path):
     assert all(0.0 <= r["dice_pillar_decided"] <= 1.0 for r in rows if r["row"] == "inclusion")
     assert 0.0 <= case["dice_insert_decided"] <= 1.0
     assert "Volumes meeting all three targets:" in proc.stdout and "of 1" in proc.stdout
-    again = subprocess.run([sys.executable, str(script), "--rows", str(tmp_path / "rows.jsonl")], capture_output=True,
-                           text=True, check=True)
+    again = subprocess.run([sys.executable, str(script), "--rows", str(tmp_path / "rows.jsonl")],
+                           capture_output=True, text=True, check=True)
     assert again.stdout == proc.stdout          # --rows: the table of rows written before, nothing segmented
-    missing = subprocess.run([sys.executable, str(script), "--rows", f"{tmp_path / 'rows.jsonl'},{tmp_path / 'no'}"],
+    missing = subprocess.run([sys.executable, str(script), "--rows",
+                              f"{tmp_path / 'rows.jsonl'},{tmp_path / 'no'}"],
                              check=False, capture_output=True, text=True)
     assert missing.returncode == 1 and missing.stdout == ""
     assert missing.stderr.count("\n") == 1 and str(tmp_path / "no") in missing.stderr
@@ -1025,11 +1068,13 @@ def test_family_script_lone_short(tmp_path):
     from pathlib import Path
 
     script = Path(__file__).resolve().parents[2] / "examples" / "mri_family.py"
-    proc = subprocess.run([sys.executable, str(script), "--seeds", "900", "--partial-volume", "box", "--lone-short",
-                           "--out", str(tmp_path / "rows.jsonl")], capture_output=True, text=True, check=True)
+    proc = subprocess.run([sys.executable, str(script), "--seeds", "900", "--partial-volume", "box",
+                           "--lone-short", "--out", str(tmp_path / "rows.jsonl")], capture_output=True,
+                           text=True, check=True)
     rows = [json.loads(line) for line in (tmp_path / "rows.jsonl").read_text().splitlines()]
     (inclusion,) = [r for r in rows if r["row"] == "inclusion"]
-    assert inclusion["inclusion_mm"] == draw_case(900).inclusion_mm[0] and 1.0 <= inclusion["pillar_height_mm"] <= 2.5
+    assert (inclusion["inclusion_mm"] == draw_case(900).inclusion_mm[0]
+            and 1.0 <= inclusion["pillar_height_mm"] <= 2.5)
     assert "Post diameter error: mean" in proc.stdout and "(1 posts)" in proc.stdout
 
 
@@ -1048,7 +1093,8 @@ def test_family_script_near_skin(tmp_path):
     first = next(r for r in rows if r["row"] == "inclusion")
     drawn = draw_case(3)
     assert 0.5 <= case["skin_gap_mm"] <= 2.0 and first["pillar_height_mm"] <= 15.0
-    assert first["pillar_height_mm"] >= drawn.pillar_height_mm[0] and first["inclusion_mm"] >= drawn.inclusion_mm[0]
+    assert (first["pillar_height_mm"] >= drawn.pillar_height_mm[0]
+            and first["inclusion_mm"] >= drawn.inclusion_mm[0])
     assert "| highest sphere under the skin (mm) |" in proc.stdout
     clash = subprocess.run([sys.executable, str(script), "--seeds", "3", "--near-skin", "--lone-short"],
                            check=False, capture_output=True, text=True)
@@ -1056,14 +1102,16 @@ def test_family_script_near_skin(tmp_path):
 
 
 def test_family_script_tilted(tmp_path):
-    """`examples/mri_family.py --tilted`: each volume's insert axis 0-10 degrees off the array's first axis; the
+    """`examples/mri_family.py --tilted`: each volume's insert axis 0-10 degrees off the array's first axis;
+    the
     rows keep the tilt and the table gives its bands."""
     import subprocess
     import sys
     from pathlib import Path
 
     script = Path(__file__).resolve().parents[2] / "examples" / "mri_family.py"
-    proc = subprocess.run([sys.executable, str(script), "--seeds", "3", "--tilted", "--out", str(tmp_path / "rows.jsonl")],
+    proc = subprocess.run([sys.executable, str(script), "--seeds", "3", "--tilted", "--out",
+                           str(tmp_path / "rows.jsonl")],
                           capture_output=True, text=True, check=True)
     rows = [json.loads(line) for line in (tmp_path / "rows.jsonl").read_text().splitlines()]
     assert {r["tilt_deg"] for r in rows} == {rows[0]["tilt_deg"]} and 0.0 < rows[0]["tilt_deg"] <= 10.0
@@ -1071,8 +1119,9 @@ def test_family_script_tilted(tmp_path):
 
 
 def test_family_script_small_coarse(tmp_path):
-    """`examples/mri_family.py --small-coarse` (the probes in docs/results/mri-label-rounds.md of small spheres at coarse voxels): the
-    volume drawn from ``[seed // 100, seed % 100]``, its first sphere 6-7 mm, every voxel side 0.9-1.2 mm, noise
+    """`examples/mri_family.py --small-coarse` (the probes in docs/results/mri-label-rounds.md of small
+    spheres at coarse voxels): the volume drawn from ``[seed // 100, seed % 100]``, its first sphere 6-7 mm,
+    every voxel side 0.9-1.2 mm, noise
     0.05-0.1."""
     import subprocess
     import sys
@@ -1108,7 +1157,8 @@ def test_family_script_known_diameter(tmp_path):
     (measured,), (given,) = ([r for r in rows[n] if r["row"] == "inclusion"] for n in ("measured", "given"))
     assert given["post_diameter_error_mm"] == measured["post_diameter_error_mm"] != 0.0
     assert given["post_height_error_mm"] == measured["post_height_error_mm"]
-    pillar_voxels = [next(r for r in rows[n] if r["row"] == "case")["pillar_voxels_drawn"] for n in ("measured", "given")]
+    pillar_voxels = [next(r for r in rows[n] if r["row"] == "case")["pillar_voxels_drawn"]
+                     for n in ("measured", "given")]
     assert pillar_voxels[0] != pillar_voxels[1]
 
 

@@ -111,7 +111,8 @@ def test_bias_refit_away_from_the_tissue_boundaries_removes_what_the_noise_lets_
     z, y, x = _grid(shape, spacing)
     lo, hi = np.array([3.0, 4.0, 4.0]), np.array([31.0, 40.0, 40.0])
     outer = np.all([(c >= a) & (c <= b) for c, a, b in zip((z, y, x), lo, hi)], axis=0)
-    filling = np.all([(c >= a) & (c <= b) for c, a, b in zip((z, y, x), lo + [3.0, 2.5, 2.5], hi - 2.5)], axis=0)
+    filling = np.all([(c >= a) & (c <= b) for c, a, b in zip((z, y, x), lo + [3.0, 2.5, 2.5], hi - 2.5)],
+                     axis=0)
     ball = (z - 16.0) ** 2 + (y - 24.0) ** 2 + (x - 20.0) ** 2 <= 5.0 ** 2
     skin, gel = (1.0, 0.5) if skin_brighter else (0.5, 1.0)
     clean = np.where(filling & ~ball, gel, np.where(outer, skin, 0.0))
@@ -136,7 +137,8 @@ def test_bias_refit_away_from_the_tissue_boundaries_removes_what_the_noise_lets_
 
 
 def test_split_silicone_separates_skin_inclusion_and_pillar():
-    shape = (44, 80, 80)                                          # an insert wider than tall, like the phantoms
+    # an insert wider than tall, like the phantoms
+    shape = (44, 80, 80)
     z, y, x = _grid(shape)
     insert = np.zeros(shape, bool)
     insert[2:-2, 2:-2, 2:-2] = True
@@ -145,13 +147,15 @@ def test_split_silicone_separates_skin_inclusion_and_pillar():
     column = ((y - 15) ** 2 + (x - 15) ** 2 <= 1.25 ** 2) & (z <= 12) & insert
     stray = ((y - 6) ** 2 + (x - 30) ** 2 <= 1.25 ** 2) & (z > 3) & (z < 10)   # a column touching nothing
     lying = ((z - 8) ** 2 + (y - 30) ** 2 <= 1.25 ** 2) & (x > 20) & (x < 30)  # across the axis: not a pillar
-    pillar, inclusion, warnings, _shapes, _base, posts = split_silicone(skin | ball | column | stray | lying, insert,
+    pillar, inclusion, warnings, _shapes, _base, posts = split_silicone(skin | ball | column | stray | lying,
+                                                                        insert,
                                                                          SPACING, 4.5, 3.0)
     assert dice(inclusion, ball) > 0.98
     assert (pillar & column).sum() >= 0.85 * (column & ~ball).sum()      # a short 7 mm column
     assert not (pillar & (skin | lying | stray)).any() and not (inclusion & (skin | lying | stray)).any()
     assert warnings == []
-    (post,) = posts         # on the insert's outer surface (between the voxels at z 0.5 and 1 mm), up to z 8 mm
+    # on the insert's outer surface (between the voxels at z 0.5 and 1 mm), up to z 8 mm
+    (post,) = posts
     assert post.direction[0] > 0.99
     np.testing.assert_allclose(post.foot_mm, [0.75, 15.0, 15.0], atol=0.1)
     assert post.radius_mm == pytest.approx(1.25, abs=0.1) and post.height_mm == pytest.approx(7.25, abs=0.1)
@@ -174,7 +178,8 @@ def test_a_small_inclusion_with_noise_pinholes_is_still_found():
         silicone = skin | ball | column
         for h in holes:
             silicone[h] = False
-        pillar, inclusion, warnings, shapes, _base, _posts = split_silicone(silicone, insert, spacing, 4.5, 3.0)
+        pillar, inclusion, warnings, shapes, _base, _posts = split_silicone(silicone, insert, spacing, 4.5,
+                                                                            3.0)
         assert len(shapes) == 1 and warnings == [], (holes, warnings)
         assert dice(inclusion, ball) > 0.95 and (pillar & column).any(), holes
 
@@ -186,7 +191,8 @@ def test_split_silicone_warns_once_for_an_inclusion_without_pillar():
     insert[2:-2, 2:-2, 2:-2] = True
     skin = insert & (z >= 19.0)
     ball = (z - 10) ** 2 + (y - 15) ** 2 + (x - 15) ** 2 <= 4.0 ** 2          # floating: no pillar
-    pillar, inclusion, warnings, _shapes, _base, _posts = split_silicone(skin | ball, insert, SPACING, 4.5, 3.0)
+    pillar, inclusion, warnings, _shapes, _base, _posts = split_silicone(skin | ball, insert, SPACING, 4.5,
+                                                                         3.0)
     assert dice(inclusion, ball) > 0.98 and not pillar.any()
     assert len(warnings) == 1 and "no pillar found under the inclusion near voxel [20, 30, 30]" in warnings[0]
 
@@ -277,7 +283,8 @@ def test_container_walls_are_background_and_cut_insert_warns():
     from lesscli.mri.segment import segment
 
     phantom = single_insert(12, "C", 9)
-    params = MRIParams(spacing_mm=(0.8, 0.8, 0.8), supersample=1, noise_sigma=0.03, max_tilt_deg=0.0, yaw_deg=0.0)
+    params = MRIParams(spacing_mm=(0.8, 0.8, 0.8), supersample=1, noise_sigma=0.03, max_tilt_deg=0.0,
+                       yaw_deg=0.0)
     synth = synthesize(phantom, np.random.default_rng(2), params)
     walled = synth.image.copy()
     for axis in range(3):                       # a bright box open nowhere: touches every face
@@ -377,7 +384,8 @@ def test_a_post_is_held_on_its_inclusions_axis_unless_its_own_line_fits_better(s
                              ((0.0, -0.5), (0.0, 0.0), "straight"), ((0.0, -0.35), (0.0, 0.15), "tilted")]:
         post = np.stack([axis_at + np.asarray(off), np.asarray(slope)])
         value = np.concatenate([np.mean([disc_profile(np.linalg.norm(uv + d - post[0] - k * post[1], axis=1),
-                                                      radius, blur) for d in subs], axis=0) for k in range(slabs)])
+                                                      radius, blur) for d in subs], axis=0)
+                                                      for k in range(slabs)])
         excess = value + rng.normal(0.0, 0.15, slabs * len(uv))
         t = np.repeat(np.arange(slabs, dtype=float), len(uv))
         args = (np.tile(uv, (slabs, 1)), t, excess, np.zeros((2, 2)), 0.9, blur, 3.0)
@@ -390,7 +398,8 @@ def test_a_post_is_held_on_its_inclusions_axis_unless_its_own_line_fits_better(s
             assert np.array_equal(line[1], centred[1]) and np.linalg.norm(line[0] - post[0]) < 0.25
         else:
             assert np.array_equal(line, own)
-            assert all(np.linalg.norm(line[0] + k * line[1] - post[0] - k * post[1]) < 0.25 for k in (0, slabs - 1))
+            assert all(np.linalg.norm(line[0] + k * line[1] - post[0] - k * post[1]) < 0.25
+                       for k in (0, slabs - 1))
 
 
 def test_the_own_line_tests_read_denoised_noise_at_their_level():
@@ -409,7 +418,8 @@ def test_the_own_line_tests_read_denoised_noise_at_their_level():
     centred = np.stack([axis_at, np.zeros(2)])
     clean = np.tile(disc_profile(np.linalg.norm(uv - axis_at, axis=1), radius, blur), slabs)
     t = np.repeat(np.arange(slabs, dtype=float) * voxel, len(uv))
-    index = tuple(a.ravel() + 6 for a in np.meshgrid(np.arange(slabs), np.arange(9), np.arange(9), indexing="ij"))
+    index = tuple(a.ravel() + 6
+                  for a in np.meshgrid(np.arange(slabs), np.arange(9), np.arange(9), indexing="ij"))
     rng = np.random.default_rng(11)
     left = {"told": 0, "white": 0}
     for _ in range(draws):
@@ -425,10 +435,11 @@ def test_the_own_line_tests_read_denoised_noise_at_their_level():
 
 
 def test_a_thin_posts_significance_is_read_in_a_narrow_core_too():
-    """`find_pillars` tests a post first in a core as wide as the widest pillar (4.5 mm here), then in one half
-    as wide: a 1.6 mm post 5 mm tall under a ball (1 mm slices, 0.8 mm voxels, noise 0.15 of the contrast),
-    300 noise draws. The narrow core reads the same cross-section (means within 10 %) with at most 0.75 of
-    the wide core's scatter, and either core passes the test at least 0.15 more often than the wide one alone;
+    """`find_pillars` tests a post first in a core as wide as the widest pillar (4.5 mm here), then in one
+    half as wide: a 1.6 mm post 5 mm tall under a ball (1 mm slices, 0.8 mm voxels, noise 0.15 of the
+    contrast), 300 noise draws. The narrow core reads the same cross-section (means within 10 %) with at most
+    0.75 of the wide core's scatter, and either core passes the test at least 0.15 more often than the wide
+    one alone;
     without the post, either passes in at most 5 % of the draws."""
     from lesscli.mri.column import _column
     from lesscli.mri.pillar import CORE_MARGIN_VOXELS, RING_GAP_VOXELS, RING_WIDTH_MM
@@ -436,7 +447,8 @@ def test_a_thin_posts_significance_is_read_in_a_narrow_core_too():
     from lesscli.mri.trace import _pooled_scatter, _trace
 
     spacing, widest, rng = np.array([1.0, 0.8, 0.8]), 4.5, np.random.default_rng(43)
-    centre = np.array([14.0, 24.16, 23.76])                   # the ball of `_post_under_ball`, 5 mm over the base
+    # the ball of `_post_under_ball`, 5 mm over the base
+    centre = np.array([14.0, 24.16, 23.76])
     cores = [0.5 * widest + CORE_MARGIN_VOXELS, 0.25 * widest + CORE_MARGIN_VOXELS]
 
     def rings(core):
@@ -449,10 +461,12 @@ def test_a_thin_posts_significance_is_read_in_a_narrow_core_too():
         rows = []
         for _ in range(300):
             fraction = np.where(insert, clean + rng.normal(0.0, 0.15, clean.shape), 0.0)
-            col = _column(fraction, insert, insert, ball, 1, centre, np.array([1.0, 0.0, 0.0]), spacing, rings(cores[0])[1])
-            traces = [_inner(_trace(col, -1, np.zeros((2, 2)), core, rings(core), 1.0, float(np.prod(spacing)),
-                                    (0.0, 1.0))) for core in cores]
-            rows.append([t.median_area() for t in traces] + [t.significant(_pooled_scatter([t])) for t in traces])
+            col = _column(fraction, insert, insert, ball, 1, centre, np.array([1.0, 0.0, 0.0]), spacing,
+                          rings(cores[0])[1])
+            traces = [_inner(_trace(col, -1, np.zeros((2, 2)), core, rings(core), 1.0,
+                                    float(np.prod(spacing)), (0.0, 1.0))) for core in cores]
+            rows.append([t.median_area() for t in traces]
+                        + [t.significant(_pooled_scatter([t])) for t in traces])
         return np.array(rows, dtype=float)
 
     post, none = draws(0.8), draws(0.0)
@@ -463,8 +477,8 @@ def test_a_thin_posts_significance_is_read_in_a_narrow_core_too():
 
 
 def _post_under_ball(spacing, post_radius, gap_mm, shift_voxels, noise, seed):
-    """(silicone fraction, insert, post truth) of a ball of 10 mm on a post standing on a 4 mm base, ``gap_mm``
-    between them, the post's axis ``shift_voxels`` off the voxel grid.
+    """(silicone fraction, insert, post truth) of a ball of 10 mm on a post standing on a 4 mm base,
+    ``gap_mm`` between them, the post's axis ``shift_voxels`` off the voxel grid.
 
     Each voxel is the mean of 5 x 5 x 5 sub-voxels (true partial volume), then a Gaussian blur of 0.6 voxel
     and normal noise of ``noise`` (in units of the contrast); the truth classifies voxel centres."""
@@ -490,10 +504,11 @@ def _post_under_ball(spacing, post_radius, gap_mm, shift_voxels, noise, seed):
 
 
 def _post_dice(spacing, post_radius, gap_mm, shift_voxels, noise, seed) -> float:
-    """Pillar Dice of :func:`split_silicone` on :func:`_post_under_ball`'s scan (which must warn of nothing)."""
+    """Pillar Dice of :func:`split_silicone` on :func:`_post_under_ball`'s scan (which must warn of
+    nothing)."""
     fraction, insert, post = _post_under_ball(spacing, post_radius, gap_mm, shift_voxels, noise, seed)
-    pillar, _inclusion, warnings, _shapes, _base, _posts = split_silicone(fraction > 0.5, insert, spacing, 4.5, 3.0,
-                                                          fraction=fraction)
+    pillar, _inclusion, warnings, _shapes, _base, _posts = split_silicone(fraction > 0.5, insert, spacing,
+                                                                          4.5, 3.0, fraction=fraction)
     assert warnings == []
     return dice(pillar, post)
 
@@ -525,15 +540,16 @@ def test_a_short_posts_radius_is_measured_on_the_line_it_is_drawn_on(shift_voxel
 
     spacing, gap, axis = np.array([1.1, 0.8, 0.8]), 1.2, np.array([1.0, 0.0, 0.0])
     fraction, insert, _post = _post_under_ball(spacing, 1.5, gap, shift_voxels, 0.05, 3)
-    centre = np.array([4.0 + gap + 5.0, 24.0 + shift_voxels[0] * spacing[1], 24.0 + shift_voxels[1] * spacing[2]])
+    centre = np.array([4.0 + gap + 5.0, 24.0 + shift_voxels[0] * spacing[1],
+                       24.0 + shift_voxels[1] * spacing[2]])
     grid = _grid(fraction.shape, spacing, sparse=True)
     ball_ids = (sum((g - c) ** 2 for g, c in zip(grid, centre)) <= 5.0 ** 2).astype(np.int32)
     ball = Ball(centre, 5.0, 0.55, 1.0, 0.0, 0.5, (), np.zeros((0, 0, 0)), spacing)
     radii = []
     for column_centre in (centre, centre + np.array([0.0, 0.6, -0.5])):
         col = _column(fraction, insert, insert, ball_ids, 1, column_centre, axis, spacing, 7.0)
-        radii.append(_post_radius(col, -1, _ball_surface(ball, column_centre, axis, -1), 5.0 + gap, ball, (0.0, 1.0),
-                                  3.9, (4.45, 7.0), spacing[0], float(np.prod(spacing)),
+        radii.append(_post_radius(col, -1, _ball_surface(ball, column_centre, axis, -1), 5.0 + gap, ball,
+                                  (0.0, 1.0), 3.9, (4.45, 7.0), spacing[0], float(np.prod(spacing)),
                                   _ball_axis(ball, column_centre, axis)))
     assert abs(radii[0] - radii[1]) < 0.03
     assert all(abs(r - 1.5) < 0.1 for r in radii)
@@ -541,11 +557,12 @@ def test_a_short_posts_radius_is_measured_on_the_line_it_is_drawn_on(shift_voxel
 
 @pytest.mark.parametrize("tilt_deg", [0.0, 0.05, 0.2])
 def test_a_short_posts_radius_holds_where_a_slice_lies_on_the_inclusions_surface(tilt_deg):
-    """`_post_radius` of a 3 mm post 1.5 mm tall under a 10 mm ball at 1.1 mm slices, the ball's surface over the
-    post on a plane of voxel centres, the axis along the slices or tilted by up to 0.2 degrees: within 0.05 mm
-    of the truth (1.477 mm each). Its slabs are centred on the planes of voxel centres; laid out from the
-    surface, their edges fell on the planes, and rounding or a tilt of hundredths of a degree split a slice
-    between two slabs, each slab's ring level read between two slices: 1.749, 1.348 and 1.343 mm (the family's
+    """`_post_radius` of a 3 mm post 1.5 mm tall under a 10 mm ball at 1.1 mm slices, the ball's surface over
+    the post on a plane of voxel centres, the axis along the slices or tilted by up to 0.2 degrees: within
+    0.05 mm of the truth (1.477 mm each). Its slabs are centred on the planes of voxel centres; laid out from
+    the surface, their edges fell on the planes, and rounding or a tilt of hundredths of a degree split a
+    slice between two slabs, each slab's ring level read between two slices: 1.749, 1.348 and 1.343 mm (the
+    family's
     held-out box 7186 drew its 2.04 mm post 0.44 mm narrow so)."""
     from lesscli.mri.ball import Ball
     from lesscli.mri.column import _ball_axis, _ball_surface, _column
@@ -562,13 +579,15 @@ def test_a_short_posts_radius_holds_where_a_slice_lies_on_the_inclusions_surface
     col = _column(fraction, insert, insert, ball_ids, 1, centre, axis, spacing, 7.0)
     start = _ball_surface(ball, centre, axis, -1)
     assert abs(((centre[0] - start) / spacing[0]) % 1.0 - 0.5) > 0.49   # a plane of centres on the surface
-    radius = _post_radius(col, -1, start, 5.0 + gap, ball, (0.0, 1.0), 3.9, (4.45, 7.0), float(np.abs(axis) @ spacing),
-                          float(np.prod(spacing)), _ball_axis(ball, centre, axis))
+    radius = _post_radius(col, -1, start, 5.0 + gap, ball, (0.0, 1.0), 3.9, (4.45, 7.0),
+                          float(np.abs(axis) @ spacing), float(np.prod(spacing)),
+                          _ball_axis(ball, centre, axis))
     assert abs(radius - 1.5) < 0.05
 
 
 def test_a_balls_shell_is_its_excess_per_millimetre_of_radius():
-    """`Ball.shell` is the derivative of `Ball.excess` with respect to the radius (central difference), inside,
+    """`Ball.shell` is the derivative of `Ball.excess` with respect to the radius (central difference),
+    inside,
     at and beyond the surface."""
     from lesscli.mri.ball import Ball
 
@@ -608,8 +627,9 @@ def test_a_gap_under_a_ball_fitted_a_little_off_holds_no_post_and_a_thin_post_st
         grid = _grid(fraction.shape, spacing, sparse=True)
         ball_ids = (sum((g - c) ** 2 for g, c in zip(grid, centre)) <= 5.0 ** 2).astype(np.int32)
         col = _column(fraction, insert, insert, ball_ids, 1, centre, axis, spacing, 7.0)
-        radius = _post_radius(col, -1, _ball_surface(ball, centre, axis, -1), 5.0 + gap, ball, (0.0, 1.0), 3.9,
-                              (4.45, 7.0), spacing[0], float(np.prod(spacing)), _ball_axis(ball, centre, axis))
+        radius = _post_radius(col, -1, _ball_surface(ball, centre, axis, -1), 5.0 + gap, ball, (0.0, 1.0),
+                              3.9, (4.45, 7.0), spacing[0], float(np.prod(spacing)),
+                              _ball_axis(ball, centre, axis))
         assert radius < MIN_RADIUS_MM if post == 0.0 else abs(radius - post) < 0.08
 
 
@@ -627,8 +647,8 @@ def test_silicone_across_a_short_gap_wider_than_the_widest_pillar_is_no_post():
         grid = _grid(fraction.shape, spacing, sparse=True)
         ball_ids = (sum((g - c) ** 2 for g, c in zip(grid, centre)) <= 5.0 ** 2).astype(np.int32)
         col = _column(fraction, insert, insert, ball_ids, 1, centre, axis, spacing, 7.5)
-        found = _gap_radius(col, -1, 5.0 + gap, (0.0, 1.0), 0.5 * widest + 1.65, spacing[0], float(np.prod(spacing)),
-                            {}, np.zeros((2, 2)), widest)
+        found = _gap_radius(col, -1, 5.0 + gap, (0.0, 1.0), 0.5 * widest + 1.65, spacing[0],
+                            float(np.prod(spacing)), {}, np.zeros((2, 2)), widest)
         assert (found is None) if expect is None else abs(found - expect) < 0.3
 
 
@@ -722,7 +742,8 @@ def test_a_posts_significance_reads_the_slab_scatter_of_all_the_scans_traces():
     rng = np.random.default_rng(41)
     sigma, rows = 2.0, []
     for _ in range(2000):
-        post, *noise = [trace(rng.normal(mean, sigma, n)) for mean, n in ((3.0 * sigma, 3), (0.0, 3), (0.0, 6),
+        post, *noise = [trace(rng.normal(mean, sigma, n)) for mean,
+                        n in ((3.0 * sigma, 3), (0.0, 3), (0.0, 6),
                                                                            (0.0, 12))]
         scatter = _pooled_scatter([post, *noise])
         rows.append((post.significant(scatter), post.significant(_pooled_scatter([post])),
@@ -802,7 +823,8 @@ def test_an_elongated_piece_off_every_bodys_axis_is_told_and_one_under_a_body_is
 def test_a_balls_fit_leaves_out_the_blur_of_its_post():
     """A 7 mm ball on a 3.8 mm post at 1.1 mm voxels, little noise: the post's blurred silicone beside the
     drawn post is no part of the ball, and left in its fit it reads as misfit above BALL_MISFIT (the image's
-    surface drawn); left out (``blurred``, a voxel around the post), the ball fits to the noise and is drawn."""
+    surface drawn); left out (``blurred``, a voxel around the post), the ball fits to the noise and is
+    drawn."""
     from scipy import ndimage
 
     from lesscli.mri.morphology import _rim
@@ -816,7 +838,8 @@ def test_a_balls_fit_leaves_out_the_blur_of_its_post():
 
     def ball_on_post(z, y, x):
         across = (y - centre[1]) ** 2 + (x - centre[2]) ** 2
-        return (across + (z - centre[0]) ** 2 <= radius ** 2) | ((across <= post_radius ** 2) & (z > centre[0]))
+        return (across + (z - centre[0]) ** 2 <= radius ** 2) | ((across
+                                                                  <= post_radius ** 2) & (z > centre[0]))
 
     fraction = ndimage.gaussian_filter(_box_fill(ball_on_post, shape, spacing), sigma=0.5)
     fraction += np.random.default_rng(0).normal(0.0, 0.02, shape)

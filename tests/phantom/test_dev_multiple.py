@@ -1,4 +1,5 @@
-"""The development set of multiple-inclusion inserts (examples/dev_multiple.py -> examples/scenes/dev-multiple.json)."""
+"""The development set of multiple-inclusion inserts (examples/dev_multiple.py ->
+examples/scenes/dev-multiple.json)."""
 
 import importlib.util
 import math
@@ -32,8 +33,10 @@ def test_every_insert_has_several_hanging_inclusions_inside_the_filling():
         assert len(p.inclusions) >= 2 and len(p.pillars) == len(p.inclusions)
         for s in p.inclusions:
             top_mm = s.center_mm[2] + s.radius_mm
-            assert math.isclose(top_mm, -(p.skin_thickness_mm + GAP_BELOW_SKIN_MM))   # the manufacturing depth
-            assert math.hypot(*s.center_mm[:2]) + s.radius_mm < p.width_mm / 2     # inside the octagon's flats
+            # the manufacturing depth
+            assert math.isclose(top_mm, -(p.skin_thickness_mm + GAP_BELOW_SKIN_MM))
+            # inside the octagon's flats
+            assert math.hypot(*s.center_mm[:2]) + s.radius_mm < p.width_mm / 2
 
 
 def test_no_insert_repeats_a_catalogue_layout():

@@ -20,7 +20,8 @@ def test_single_names_encode_diameter_family_and_offset():
         diameter, family, offset = p.name[2:].partition("C" if "C" in p.name else "D")
         assert 2 * s.radius_mm == pytest.approx(float(diameter))
         assert math.hypot(*s.center_mm[:2]) == pytest.approx(float(offset))
-        assert math.degrees(math.atan2(s.center_mm[1], s.center_mm[0])) == pytest.approx(FAMILY_ANGLE_DEG[family])
+        assert (math.degrees(math.atan2(s.center_mm[1], s.center_mm[0]))
+                == pytest.approx(FAMILY_ANGLE_DEG[family]))
         assert 8 <= 2 * s.radius_mm <= 16 and 5 <= float(offset) <= 15
         assert s.center_mm[2] + s.radius_mm < -p.skin_thickness_mm        # under the skin
         assert len(p.pillars) == 1 and p.pillars[0].z_top_mm == s.center_mm[2]
@@ -69,7 +70,8 @@ def test_phantom_files_toml_and_json(tmp_path):
     assert load_phantom_file(str(spec)) == [base.rotated(2)]
     bad = tmp_path / "bad.toml"
     bad.write_text('[[phantom]]\nname = "x"\nheigth_mm = 3\n')
-    with pytest.raises(DataError, match=r"bad.toml: phantom 0: unknown key 'heigth_mm'; did you mean 'height_mm'"):
+    with pytest.raises(DataError,
+                       match=r"bad.toml: phantom 0: unknown key 'heigth_mm'; did you mean 'height_mm'"):
         load_phantom_file(str(bad))
     with pytest.raises(DataError, match="did you mean 'multiple'"):
         resolve_set("multiple2")
@@ -92,8 +94,8 @@ def test_stl_voxelisation_matches_analytic_geometry(tmp_path):
 
     _box_stl(tmp_path / "insert.stl", (40, 40, 20), center=(100, 50, 10))      # CAD frame: base at z = 0
     _ball_stl(tmp_path / "ball.stl", 5.0, (108, 50, 12))                       # 8 mm off-centre, 8 mm deep
-    vol, spec = stl_label_volume(str(tmp_path / "insert.stl"), [str(tmp_path / "ball.stl")], shape=(20, 64, 64),
-                                 spacing_mm=(1.0, 1.0, 1.0))
+    vol, spec = stl_label_volume(str(tmp_path / "insert.stl"), [str(tmp_path / "ball.stl")],
+                                 shape=(20, 64, 64), spacing_mm=(1.0, 1.0, 1.0))
     assert spec["shift_mm"] == [-100.0, -50.0, -20.0]
     z, y, x = np.meshgrid(*vol.axes_mm(), indexing="ij")
     box = (np.abs(x) <= 20) & (np.abs(y) <= 20) & (z >= -20)
@@ -105,7 +107,8 @@ def test_stl_voxelisation_matches_analytic_geometry(tmp_path):
     rot, _ = stl_label_volume(str(tmp_path / "insert.stl"), [str(tmp_path / "ball.stl")], orientation=2,
                               shape=(20, 64, 64), spacing_mm=(1.0, 1.0, 1.0))
     zi, yi, xi = np.nonzero(rot.data == INCLUSION)
-    assert np.mean(x[zi, yi, xi]) == pytest.approx(0, abs=0.2) and np.mean(y[zi, yi, xi]) == pytest.approx(8, abs=0.2)
+    assert (np.mean(x[zi, yi, xi]) == pytest.approx(0, abs=0.2)
+            and np.mean(y[zi, yi, xi]) == pytest.approx(8, abs=0.2))
 
 
 def test_stl_not_watertight_is_a_clear_error(tmp_path):
@@ -121,8 +124,8 @@ def test_stl_not_watertight_is_a_clear_error(tmp_path):
 
 
 def test_cli_phantom_set_writes_labels_and_specs(run_less, tmp_path):
-    proc = run_less("phantom", "--set", "single", "--names", "St12C13", "--orientations", "0,2", "--grid-shape",
-                    "8,32,32", "--spacing-mm", "2,2,2", "-o", "out", check=True)
+    proc = run_less("phantom", "--set", "single", "--names", "St12C13", "--orientations", "0,2",
+                    "--grid-shape", "8,32,32", "--spacing-mm", "2,2,2", "-o", "out", check=True)
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert [(r["insert"], r["orientation"]) for r in rows] == [("St12C13", 0), ("St12C13", 2)]
     assert all(r["inclusion_voxels"] > 0 for r in rows)

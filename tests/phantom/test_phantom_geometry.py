@@ -71,7 +71,8 @@ def test_label_volume_grid_and_rotation_permutes_labels():
     # inclusion centroid at (x, y) = (13, 0) mm
     z, y, x = np.nonzero(vol.data == INCLUSION)
     zc, yc, xc = (vol.origin_mm + vol.spacing_mm * np.stack([z, y, x], 1)).mean(0)
-    assert xc == pytest.approx(13.0, abs=0.3) and yc == pytest.approx(0.0, abs=0.3) and zc == pytest.approx(-10, abs=0.5)
+    assert (xc == pytest.approx(13.0, abs=0.3) and yc == pytest.approx(0.0, abs=0.3)
+            and zc == pytest.approx(-10, abs=0.5))
     # a quarter turn (x -> y) is a transpose-and-flip of the in-plane axes on this symmetric grid
     rot = p.rotated(2).label_volume()
     assert rot.name == "St12C13_2"

@@ -162,8 +162,8 @@ def test_scene_random_errors(random, message):
 def test_cli_phantom_random_writes_labels_specs_and_a_set(tmp_path):
     out = tmp_path / "out"
     res = CliRunner().invoke(cli, ["phantom", "--set", "random", "--count", "2", "--seed", "4",
-                                   "--random", "empty_share=0", "--orientations", "0,2", "--grid-shape", "8,32,32",
-                                   "--spacing-mm", "2,2,2", "-o", str(out), "--format", "jsonl"])
+                                   "--random", "empty_share=0", "--orientations", "0,2", "--grid-shape",
+                                   "8,32,32", "--spacing-mm", "2,2,2", "-o", str(out), "--format", "jsonl"])
     assert res.exit_code == 0, res.output
     rows = [json.loads(line) for line in res.stdout.splitlines()]
     assert [(r["insert"], r["orientation"]) for r in rows] == [("R0s4", 0), ("R0s4", 2), ("R1s4", 0),

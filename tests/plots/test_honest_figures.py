@@ -68,14 +68,15 @@ def test_the_noise_sweep_shows_f1_on_its_full_axis_and_keeps_coinciding_lines_ap
     assert len(lines) == 3                            # one line per angle level (their y values coincide)
     firsts = sorted(float(line.get_xdata()[0]) for line in lines)
     assert firsts[0] < firsts[1] < firsts[2]          # ... shifted apart along x
-    assert len({line.get_marker() for line in lines}) == 3 and len({line.get_linestyle() for line in lines}) == 3
+    assert len({line.get_marker() for line in lines}) == 3 and len({line.get_linestyle()
+                                                                    for line in lines}) == 3
     ax = _noise_axes(monkeypatch, ROWS, "com_error_mm")
     assert ax.get_ylim()[0] == 0.0 and ax.get_ylim()[1] >= 3.1
 
 
 def _scan(probs: np.ndarray, touches=None) -> ScanPrediction:
-    return ScanPrediction(probs.astype(np.float32), np.array([0.0, -15.5, -15.5]), np.ones(3), insert="St12C13",
-                          steps=5, touch_xy_mm=touches)
+    return ScanPrediction(probs.astype(np.float32), np.array([0.0, -15.5, -15.5]), np.ones(3),
+                          insert="St12C13", steps=5, touch_xy_mm=touches)
 
 
 def _prediction_panel(path):

@@ -15,7 +15,8 @@ SHAPE, SPACING = (6, 32, 32), (2.0, 1.9, 1.9)
 
 def _prediction(dim: int, steps: int = 10, noise: float = 0.5, seed: int = 0) -> ScanPrediction:
     truth = sphere_labels(center_mm=(-6.0, 2.0, -5.0), radius_mm=6.0, shape=SHAPE, spacing=SPACING).data
-    origin = np.array([-(SHAPE[0] - 1) * SPACING[0], -(SHAPE[1] - 1) / 2 * SPACING[1], -(SHAPE[2] - 1) / 2 * SPACING[2]])
+    origin = np.array([-(SHAPE[0] - 1) * SPACING[0], -(SHAPE[1] - 1) / 2 * SPACING[1],
+                       -(SHAPE[2] - 1) / 2 * SPACING[2]])
     if dim == 2:
         truth, origin = truth[3:4], origin + [3 * SPACING[0], 0, 0]
     rng = np.random.default_rng(seed)

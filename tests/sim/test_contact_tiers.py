@@ -102,7 +102,8 @@ def test_v6_winkler_signature_tracks_green(cache_dir):
 def test_v7_force_monotone_and_saturating_in_contrast(cache_dir):
     forces = []
     for contrast in (20.0, 1000.0, 1e5):
-        ph = small_phantom(inclusion=Material("inc", FILL_KPA * contrast), inclusions=(Sphere((0, 0, -5), 3),))
+        ph = small_phantom(inclusion=Material("inc", FILL_KPA * contrast),
+                           inclusions=(Sphere((0, 0, -5), 3),))
         forces.append(model("green", ph, cache=cache_dir).total_force_n(np.array([[0, 0, -1.0, 0, 0, 0]]))[0])
     f20, f1k, f1e5 = forces
     assert np.isfinite(forces).all() and f20 <= f1k <= f1e5
@@ -135,7 +136,8 @@ def test_v9_yaw_90_permutes_taxel_map(tier, cache_dir):
     # at the centre, the yaw-0 map seen in the world frame is the yaw-90 map with taxels permuted
     c = m.solve(np.array([[0, 0, -1.0, 0, 0, 0], [0, 0, -1.0, 0, 0, math.pi / 2]])).force_n[:, :, 2]
     rot = np.stack([-xy[:, 1], xy[:, 0]], 1)
-    perm = np.argmin(np.abs(rot[:, None] - xy[None]).sum(-1), axis=1)   # yaw-90 taxel i sits where perm[i] was
+    # yaw-90 taxel i sits where perm[i] was
+    perm = np.argmin(np.abs(rot[:, None] - xy[None]).sum(-1), axis=1)
     np.testing.assert_allclose(c[1], c[0][perm], rtol=1e-9, atol=1e-12 * c.max())
 
 

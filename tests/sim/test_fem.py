@@ -1,4 +1,5 @@
-"""FEM validation (SIMULATION.md V1, V2, V4, V5) on coarse CI meshes; the fine-mesh checks run in `less bench sim`."""
+"""FEM validation (SIMULATION.md V1, V2, V4, V5) on coarse CI meshes; the fine-mesh checks run in `less bench
+sim`."""
 
 import numpy as np
 import pytest
@@ -17,7 +18,8 @@ SMALL = grid_layout(4, 4, 3.0, "small-4x4")
 @pytest.fixture(scope="module")
 def sphere_forces():
     """FEM sphere indentation on a coarse (2 mm) and the CI (1 mm) mesh."""
-    return {h: val.sphere_indentation_n(E_KPA, NU, RADIUS_MM, DEPTHS_MM, HEIGHT_MM, HALF_MM, h) for h in (2.0, 1.0)}
+    return {h: val.sphere_indentation_n(E_KPA, NU, RADIUS_MM, DEPTHS_MM, HEIGHT_MM, HALF_MM, h)
+            for h in (2.0, 1.0)}
 
 
 def test_closed_forms():
@@ -102,7 +104,8 @@ def test_v5_green_mesh_convergence(tmp_path):
     pose = np.array([[0.37, 0.21, -1.0, 0, 0, 0.5], [1.1, -0.7, -0.8, 0.05, 0, 1.1], [0, 0, -1.0, 0, 0, 0]])
     forces = []
     for h in (2.0, 1.5):
-        m = CONTACT_TIERS["green"](ph, grid_layout(5, 5, 4.0, "square-5x5"), mesh_mm=h, z_top_mm=0.75, z_growth=1.5)
+        m = CONTACT_TIERS["green"](ph, grid_layout(5, 5, 4.0, "square-5x5"), mesh_mm=h, z_top_mm=0.75,
+                                   z_growth=1.5)
         m.prepare(cache_dir=str(tmp_path))
         forces.append(m.total_force_n(pose))
     assert np.all(np.abs(forces[1] / forces[0] - 1) < 0.05)

@@ -15,7 +15,8 @@ def test_rotation_matches_recorded_euler_convention():
     rng = np.random.default_rng(0)
     rpy = rng.uniform([-1, -1.2, -3], [1, 1.2, 3], size=(50, 3))
     r = euler_to_matrix(rpy)
-    np.testing.assert_allclose(np.einsum("nij,nkj->nik", r, r), np.broadcast_to(np.eye(3), r.shape), atol=1e-12)
+    np.testing.assert_allclose(np.einsum("nij,nkj->nik", r, r), np.broadcast_to(np.eye(3), r.shape),
+                               atol=1e-12)
     np.testing.assert_allclose(np.linalg.det(r), 1.0, atol=1e-12)
     # REFERENCE.md: roll = atan2(R21, R22), pitch = atan2(-R20, sqrt(R21^2 + R22^2)), yaw = atan2(R10, R00)
     back = np.stack([np.arctan2(r[:, 2, 1], r[:, 2, 2]),
@@ -39,7 +40,8 @@ def test_corners_and_tilt():
     pose = np.array([[0, 0, 0, 0.0, math.radians(20), 0.0], [0, 0, 0, math.radians(40), 0, 0.3]])
     corners = kin.pad_corners_mm(pose, (10.0, 6.0))
     assert corners.shape == (2, 4, 3)
-    np.testing.assert_allclose(corners[0, 1, 2] - corners[0, 0, 2], -10.0 * math.sin(math.radians(20)), atol=1e-12)
+    np.testing.assert_allclose(corners[0, 1, 2] - corners[0, 0, 2], -10.0 * math.sin(math.radians(20)),
+                               atol=1e-12)
     np.testing.assert_allclose(kin.tilt_rad(pose), [math.radians(20), math.radians(40)], atol=1e-12)
     assert kin.outside_validity(pose).tolist() == [False, True]
 
@@ -54,7 +56,8 @@ def test_projection_inverts_pad_to_world():
     np.testing.assert_allclose(proj.penetration_mm, -world[..., 2], atol=1e-9)
 
 
-@pytest.mark.parametrize("bad, word", [([0, 0, 0, math.pi / 2, 0, 0], "90"), ([0, np.nan, 0, 0, 0, 0], "finite"),
+@pytest.mark.parametrize("bad, word",
+                         [([0, 0, 0, math.pi / 2, 0, 0], "90"), ([0, np.nan, 0, 0, 0, 0], "finite"),
                                        ([0, 0, 0, math.pi, 0, 0], "180")])
 def test_bad_poses_name_the_sample(bad, word):
     pose = np.array([[0, 0, 0, 0, 0, 0], bad], dtype=float)

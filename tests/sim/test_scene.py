@@ -20,7 +20,8 @@ def scene(**sections):
 
 @pytest.mark.parametrize("doc, message", [
     ({"motoin": {}}, "s.toml: unknown key 'motoin'; did you mean 'motion'?"),
-    ({"motion": {"kind": "poke", "n_trajs": 3}}, "unknown key 'motion.n_trajs'; did you mean 'motion.n_traj'?"),
+    ({"motion": {"kind": "poke", "n_trajs": 3}},
+     "unknown key 'motion.n_trajs'; did you mean 'motion.n_traj'?"),
     ({"motion": {"kind": "pokes"}}, "motion.kind = 'pokes' is not known; did you mean 'poke'?"),
     ({"effects": {"nosie": {}}}, "unknown key 'effects.nosie'; did you mean 'effects.noise'?"),
     ({"effects": {"noise": {"whte_n": 0.1}}}, "did you mean 'effects.noise.white_n'?"),
@@ -30,7 +31,8 @@ def scene(**sections):
     ({"contact": {"teir": "green"}}, "did you mean 'contact.tier'?"),
     ({"contact": {"on_invalid": "ignore"}}, "contact.on_invalid = 'ignore' is not known"),
     ({"phantoms": {"set": "singel"}}, "phantoms.set = 'singel' is not known; did you mean 'single'?"),
-    ({"phantoms": {"set": "single", "names": ["St12C31"]}}, "no insert 'St12C31' in set 'single'; did you mean 'St12C13'?"),
+    ({"phantoms": {"set": "single", "names": ["St12C31"]}},
+     "no insert 'St12C31' in set 'single'; did you mean 'St12C13'?"),
     ({"phantoms": {"set": "single", "orientations": [8]}}, "orientations in 0..7"),
     ({"sensor": {"layuot": "xela"}}, "did you mean 'sensor.layout'?"),
     ({"labels": {"shape": [26, 128]}}, "labels.shape needs 3"),
@@ -49,7 +51,8 @@ def test_defaults_and_resolution():
     assert list(s.effects) == ["noise"] and s.effects["noise"]["white_n"] == 0.02
     assert s.effects["noise"]["baseline"] is True
     assert s.sensor["taxels"] == 30 and len(s.phantoms) == 1 and s.orientations == (0,)
-    assert parse_scene({**BASE, "motion": {"kind": "poke", "force_n": 3.0}}).motion["params"]["force_n"] == [3.0, 3.0]
+    assert (parse_scene({**BASE, "motion": {"kind": "poke", "force_n": 3.0}}).motion["params"]["force_n"]
+            == [3.0, 3.0])
 
 
 def test_custom_taxel_table():
@@ -63,7 +66,8 @@ def test_overrides_parse_toml_values():
     assert parse_value("3") == 3 and parse_value("[1, 2]") == [1, 2] and parse_value("true") is True
     assert parse_value("green") == "green" and parse_value('"a b"') == "a b"
     doc = apply_overrides(BASE, ["motion.n_traj=7", "effects.noise.white_n=0.5", "contact.tier=fem"], "x")
-    assert doc["motion"]["n_traj"] == 7 and doc["effects"]["noise"]["white_n"] == 0.5 and doc["contact"]["tier"] == "fem"
+    assert (doc["motion"]["n_traj"] == 7 and doc["effects"]["noise"]["white_n"] == 0.5
+            and doc["contact"]["tier"] == "fem")
     assert BASE["motion"]["n_traj"] == 3                          # the input is not modified
     with pytest.raises(DataError, match="not of the form"):
         apply_overrides(BASE, ["motion.n_traj"], "x")
@@ -101,9 +105,10 @@ def test_pipeline_order_and_declarations():
 
 
 def test_absent_and_disabled_effects_are_never_imported():
-    code = ("import sys\nfrom lesscli.sim.scene import parse_scene\nfrom lesscli.sim.pipeline import compile_pipeline\n"
-            "s = parse_scene({'phantoms': {'limit': 1}, 'effects': {'noise': {}, 'shear': {'enabled': False}}})\n"
-            "compile_pipeline(s)\n"
-            "print(sorted(m.rsplit('.', 1)[1] for m in sys.modules if m.startswith('lesscli.sim.effects.')))\n")
+    code = ("import sys\nfrom lesscli.sim.scene import parse_scene\nfrom lesscli.sim.pipeline import "
+            "compile_pipeline\ns = parse_scene({'phantoms': {'limit': 1}, 'effects': {'noise': {}, 'shear': "
+            "{'enabled': False}}})\ncompile_pipeline(s)\n"
+            "print(sorted(m.rsplit('.', 1)[1] for m in sys.modules if "
+            "m.startswith('lesscli.sim.effects.')))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "['noise']"

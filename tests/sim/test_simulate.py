@@ -28,9 +28,11 @@ def spring(monkeypatch):
 
 
 def make(effects=None, seed=0, motion=None, phantoms=None, contact=None):
-    doc = {"seed": seed, "phantoms": phantoms or {"set": "single", "names": ["St16C9"], "orientations": [0, 3]},
-           "contact": {"tier": "spring", **(contact or {})}, "motion": motion if motion and motion.get("kind", "poke") != "poke" else {**FAST_POKE, **(motion or {})},
-           "labels": SMALL_LABELS, "effects": effects or {}}
+    doc = {"seed": seed,
+           "phantoms": phantoms or {"set": "single", "names": ["St16C9"], "orientations": [0, 3]},
+           "contact": {"tier": "spring", **(contact or {})},
+           "motion": motion if motion and motion.get("kind", "poke") != "poke"
+           else {**FAST_POKE, **(motion or {})}, "labels": SMALL_LABELS, "effects": effects or {}}
     return parse_scene(doc, "test.toml")
 
 
@@ -68,7 +70,8 @@ def _record_streams(monkeypatch, log):
         module = load_effect(name)
         for attr in [a for a in vars(module) if a.startswith("_") and callable(getattr(module, a))]:
             fn = getattr(module, attr)
-            if getattr(fn, "__code__", None) is None or fn.__code__.co_varnames[:3] != ("state", "params", "rng"):
+            if (getattr(fn, "__code__", None) is None
+                or fn.__code__.co_varnames[:3] != ("state", "params", "rng")):
                 continue
 
             def wrapped(state, params, rng, _fn=fn, _key=f"{name}.{attr}"):
@@ -162,8 +165,8 @@ def test_inclusion_is_visible_in_a_winkler_poke_grid():
     core._MODELS.clear()
     motion = {**FAST_POKE, "control": "depth", "depth_mm": 2.0, "n_traj": 160, "spacing_mm": 3.5,
               "jitter_mm": 1.0, "yaw_deg": [0.0, 80.0]}
-    doc = {"phantoms": {"set": "single", "names": ["St16C9"], "orientations": [2]}, "contact": {"tier": "winkler"},
-           "motion": motion, "labels": SMALL_LABELS}
+    doc = {"phantoms": {"set": "single", "names": ["St16C9"], "orientations": [2]},
+           "contact": {"tier": "winkler"}, "motion": motion, "labels": SMALL_LABELS}
     scene = parse_scene(doc, "visible.toml")
     scans = simulate(scene)
     sphere = scene.phantoms[0].rotated(2).inclusions[0]

@@ -43,7 +43,8 @@ def test_bristle_sticks_then_slips_at_coulomb():
     fn = np.full((6, 1), 2.0)
     du = np.array([[0, 0], [0.2, 0], [0.2, 0], [0.5, 0], [0.5, 0], [-0.3, 0]])
     ft = shear.bristle(fn, du, params)[:, 0, 0]
-    np.testing.assert_allclose(ft, [0, -0.2, -0.4, -0.9, -1.0, -0.7])   # stick, stick, stick, slip (mu Fn = 1)
+    # stick, stick, stick, slip (mu Fn = 1)
+    np.testing.assert_allclose(ft, [0, -0.2, -0.4, -0.9, -1.0, -0.7])
     assert not shear.bristle(np.zeros((3, 1)), du[:3], params).any()     # no contact, no friction
 
 
@@ -85,13 +86,14 @@ def test_robot_and_handheld_tracking_errors():
     st = state_with(np.zeros((n, 30, 3)), pose)
     robot = pose_tracking._pose(st, pose_tracking.DEFAULTS, stream(0, 0, "pose")).pose_out
     assert np.std(robot[:, :3] - pose[:, :3]) == pytest.approx(0.1, rel=0.15)
-    params = {**pose_tracking.DEFAULTS, "mode": "handheld", "jitter_mm": 0.0, "jitter_rad": 0.0, "calib_mm": 0.0,
-              "calib_deg": 0.0, "bias_mm": 0.0}
+    params = {**pose_tracking.DEFAULTS, "mode": "handheld", "jitter_mm": 0.0, "jitter_rad": 0.0,
+              "calib_mm": 0.0, "calib_deg": 0.0, "bias_mm": 0.0}
     held = pose_tracking._pose(st, params, stream(0, 0, "pose")).pose_out
     changes = np.count_nonzero(np.diff(held[:, 0]))
     assert abs(changes - 3 * 30) <= 2                                   # 30 Hz over 3 s
     lag = pose[:, 0] - held[:, 0]
-    assert lag[50:].mean() == pytest.approx((0.03 + 0.5 / 30) * 1.0, abs=0.01)   # delay + half a sample, 1 mm/s
+    # delay + half a sample, 1 mm/s
+    assert lag[50:].mean() == pytest.approx((0.03 + 0.5 / 30) * 1.0, abs=0.01)
 
 
 def test_tilt_flags_beyond_validity():
@@ -107,7 +109,8 @@ def test_tilt_flags_beyond_validity():
 def test_variability_casts_are_few_and_keyed_by_insert():
     params = {**variability.DEFAULTS, "variants": 2}
     st = state_with(np.zeros((1, 30, 3)))
-    casts = {variability._cast(st, params, stream(0, i, "variability")).phantom.content_hash() for i in range(12)}
+    casts = {variability._cast(st, params, stream(0, i, "variability")).phantom.content_hash()
+             for i in range(12)}
     assert len(casts) == 2 and st.phantom.content_hash() not in casts
     xy = np.random.default_rng(0).uniform(-30, 30, size=(20000, 2))
     field = variability.texture_field(xy, params, np.random.default_rng(1))

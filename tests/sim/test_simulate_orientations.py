@@ -32,7 +32,8 @@ def shared(tmp_path_factory):
     cache = tmp_path_factory.mktemp("cache")
     core._MODELS.clear()
     doc = {"seed": 0, "phantoms": {"set": "single", "names": ["St16C9"], "orientations": ORIENTATIONS},
-           "contact": {"tier": "green", "params": COARSE, "cache_dir": str(cache)}, "motion": POKE, "labels": LABELS}
+           "contact": {"tier": "green", "params": COARSE, "cache_dir": str(cache)}, "motion": POKE,
+           "labels": LABELS}
     scene = parse_scene(doc, "orientations.toml")
     return scene, simulate(scene), cache
 
@@ -68,7 +69,8 @@ def test_label_volumes_stay_in_the_rotated_frame(shared):
     for s, k in enumerate(ORIENTATIONS):
         label = scans.labels[scans.scan_label[s]]
         expected = insert.rotated(k).label_volume(tuple(LABELS["shape"]), tuple(LABELS["spacing_mm"]))
-        assert np.array_equal(label.data, expected.data) and np.array_equal(label.origin_mm, expected.origin_mm)
+        assert (np.array_equal(label.data, expected.data)
+                and np.array_equal(label.origin_mm, expected.origin_mm))
         assert np.array_equal(label.spacing_mm, expected.spacing_mm) and label.name == expected.name
         datas.append(label.data)
     assert not np.array_equal(datas[0], datas[2])          # the inclusion is off-centre: turns show

@@ -1,4 +1,5 @@
-"""[effects.surface]: the top off the frame's zero and tilted per scan, a slow baseline drift; absent, nothing."""
+"""[effects.surface]: the top off the frame's zero and tilted per scan, a slow baseline drift; absent,
+nothing."""
 
 from __future__ import annotations
 

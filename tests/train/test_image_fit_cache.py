@@ -148,7 +148,8 @@ def test_near_best_labellings_are_told_apart_by_their_sizing():
     assert sizing["0.7"]["0"] == pytest.approx(float(np.hypot(26, 26) - np.hypot(9, 9)))
     assert choose(tolerance=0.0)[0].threshold is None
     rule = choose(volumes=(0.0, 0.5))[0]
-    assert (rule.threshold, rule.min_volume_mm3) == (0.8, 0.5)   # a region rule that changes nothing here: kept
+    # a region rule that changes nothing here: kept
+    assert (rule.threshold, rule.min_volume_mm3) == (0.8, 0.5)
 
 
 @pytest.mark.parametrize("min_volume, kept", [(0.0, True), (4.0, True), (4.5, False)])

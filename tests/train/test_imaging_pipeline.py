@@ -25,7 +25,8 @@ def _micro_f1(preds):
     tp = fp = fn = 0
     for p in preds.scans:
         true, pred = p.truth == INCLUSION, p.label == INCLUSION
-        tp, fp, fn = tp + int((true & pred).sum()), fp + int((~true & pred).sum()), fn + int((true & ~pred).sum())
+        tp, fp, fn = (tp + int((true & pred).sum()), fp + int((~true & pred).sum()),
+                      fn + int((true & ~pred).sum()))
     return 2 * tp / max(1, 2 * tp + fp + fn)
 
 
@@ -42,7 +43,8 @@ def _touch_distance_mm(pred, scans, s):
 @pytest.fixture
 def sets(tmp_path):
     test = learnable_scanset(3, 32)
-    for name, scans in (("train", learnable_scanset(8, 10)), ("val", learnable_scanset(2, 21)), ("test", test)):
+    for name, scans in (("train", learnable_scanset(8, 10)), ("val", learnable_scanset(2, 21)),
+                        ("test", test)):
         save_scans(str(tmp_path / f"{name}.npz"), scans)
     return test
 
@@ -51,8 +53,8 @@ def test_pretrain_fit_predict_beats_no_inclusion_with_honest_entropy(tmp_path, r
     _ok(run_less("pretrain", "train.npz", "--val", "val.npz", "-o", "rep.pt", "--dim", "16", "--epochs", "3",
                  "--lr", "3e-3", "--device", "cpu", "--format", "jsonl", env=ONE_THREAD))
     (fit,) = _ok(run_less("image", "fit", "train.npz", "--val", "val.npz", "--rep", "rep.pt", "-o", "img.pt",
-                          "--dim", "2", "--epochs", "15", "--lr", "1e-2", "--device", "cpu", "--set", "image.width=16",
-                          "--set", "image.patch_px=8", "--format", "jsonl", env=ONE_THREAD))
+                          "--dim", "2", "--epochs", "15", "--lr", "1e-2", "--device", "cpu", "--set",
+                          "image.width=16", "--set", "image.patch_px=8", "--format", "jsonl", env=ONE_THREAD))
     assert fit["frozen"] and fit["decoder"] == "patch" and fit["val_inclusion_f1"] > 0
     log = [json.loads(line) for line in (tmp_path / "img.log.jsonl").read_text().splitlines()]
     assert len(log) == 15 and all(math.isfinite(r["train_loss"]) for r in log)
@@ -81,9 +83,9 @@ def test_3d_fit_predict_steps_threshold_nifti_render_mesh(tmp_path, run_less, se
     from lesscli.io.scans import load_scans
 
     make_representation(str(tmp_path / "rep.pt"), load_scans(str(tmp_path / "train.npz")))
-    _ok(run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "img3.pt", "--dim", "3", "--epochs", "2",
-                 "--lr", "1e-2", "--device", "cpu", "--set", "image.width=16", "--set", "image.patch_px=8",
-                 env=ONE_THREAD))
+    _ok(run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "img3.pt", "--dim", "3", "--epochs",
+                 "2", "--lr", "1e-2", "--device", "cpu", "--set", "image.width=16", "--set",
+                 "image.patch_px=8", env=ONE_THREAD))
     (summary,) = _ok(run_less("image", "predict", "img3.pt", "test.npz", "-o", "pred3.npz", "--steps", "2",
                               "--threshold", "0.8", "--nifti", "nii", "--device", "cpu", "--format", "jsonl",
                               env=ONE_THREAD))
@@ -104,7 +106,8 @@ def test_3d_fit_predict_steps_threshold_nifti_render_mesh(tmp_path, run_less, se
     rows = _ok(run_less("render", "pred3.npz", "-o", "figs", "--scan", "1", "--format", "jsonl"))
     assert [r["kind"] for r in rows] == ["panels", "strip"]
     assert all((tmp_path / r["figure"]).stat().st_size > 10_000 for r in rows)
-    mesh = _ok(run_less("mesh", "pred3.npz", "--truth", "--classes", "inclusion", "-o", "inc.glb", "--format", "jsonl"))
+    mesh = _ok(run_less("mesh", "pred3.npz", "--truth", "--classes", "inclusion", "-o", "inc.glb", "--format",
+                        "jsonl"))
     assert mesh[0]["class"] == "inclusion" and mesh[0]["volume_mm3"] > 0
 
 
@@ -113,10 +116,10 @@ def test_resume_finetune_and_errors(tmp_path, run_less, sets):
 
     train = load_scans(str(tmp_path / "train.npz"))
     make_representation(str(tmp_path / "rep.pt"), train)
-    common = ["--dim", "2", "--lr", "1e-2", "--device", "cpu", "--set", "image.width=8", "--set", "image.patch_px=8",
-              "--format", "jsonl"]
-    (first,) = _ok(run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "a.pt", "--epochs", "1", *common,
-                            env=ONE_THREAD))
+    common = ["--dim", "2", "--lr", "1e-2", "--device", "cpu", "--set", "image.width=8", "--set",
+              "image.patch_px=8", "--format", "jsonl"]
+    (first,) = _ok(run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "a.pt", "--epochs", "1",
+                            *common, env=ONE_THREAD))
     (again,) = _ok(run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "a.pt", "--epochs", "2",
                             "--resume", *common, env=ONE_THREAD))
     assert len((tmp_path / "a.log.jsonl").read_text().splitlines()) == 2 and again["epochs"] == 2
@@ -125,7 +128,8 @@ def test_resume_finetune_and_errors(tmp_path, run_less, sets):
     assert not tuned["frozen"] and tuned["trainable_parameters"] > first["trainable_parameters"]
     # a representation is not an imaging model
     proc = run_less("image", "predict", "rep.pt", "test.npz", "-o", "p.npz", "--device", "cpu")
-    assert proc.returncode == 1 and b"not an imaging checkpoint" in proc.stderr and not (tmp_path / "p.npz").exists()
+    assert (proc.returncode == 1 and b"not an imaging checkpoint" in proc.stderr
+            and not (tmp_path / "p.npz").exists())
     proc = run_less("image", "predict", "a.pt", "test.npz", "-o", "p.npz", "--steps", "2", "--every", "3")
     assert proc.returncode == 2
     unlabeled = learnable_scanset(2, 5)
@@ -133,14 +137,16 @@ def test_resume_finetune_and_errors(tmp_path, run_less, sets):
     unlabeled.labels = []
     save_scans(str(tmp_path / "nolabels.npz"), unlabeled)
     proc = run_less("image", "fit", "nolabels.npz", "--rep", "rep.pt", "-o", "c.pt", "--epochs", "1", *common)
-    assert proc.returncode == 1 and b"nolabels.npz: scan 0" in proc.stderr and not (tmp_path / "c.pt").exists()
+    assert (proc.returncode == 1 and b"nolabels.npz: scan 0" in proc.stderr
+            and not (tmp_path / "c.pt").exists())
     proc = run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "d.pt", "--select", "dice", *common)
     assert proc.returncode == 2 and b"--select" in proc.stderr
-    proc = run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "d.pt", "--set", "loss.alpha_power=5",
-                    *common)
+    proc = run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "d.pt", "--set",
+                    "loss.alpha_power=5", *common)
     assert proc.returncode == 2 and b"loss.alpha_power" in proc.stderr and not (tmp_path / "d.pt").exists()
     assert proc.stderr.decode().strip().splitlines()[-1] == ("Error: Invalid value for '--set': 5.0: "
-                                                             "loss.alpha_power must be in [0, 2]")   # a usage error
+                                                             # a usage error
+                                                             "loss.alpha_power must be in [0, 2]")
 
 
 @pytest.mark.parametrize("key,value,ok", [

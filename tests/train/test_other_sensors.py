@@ -29,8 +29,8 @@ def test_the_pipeline_runs_on_another_sensor(run_less, tmp_path, scene, taxels):
     run_less("image", "fit", "s.npz", "--model", "forcemap", "-o", "fm.pt", check=True)
     run_less("image", "predict", "im.pt", "s.npz", "-o", "p.npz", check=True)
     run_less("image", "predict", "fm.pt", "s.npz", "-o", "pf.npz", check=True)
-    proc = run_less("metrics", "p.npz", "pf.npz", "--group-by", "model", "--summary-only", "--format", "jsonl",
-                    check=True)
+    proc = run_less("metrics", "p.npz", "pf.npz", "--group-by", "model", "--summary-only", "--format",
+                    "jsonl", check=True)
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines() if line.strip()]
     assert {r["model"] for r in rows} == {"forcemap", "less-taxel"}
     info = json.loads(run_less("info", "im.pt", "fm.pt", "--format", "json", check=True).stdout)

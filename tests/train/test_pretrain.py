@@ -82,10 +82,12 @@ def test_norm_stats_come_from_training_data_only():
     np.testing.assert_allclose(stats["force_mean"], flat.mean(0), rtol=1e-5, atol=1e-7)
     item = ScanDataset(other, stats)[0]
     lo, hi = other.scan_step_offsets()[:2]
-    expected = (other.force[lo:hi].reshape(hi - lo, -1) - np.array(stats["force_mean"])) / np.array(stats["force_std"])
+    expected = (other.force[lo:hi].reshape(hi - lo, -1) - np.array(stats["force_mean"])) / np.array(
+        stats["force_std"])
     np.testing.assert_allclose(item["force"].numpy(), expected, rtol=1e-5, atol=1e-5)
     assert len(set(stats["force_std"])) == 1 and stats["mode"] == "global"
-    np.testing.assert_allclose(stats["force_std"][0], np.sqrt(flat.astype(np.float64).var(0).mean()), rtol=1e-6)
+    np.testing.assert_allclose(stats["force_std"][0], np.sqrt(flat.astype(np.float64).var(0).mean()),
+                               rtol=1e-6)
     per_feature = compute_norm_stats(train, "feature")
     np.testing.assert_allclose(per_feature["force_std"], flat.astype(np.float64).std(0), rtol=1e-6)
     with pytest.raises(LessError, match="unknown"):
@@ -150,7 +152,8 @@ def test_non_finite_loss_stops_naming_the_step_and_keeps_last_good_checkpoint(tm
     path = str(tmp_path / "rep.pt")
     with pytest.raises(TrainingError, match=r"epoch 2, batch 2 \(global step 4\).*kept at .*rep.pt"):
         loop_mod.fit(model, loss_fn, ScanDataset(train, stats), None, LoopConfig(epochs=3, batch_size=2),
-                     collate_fn=collate, output=path, config={"encoder": model.encoder.config()}, norm_stats=stats)
+                     collate_fn=collate, output=path, config={"encoder": model.encoder.config()},
+                     norm_stats=stats)
     ckpt = load_checkpoint(path)
     assert [h["epoch"] for h in ckpt["history"]] == [1]
     assert all(torch.isfinite(v).all() for v in ckpt["model_state"].values())
@@ -166,8 +169,9 @@ def test_non_finite_validation_loss_stops_too(tmp_path):
         return loss if m.training else loss * math.inf
 
     with pytest.raises(TrainingError, match="non-finite validation loss .* epoch 1"):
-        loop_mod.fit(model, loss_fn, ScanDataset(train, stats), ScanDataset(train, stats), LoopConfig(epochs=2),
-                     collate_fn=collate, output=str(tmp_path / "rep.pt"), config={}, norm_stats=stats)
+        loop_mod.fit(model, loss_fn, ScanDataset(train, stats), ScanDataset(train, stats),
+                     LoopConfig(epochs=2), collate_fn=collate, output=str(tmp_path / "rep.pt"), config={},
+                     norm_stats=stats)
     assert not (tmp_path / "rep.pt").exists()
 
 
@@ -212,8 +216,8 @@ def test_cli_pretrain_writes_checkpoint_log_and_summary(run_less, tmp_path):
     save_scans(str(tmp_path / "tr.npz"), poke_scanset(3, seed=1, traj_per_scan=4))
     save_scans(str(tmp_path / "va.npz"), poke_scanset(2, seed=2, traj_per_scan=4))
     proc = run_less("pretrain", "tr.npz", "--val", "va.npz", "-o", "rep.pt", "--epochs", "2", "--dim", "8",
-                    "--spacing-mm", "10", "--set", "n_freq=2", "--device", "cpu", "--format", "jsonl", check=True,
-                    env={"OMP_NUM_THREADS": "1"})
+                    "--spacing-mm", "10", "--set", "n_freq=2", "--device", "cpu", "--format", "jsonl",
+                    check=True, env={"OMP_NUM_THREADS": "1"})
     summary = json.loads(proc.stdout)
     assert summary["selected_by"] == "val_loss" and summary["val_baseline_mse"] > 0
     ckpt = torch.load(str(tmp_path / "rep.pt"), weights_only=True)
@@ -222,9 +226,12 @@ def test_cli_pretrain_writes_checkpoint_log_and_summary(run_less, tmp_path):
     assert len((tmp_path / "rep.log.jsonl").read_text().splitlines()) == 2
 
 
-@pytest.mark.parametrize("args,match,code", [(["--model", "globl"], "did you mean 'global'", 2),   # option values:
-                                             (["--set", "epochs=0"], "train.epochs", 2),            # usage errors
-                                             (["--val", "missing.npz"], "missing.npz", 1)])         # data: exit 1
+# option values:
+@pytest.mark.parametrize("args,match,code", [(["--model", "globl"], "did you mean 'global'", 2),
+                                             # usage errors
+                                             (["--set", "epochs=0"], "train.epochs", 2),
+                                             # data: exit 1
+                                             (["--val", "missing.npz"], "missing.npz", 1)])
 def test_cli_pretrain_errors_leave_no_output(tmp_path, monkeypatch, capsys, args, match, code):
     from lesscli.cli.main import main
 

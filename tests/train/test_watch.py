@@ -1,4 +1,5 @@
-"""Watching training: the epoch bar, TensorBoard scalars (or one clear error without the package), ``plot log``."""
+"""Watching training: the epoch bar, TensorBoard scalars (or one clear error without the package), ``plot
+log``."""
 
 import json
 import sys
@@ -43,10 +44,12 @@ def test_two_pretrain_seeds_watched_in_tensorboard_and_plotted(run_less, tmp_pat
     save_scans(str(tmp_path / "tr.npz"), poke_scanset(3, seed=1, traj_per_scan=4))
     save_scans(str(tmp_path / "va.npz"), poke_scanset(2, seed=2, traj_per_scan=4))
     for seed in (0, 1):
-        proc = run_less("-v", "pretrain", "tr.npz", "--val", "va.npz", "-o", f"rep_s{seed}.pt", "--epochs", "3",
-                        "--seed", seed, "--tensorboard", f"tb/s{seed}", *TINY, check=True, env=ONE_THREAD)
+        proc = run_less("-v", "pretrain", "tr.npz", "--val", "va.npz", "-o", f"rep_s{seed}.pt", "--epochs",
+                        "3", "--seed", seed, "--tensorboard", f"tb/s{seed}", *TINY, check=True,
+                        env=ONE_THREAD)
         err = proc.stderr.decode()
-        assert "less: train: epoch 3/3, " in err and "best_val_loss=" in err            # the epoch line (a log)
+        # the epoch line (a log)
+        assert "less: train: epoch 3/3, " in err and "best_val_loss=" in err
         assert "less: epoch 3/3: 2/2 steps (100 %)" in err                               # -v: batches too
         log = [json.loads(line) for line in (tmp_path / f"rep_s{seed}.log.jsonl").read_text().splitlines()]
         summary = json.loads(proc.stdout)
@@ -54,8 +57,8 @@ def test_two_pretrain_seeds_watched_in_tensorboard_and_plotted(run_less, tmp_pat
         tags = _scalar_tags(tmp_path / "tb" / f"s{seed}")
         assert tags["train_loss"] == pytest.approx([r["train_loss"] for r in log])
         assert tags["val_loss"] == pytest.approx([r["val_loss"] for r in log]) and "val_baseline_mse" in tags
-    proc = run_less("plot", "log", "rep_s0.log.jsonl", "rep_s1.log.jsonl", "-o", "curves.png", "--format", "jsonl",
-                    check=True)
+    proc = run_less("plot", "log", "rep_s0.log.jsonl", "rep_s1.log.jsonl", "-o", "curves.png", "--format",
+                    "jsonl", check=True)
     rows = [json.loads(line) for line in proc.stdout.decode().splitlines()]
     assert [r["run"] for r in rows] == ["rep_s0", "rep_s1"] and all(0 < r["best_force_ratio"] for r in rows)
     assert _colour_share(tmp_path / "curves.png", "#1f77b4") > 1e-4      # run 1 drawn (C0)
@@ -87,7 +90,8 @@ def test_tensorboard_missing_is_one_line_before_training(tmp_path, monkeypatch, 
         main([*command, "-o", "out.pt", "--device", "cpu", "--tensorboard", "tb"])
     err = capsys.readouterr().err.strip().splitlines()
     assert exit_info.value.code == 1 and len(err) == 1
-    assert "--tensorboard tb: the 'tensorboard' package is not installed" in err[0] and "less-tactile[tensorboard]" in err[0]
+    assert ("--tensorboard tb: the 'tensorboard' package is not installed" in err[0]
+            and "less-tactile[tensorboard]" in err[0])
     assert not list(tmp_path.iterdir())                          # nothing loaded (tr.npz does not even exist)
 
 

@@ -112,4 +112,5 @@ def test_apply_to_scan_poses_uses_published_layout():
     pose = np.array([[10.0, -5.0, 2.0, 0.1, -0.2, 0.3]])
     out = apply_to_pose6(pose, cal)
     assert np.allclose(out[0, :3], pose[0, :3] @ TRUE_ROT.T + TRUE_T)
-    assert np.allclose(rotations.euler_to_matrix(out[0, 3:]), rotations.euler_to_matrix(pose[0, 3:]) @ TRUE_ORI)
+    assert np.allclose(rotations.euler_to_matrix(out[0, 3:]),
+                       rotations.euler_to_matrix(pose[0, 3:]) @ TRUE_ORI)

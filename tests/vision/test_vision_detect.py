@@ -22,7 +22,8 @@ def _frame(camera, placements, seed=0, **effects):
 
 
 def test_corner_order_and_marker_frame_convention():
-    """A tag facing the camera upright: corners TL, TR, BR, BL in the image; x right, y up, z to the camera."""
+    """A tag facing the camera upright: corners TL, TR, BR, BL in the image; x right, y up, z to the
+    camera."""
     cam = Camera(900.0, 900.0, 639.5, 359.5, 1280, 720)
     T = se3.make_T(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 400.0])
     found = TagDetector("apriltag", camera=cam).detect(_frame(cam, [render.TagPlacement(5, T)]))
@@ -49,7 +50,8 @@ def test_apriltag_half_pixel_offset_is_corrected():
     cam = default_camera()
     rng = np.random.default_rng(4)
     traj = render.make_trajectory(rng, 6, step=15)
-    raw, fixed = TagDetector("apriltag", corner_offset_px=0.0, edge_fit=False), TagDetector("apriltag", edge_fit=False)
+    raw, fixed = (TagDetector("apriltag", corner_offset_px=0.0, edge_fit=False),
+                  TagDetector("apriltag", edge_fit=False))
     err_raw, err_fixed = [], []
     for i in range(6):
         T = traj["T_cam_sensor_tag"][i]
@@ -80,15 +82,18 @@ def rendered_set():
     traj = render.make_trajectory(rng, 10, step=11)
     frames = []
     for i in range(10):
-        tags = [render.TagPlacement(0, traj["T_cam_global"]), render.TagPlacement(1, traj["T_cam_sensor_tag"][i])]
-        frames.append(Frame(i, float(traj["time_s"][i]), f"f{i}", render.render_frame(cam, tags, TAG_MM, rng)))
+        tags = [render.TagPlacement(0, traj["T_cam_global"]),
+                render.TagPlacement(1, traj["T_cam_sensor_tag"][i])]
+        frames.append(Frame(i, float(traj["time_s"][i]), f"f{i}",
+                            render.render_frame(cam, tags, TAG_MM, rng)))
     return cam, traj, frames
 
 
 def test_rendered_set_spans_the_required_range(rendered_set):
     _, traj, _ = rendered_set
     depth = traj["T_cam_sensor_tag"][:, 2, 3]
-    tilt = np.rad2deg(rotations.rotation_angle(np.diag([1.0, -1.0, -1.0]) @ traj["T_cam_sensor_tag"][:, :3, :3]))
+    tilt = np.rad2deg(rotations.rotation_angle(np.diag([1.0, -1.0, -1.0])
+                                               @ traj["T_cam_sensor_tag"][:, :3, :3]))
     assert depth.min() >= 350 and depth.max() <= 700 and depth.max() - depth.min() > 150
     assert tilt.max() <= 35.0 and tilt.max() > 20.0
 
@@ -107,7 +112,8 @@ def _pose_errors(cam, traj, frames, refine, mode="static"):
 def test_sensor_pose_accuracy_with_apriltag_refinement(rendered_set):
     cam, traj, frames = rendered_set
     pos, ang, rows = _pose_errors(cam, traj, frames, "apriltag")
-    print(f"median {np.median(pos):.3f} mm {np.median(ang):.3f} deg; max {pos.max():.3f} mm {ang.max():.3f} deg")
+    print(f"median {np.median(pos):.3f} mm {np.median(ang):.3f} deg; max {pos.max():.3f} mm {ang.max():.3f} "
+          "deg")
     assert np.median(pos) <= 0.5 and np.median(ang) <= 0.5
     assert all(r["reprojection_px"] < 0.2 for r in rows)
 

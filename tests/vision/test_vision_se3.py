@@ -46,7 +46,8 @@ def test_slerp_halfway_is_half_angle_and_takes_short_way():
     q1 = rotations.matrix_to_quat(rotations.rotvec_to_matrix(np.array([0.0, 0.0, 1.2])))[None]
     mid = rotations.quat_to_matrix(rotations.slerp(q0, q1, np.array([0.5])))[0]
     assert np.allclose(rotations.matrix_to_rotvec(mid), [0, 0, 0.6])
-    mid_neg = rotations.quat_to_matrix(rotations.slerp(q0, -q1, np.array([0.5])))[0]   # same rotation, other sign
+    # same rotation, other sign
+    mid_neg = rotations.quat_to_matrix(rotations.slerp(q0, -q1, np.array([0.5])))[0]
     assert np.allclose(mid_neg, mid)
 
 
@@ -69,7 +70,8 @@ def test_inverse_and_composition():
 
 def test_euler_convention_and_round_trip():
     rpy = np.array([0.1, -0.2, 0.3])
-    expected = (rotations.rotvec_to_matrix(np.array([0, 0, 0.3])) @ rotations.rotvec_to_matrix(np.array([0, -0.2, 0]))
+    expected = (rotations.rotvec_to_matrix(np.array([0, 0, 0.3]))
+                @ rotations.rotvec_to_matrix(np.array([0, -0.2, 0]))
                 @ rotations.rotvec_to_matrix(np.array([0.1, 0, 0])))
     assert np.allclose(rotations.euler_to_matrix(rpy), expected)
     assert np.allclose(rotations.matrix_to_euler(expected), rpy)

@@ -49,7 +49,8 @@ def test_chain_and_tag_to_sensor_offset():
 def test_static_global_tag_falls_back_per_frame_when_it_moves():
     traj = render.make_trajectory(np.random.default_rng(1), 6, step=20)
     glob = np.repeat(traj["T_cam_global"][None], 6, axis=0)
-    glob[5] = se3.make_T(glob[5][:3, :3], glob[5][:3, 3] + [20.0, 0, 0])      # camera bumped in the last frame
+    # camera bumped in the last frame
+    glob[5] = se3.make_T(glob[5][:3, :3], glob[5][:3, 3] + [20.0, 0, 0])
     rows = list(solve_frames(CAM, _detections(glob, traj["T_cam_sensor_tag"]), TrackOptions()))
     true = se3.inv_T(glob) @ traj["T_cam_sensor_tag"]
     pos = np.array([r["position_mm"] for r in rows])
@@ -79,7 +80,8 @@ def test_video_input_and_missing_rate(tmp_path):
         writer.write(np.full((48, 64, 3), 40 * k, np.uint8))
     writer.release()
     frames = list(iter_frames(path))
-    assert [f.index for f in frames] == [0, 1, 2] and np.allclose([f.time_s for f in frames], [0, 1 / 15, 2 / 15])
+    assert [f.index for f in frames] == [0, 1, 2] and np.allclose([f.time_s for f in frames],
+                                                                  [0, 1 / 15, 2 / 15])
     assert frames[0].image.shape == (48, 64)
     with pytest.raises(DataError, match="no such folder or video"):
         iter_frames(str(tmp_path / "missing.avi"))

@@ -97,7 +97,8 @@ class PadGeometry:
         under the pad face (separable, exact for a tributary aligned with the pad)."""
         cov = np.ones(local_xy_mm.shape[:-1])
         for axis in range(2):
-            cov *= np.clip((self.half_size_mm[axis] - np.abs(local_xy_mm[..., axis])) / node_mm + 0.5, 0.0, 1.0)
+            cov *= np.clip((self.half_size_mm[axis] - np.abs(local_xy_mm[..., axis])) / node_mm + 0.5, 0.0,
+                           1.0)
         return cov
 
     def share(self, local_xy_mm: np.ndarray, node_mm: float) -> tuple[np.ndarray, np.ndarray]:
@@ -170,7 +171,8 @@ def _grid_lookup(xy: np.ndarray, pitch: float) -> tuple[np.ndarray, np.ndarray] 
 
 
 def check_params(tier: str, params: dict, defaults: dict) -> dict:
-    """``defaults`` updated with ``params``; an unknown name raises SimulationError with the closest known one."""
+    """``defaults`` updated with ``params``; an unknown name raises SimulationError with the closest known
+    one."""
     for key in params:
         if key not in defaults:
             raise SimulationError(f"contact '{tier}': unknown parameter '{key}'"
@@ -214,7 +216,8 @@ class ContactModel:
         bad = ~np.isfinite(normal).all(axis=1)
         if bad.any():
             i = int(np.argmax(bad))
-            raise SimulationError(f"contact '{self.name}': non-finite force at sample {i}, pose {p[i].tolist()}")
+            raise SimulationError(f"contact '{self.name}': non-finite force at sample {i}, pose "
+                                  f"{p[i].tolist()}")
         flags = np.zeros(p.shape[0], dtype=np.int64)
         flags[kinematics.outside_validity(p)] |= FLAG_OUTSIDE_VALIDITY
         flags[overhang & (indent > 0)] |= FLAG_PAD_OVERHANG
@@ -224,7 +227,8 @@ class ContactModel:
         return ContactResult(force, indent, flags)
 
     def corner_penetration(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(n, 6) -> (max penetration of pad corners inside the outline (n,), a pressing corner is outside (n,))."""
+        """(n, 6) -> (max penetration of pad corners inside the outline (n,), a pressing corner is outside
+        (n,))."""
         corners = kinematics.pad_corners_mm(pose, 2 * self.pad.half_size_mm)
         pen = np.maximum(-corners[..., 2], 0.0)
         inside = np.asarray(self.phantom.inside_outline(corners[..., 0], corners[..., 1]), dtype=bool)

@@ -76,7 +76,8 @@ class GreenContact(ContactModel):
         """Load C from the cache (key: phantom content hash + mesh) or compute and store it."""
         if self._prepared:
             return
-        key = cache.cache_key({"v": CACHE_VERSION, "phantom": self.phantom.content_hash(), **self.mesh_params()})
+        key = cache.cache_key({"v": CACHE_VERSION, "phantom": self.phantom.content_hash(),
+                               **self.mesh_params()})
         data = cache.load(self.name, key, cache_dir)
         if data is None:
             data = self.compute_compliance()
@@ -99,7 +100,8 @@ class GreenContact(ContactModel):
     # ----------------------------------------------------------------------------- per step
 
     def solve_nodes(self, idx: np.ndarray, g: np.ndarray, skin: np.ndarray) -> np.ndarray:
-        """Nodal forces (N) on surface nodes ``idx`` with penetration ``g`` (mm) and series compliance ``skin``."""
+        """Nodal forces (N) on surface nodes ``idx`` with penetration ``g`` (mm) and series compliance
+        ``skin``."""
         last = self._last
         if last is not None and np.array_equal(last[0], idx) and np.array_equal(last[1], skin):
             m, factors = last[2], last[3]

@@ -29,7 +29,8 @@ def cholesky_lower(m: np.ndarray) -> np.ndarray:
     """Lower Cholesky factor of an SPD matrix (LAPACK potrf; the upper triangle holds garbage)."""
     c, info = dpotrf(m, lower=1, clean=0)
     if info != 0:
-        raise SimulationError(f"contact compliance on {m.shape[0]} nodes is not positive definite (potrf {info})")
+        raise SimulationError(f"contact compliance on {m.shape[0]} nodes is not positive definite (potrf "
+                              f"{info})")
     return c
 
 

@@ -29,7 +29,8 @@ def hertz_force_n(e_kpa: float, nu: float, radius_mm: float, depth_mm) -> np.nda
     return 4.0 / 3.0 * e_star(e_kpa, nu) * math.sqrt(radius_mm) * np.maximum(d, 0) ** 1.5
 
 
-def dimitriadis_force_n(e_kpa: float, nu: float, radius_mm: float, depth_mm, thickness_mm: float) -> np.ndarray:
+def dimitriadis_force_n(e_kpa: float, nu: float, radius_mm: float, depth_mm,
+                        thickness_mm: float) -> np.ndarray:
     """Rigid sphere on a layer bonded to a rigid base (Dimitriadis et al. 2002), N."""
     d = np.asarray(depth_mm, dtype=np.float64)
     chi = np.sqrt(radius_mm * np.maximum(d, 0)) / thickness_mm
@@ -104,7 +105,8 @@ class Block:
         return np.where(body, e, 0.0)
 
     def content_hash(self) -> str:
-        text = json.dumps([self.width_mm, self.height_mm, self.layers, self.spheres, self.poisson, self.octagon])
+        text = json.dumps([self.width_mm, self.height_mm, self.layers, self.spheres, self.poisson,
+                           self.octagon])
         return hashlib.sha1(text.encode()).hexdigest()
 
 

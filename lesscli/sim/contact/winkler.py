@@ -108,7 +108,8 @@ class WinklerContact(ContactModel):
         if self.params["gain"] is not None:
             return float(self.params["gain"])
         nu = phantom_nu(self.phantom, self.params["nu"])
-        coef = FLAT_PUNCH_COEF * float(self.phantom.height_mm) / ((1 - nu ** 2) * math.sqrt(self.pad.area_mm2))
+        coef = FLAT_PUNCH_COEF * float(self.phantom.height_mm) / ((1 - nu ** 2)
+                                                                  * math.sqrt(self.pad.area_mm2))
         return coef * float(self.params["gain_scale"])
 
     def stiffness_at(self, xy_mm: np.ndarray) -> np.ndarray:
@@ -125,17 +126,20 @@ class WinklerContact(ContactModel):
         # -- every step of a vertical press -- share the stiffness lookups; only the penetration is per step.
         key = pose[:, [0, 1, 3, 4, 5]]
         starts = np.concatenate([[0], np.nonzero(np.any(key[1:] != key[:-1], axis=1))[0] + 1, [len(key)]])
-        inverse = np.repeat(np.arange(starts.size - 1), np.diff(starts))   # run of equal consecutive placements
+        # run of equal consecutive placements
+        inverse = np.repeat(np.arange(starts.size - 1), np.diff(starts))
         flat = np.zeros((starts.size - 1, 6))
         flat[:, [0, 1, 3, 4, 5]] = key[starts[:-1]]
         world = kinematics.pad_to_world(flat, self.points)                 # (u, M, 3) at z = 0
         cos_t = euler_to_matrix(flat[:, 3:])[:, 2, 2]
         # vertical force per sample on its horizontal area, projected onto the pad normal
-        weight = self.gain * self.stiffness_at(world[..., :2]) * (self.cell_area * cos_t[:, None] ** 2) * self.rim
+        weight = self.gain * self.stiffness_at(world[..., :2]) * (self.cell_area
+                                                                  * cos_t[:, None] ** 2) * self.rim
         n = pose.shape[0]
         normal, indent, overhang = np.zeros((n, self.pad.taxels)), np.zeros(n), np.zeros(n, dtype=bool)
         if flat.shape[0] * GROUP_MIN > n:                                   # few steps per placement
-            normal[:], indent[:], overhang[:] = self._samples(pose[:, 2], world[inverse, :, 2], weight[inverse])
+            normal[:], indent[:], overhang[:] = self._samples(pose[:, 2], world[inverse, :, 2],
+                                                              weight[inverse])
         else:
             for g, (a, b) in enumerate(itertools.pairwise(starts)):
                 normal[a:b], indent[a:b], overhang[a:b] = self._press(pose[a:b, 2], world[g, :, 2], weight[g])

@@ -36,7 +36,8 @@ def _noise(state: SimState, params: dict, rng: np.random.Generator) -> SimState:
     white = rng.normal(0, params["white_n"], size=state.force.shape)
     force = state.force + scale * (offset + slope[traj] * state.time_s[:, None, None] + white)
     dt = float(np.median(np.diff(state.time_s))) if n > 1 else 0.01
-    jit = np.clip(rng.normal(0, params["jitter_s"], size=n), -MAX_JITTER_SAMPLES * dt, MAX_JITTER_SAMPLES * dt)
+    jit = np.clip(rng.normal(0, params["jitter_s"], size=n), -MAX_JITTER_SAMPLES * dt,
+                  MAX_JITTER_SAMPLES * dt)
     time_s = state.time_s + jit
     firsts = state.offsets[:-1][np.diff(state.offsets) > 0]
     time_s = time_s - np.repeat(time_s[firsts], np.diff(state.offsets)[np.diff(state.offsets) > 0])

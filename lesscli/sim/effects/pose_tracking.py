@@ -47,7 +47,8 @@ def _handheld(state: SimState, params: dict, rng: np.random.Generator) -> np.nda
         sl = slice(state.offsets[r], state.offsets[r + 1])
         t, true = state.time_s[sl], state.pose_true[sl]
         phase = rng.uniform(0, 1 / params["rate_hz"])
-        sample_t = np.maximum(np.floor((t - params["delay_s"] - phase) * params["rate_hz"]) / params["rate_hz"]
+        sample_t = np.maximum(np.floor((t - params["delay_s"] - phase)
+                                       * params["rate_hz"]) / params["rate_hz"]
                               + phase, 0.0)
         seen = np.stack([np.interp(sample_t, t, true[:, a]) for a in range(6)], 1)
         idx = np.unique(sample_t, return_inverse=True)[1]

@@ -21,7 +21,8 @@ NEIGHBOUR_FACTOR = 1.1   # taxels closer than this many pitches are neighbours
 def validate(params: dict, where: str) -> None:
     if params["gain_sd"] < 0 or not 0 <= params["crosstalk"] < 0.25 or params["saturation_n"] <= 0 \
             or params["counts_per_n"] < 0:
-        raise DataError(f"{where}: need gain_sd >= 0, 0 <= crosstalk < 0.25, saturation_n > 0, counts_per_n >= 0")
+        raise DataError(f"{where}: need gain_sd >= 0, 0 <= crosstalk < 0.25, saturation_n > 0, counts_per_n "
+                        ">= 0")
 
 
 def crosstalk_matrix(taxel_xy_mm: np.ndarray, pitch_mm: float, fraction: float) -> np.ndarray:

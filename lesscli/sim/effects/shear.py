@@ -58,7 +58,8 @@ def _shear(state: SimState, params: dict, rng: np.random.Generator) -> SimState:
         fn = state.force[sl, :, 2]
         du_r = du[sl].copy()
         du_r[0] = 0.0
-        force[sl, :, :2] += bristle(fn, du_r, params) + params["radial"] * np.maximum(fn, 0)[..., None] * radial_dir
+        force[sl, :, :2] += (bristle(fn, du_r, params) + params["radial"] * np.maximum(fn, 0)[..., None]
+                             * radial_dir)
     return replace(state, force=force)
 
 

@@ -1,4 +1,5 @@
-"""Where the rig puts the surface: a per-scan height offset and tilt of the phantom's top, a slow baseline drift.
+"""Where the rig puts the surface: a per-scan height offset and tilt of the phantom's top, a slow baseline
+drift.
 
 On a rig the recorded poses are relative to the file's reference pose, not to the phantom's top: per
 scan the top sits at ``h(x, y) = offset + b x + c y`` in the recorded frame, with the offset drawn

@@ -40,4 +40,5 @@ def _tilt(state: SimState, params: dict, rng: np.random.Generator) -> SimState:
 
 
 def stages(params: dict) -> tuple[Stage, ...]:
-    return (Stage("tilt", "tilt", "pose-true", ("pose_true", "flags"), ("pose_true", "flags"), _tilt, params),)
+    return (Stage("tilt", "tilt", "pose-true", ("pose_true", "flags"), ("pose_true", "flags"), _tilt,
+                  params),)

@@ -43,7 +43,8 @@ def _cast(state: SimState, params: dict, rng: np.random.Generator) -> SimState:
     p = state.phantom
 
     def jitter(m: Material) -> Material:
-        return Material(m.name, float(m.youngs_kpa * np.exp(cast_rng.normal(0, params["modulus_sd"]))), m.poisson)
+        return Material(m.name, float(m.youngs_kpa * np.exp(cast_rng.normal(0, params["modulus_sd"]))),
+                        m.poisson)
 
     skin, filling, inclusion, pillar = (jitter(m) for m in (p.skin, p.filling, p.inclusion, p.pillar))
     thickness = p.skin_thickness_mm
