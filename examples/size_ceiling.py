@@ -3,12 +3,11 @@
 For every scan with one inclusion, the classical force map (``lesscli.infer.forcemap``: stiffness per
 taxel at each poke's deepest step, flat-fielded, quadratic trend removed) is sampled on a window of
 cells around the inclusion's TRUE centre (default 21 x 21 at 1 mm), with its radial profile in 1 mm
-rings out to 10 mm (raw and divided by its peak, a scale-free shape). Regressors fitted on the training scans
-map these to the volume-equivalent diameter and are scored on the test scans. Then spheres are drawn at each
-test inclusion's TRUE 3D centroid with (a) its true diameter, (b) the regressed one, (c) the training mean,
-and (d) the true one moved 1.5 mm sideways, and the 3D micro F1 against the label volumes is printed: what an
-imager that already knew where the inclusion is (in-plane and in depth) would score with the size these
-touches give.
+rings out to 10 mm (raw and divided by its peak, a scale-free shape). Regressors fitted on the training
+scans map these to the volume-equivalent diameter and are scored on the test scans. Then spheres are drawn
+at each test inclusion's TRUE 3D centroid with (a) its true diameter, (b) the regressed one, (c) the
+training mean, and (d) the true one moved 1.5 mm sideways, and the 3D micro F1 against the label volumes
+is printed: what an imager that already knew where the inclusion is would score with these touches' size.
 
     python examples/size_ceiling.py work/accuracy/split/train.npz work/accuracy/single.npz
     python examples/size_ceiling.py ... --cells 7 --pitch-mm 2.5     # the window of a particle's map
