@@ -646,15 +646,18 @@ def _scores_or_note(model: dict, s: Setting, data: BenchData, run: TradeoffRun) 
         return {"note": f"not supported here: {str(exc).splitlines()[0][:160]}"}
 
 
+DETERMINISTIC = {f"{key}_std": 0.0 for key in SPREADS}       # the references have no seed to vary
+
+
 def reference_rows(model: str, data: BenchData, run: TradeoffRun, trainer: Trainer) -> list[dict]:
     """The classical imager at its base and the average-prediction baseline, for every table."""
     classical = trainer.model(BASES[CLASSICAL], run.seed)
     rows = []
     if model != CLASSICAL:
         scores = evaluate(classical, BASES[CLASSICAL], data, run)
-        rows.append({"model": CLASSICAL, "knob": "reference", "value": "classical", "seeds": 1,
+        rows.append({"model": CLASSICAL, "knob": "reference", "value": "classical", "seeds": 1, **DETERMINISTIC,
                      **scores, "train_s": classical["fit_s"], "peak_train_mb": classical["peak_train_mb"]})
-    rows.append({"model": "average", "knob": "reference", "value": "average", "seeds": 1,
+    rows.append({"model": "average", "knob": "reference", "value": "average", "seeds": 1, **DETERMINISTIC,
                  **average_reference(data, run, classical)})
     return rows
 
