@@ -655,8 +655,9 @@ def reference_rows(model: str, data: BenchData, run: TradeoffRun, trainer: Train
     rows = []
     if model != CLASSICAL:
         scores = evaluate(classical, BASES[CLASSICAL], data, run)
-        rows.append({"model": CLASSICAL, "knob": "reference", "value": "classical", "seeds": 1, **DETERMINISTIC,
-                     **scores, "train_s": classical["fit_s"], "peak_train_mb": classical["peak_train_mb"]})
+        rows.append({"model": CLASSICAL, "knob": "reference", "value": "classical", "seeds": 1,
+                     **DETERMINISTIC, **scores, "train_s": classical["fit_s"],
+                     "peak_train_mb": classical["peak_train_mb"]})
     rows.append({"model": "average", "knob": "reference", "value": "average", "seeds": 1, **DETERMINISTIC,
                  **average_reference(data, run, classical)})
     return rows
