@@ -4,7 +4,8 @@ Baselines measured in the same run: placing the patches with one ``index_add`` o
 vectorised form autograd differentiates by itself; both must agree, values and gradients), with a
 random quarter of the particles unseen as in a real batch, and plain
 cross-entropy as the cheapest loss next to lambda Dice + (1 - lambda) eta Focal. Placement is timed
-forward (prediction) and forward + backward (a training step's share).
+forward (prediction) and forward + backward (a training step's share). The decoder's fast paths are timed
+against their plain forms over whole epochs (:mod:`lesscli.bench.fast_paths`).
 """
 
 from __future__ import annotations
@@ -89,13 +90,16 @@ def _case(dim: int, batch: int, repeat: int, gen) -> list[dict]:
     ]
 
 
-def run_imaging(dims: tuple[int, ...], batch: int, repeat: int, seed: int) -> list[dict]:
+def run_imaging(dims: tuple[int, ...], batch: int, repeat: int, seed: int, batches: int = 2) -> list[dict]:
     """Four rows per image dimension: stitching by slice adds and by one index_add, Dice-Focal and
-    cross-entropy."""
+    cross-entropy; then the fast paths against their plain forms, epochs of ``batches`` batches
+    (:mod:`lesscli.bench.fast_paths`)."""
     import torch
+
+    from lesscli.bench.fast_paths import run_fast_paths
 
     gen = torch.Generator().manual_seed(seed)
     rows = []
     for dim in dims:
         rows += _case(dim, batch, repeat, gen)
-    return rows
+    return rows + run_fast_paths(dims, batch, batches, repeat, seed)

@@ -21,10 +21,12 @@ from lesscli.cli.common import format_option, renamed_option, seed_option, threa
 @format_option()
 def cli(quick: bool, repeat: int | None, batch: int, threads: int | None, seed: int, fmt: str | None) -> None:
     """Seconds to stitch 11 x 11 particle patches onto the 128 x 128 (x 26) label grid, vectorised vs a
-    per-particle loop, and the Dice-Focal loss vs cross-entropy."""
+    per-particle loop, and the Dice-Focal loss vs cross-entropy; then each fast path of the models
+    against its plain form over a whole epoch (image fit, prediction)."""
     from lesscli.bench.imaging import run_imaging
     from lesscli.io.records import emit_records
     from lesscli.threads import apply_threads
 
     apply_threads("throughput", override=threads)
-    emit_records(run_imaging((2,) if quick else (2, 3), batch, repeat or (2 if quick else 5), seed), fmt)
+    emit_records(run_imaging((2,) if quick else (2, 3), batch, repeat or (2 if quick else 5), seed,
+                             batches=2 if quick else 4), fmt)

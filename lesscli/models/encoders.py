@@ -25,7 +25,7 @@ from lesscli.models.encoding import POSE_DIM, PoseEncoding
 from lesscli.models.force_decoder import ForceDecoder
 from lesscli.models.layers import mlp
 from lesscli.models.particles import Gathered, gather_receptive_field, particle_grid
-from lesscli.models.recurrence import ragged_gru, ragged_gru_from_gates
+from lesscli.models.recurrence import ragged_gru
 from lesscli.types import Batch
 
 
@@ -82,7 +82,6 @@ class ParticleSequence:
         count: (N,) long, real steps per row (>= 1).
         shape: (B, P) of the full particle grid.
         xy_mm: (P, 2) particle positions.
-        rows: the encoder's gather behind the rows (what :meth:`ParticleEncoder.states_at` reads).
     """
 
     batch_index: Tensor
@@ -94,7 +93,6 @@ class ParticleSequence:
     count: Tensor
     shape: tuple[int, int]
     xy_mm: Tensor
-    rows: SeenRows | None = None
 
     def final_states(self) -> ParticleStates:
         """Scatter each row's state at its last real step into a (B, P, d_z) tensor."""
@@ -137,6 +135,7 @@ class ParticleEncoder(nn.Module):
 
     name = "less"
     force_norm = "global"        # the force normalisation it is trained with by default (data.batching)
+    fle_module = "fle"           # the name (and state-dict prefix) the paper's FLE is registered under
 
     def __init__(self, force_dim: int, dim: int = 128, spacing_mm: float = 6.0, grid_extent_mm: float = 60.0,
                  receptive_field_mm: float = 10.0, max_steps_per_particle: int | None = None,
@@ -157,7 +156,7 @@ class ParticleEncoder(nn.Module):
         self.force_dim = int(force_dim)
         self.receptive_field_mm = float(receptive_field_mm)
         self.max_steps = self.settings["max_steps_per_particle"]
-        self.fle = ForceLocationEncoder(force_dim, dim, n_freq)
+        self.add_module(self.fle_module, ForceLocationEncoder(force_dim, dim, n_freq))
         self.gru = nn.GRU(dim, dim, batch_first=True)
         self.register_buffer("xy_mm", self._grid(), persistent=False)
 
@@ -201,19 +200,6 @@ class ParticleEncoder(nn.Module):
         return SeenRows(gathered=g, batch_index=bi, particle_index=pi, step_index=index,
                         pose=batch.pose[bi[:, None], index] - shift, mask=g.mask[bi, pi])
 
-    def _folded_states(self, batch: Batch, rows: SeenRows, last_only: bool,
-                       at: Tensor | None = None) -> Tensor:
-        """The ragged GRU over the folded input gates of ``rows`` (:meth:`_gather`): (N, C, d_z) states,
-        (N, d_z) with ``last_only``, or (N, k, d_z) after the slots ``at`` (N, k) (each row run only up to
-        its last slot in ``at``)."""
-        count, mask, index = rows.count, rows.mask, rows.step_index
-        if at is not None and at.shape[0]:
-            count = at.max(1).values + 1
-            mask = torch.arange(mask.shape[1], device=mask.device) < count[:, None]
-        scan = rows.batch_index[:, None].expand_as(index)
-        gates = self._input_gates(batch, rows.pose[mask], scan[mask], index[mask])
-        return ragged_gru_from_gates(gates, count, self.gru, int(mask.shape[1]), last_only, at)
-
     def gather_sequence(self, batch: Batch) -> ParticleSequence:
         """Every seen particle's gathered steps, without states (``z`` None; see :meth:`states_at`)."""
         rows = self._gather(batch)
@@ -221,13 +207,11 @@ class ParticleEncoder(nn.Module):
         return ParticleSequence(batch_index=bi, particle_index=rows.particle_index, z=None, pose=rows.pose,
                                 force=batch.force[bi[:, None], rows.step_index], mask=rows.mask,
                                 count=rows.count, shape=(int(g.count.shape[0]), int(g.count.shape[1])),
-                                xy_mm=self.xy_mm.to(batch.pose.dtype), rows=rows)
+                                xy_mm=self.xy_mm.to(batch.pose.dtype))
 
     def states_at(self, batch: Batch, seq: ParticleSequence, at: Tensor | None = None) -> Tensor:
         """GRU states of :meth:`gather_sequence`'s rows: (N, C, d_z) after every slot, or (N, k, d_z) after
         the slots ``at`` (N, k), each below its row's count (the recurrence stops at a row's last one)."""
-        if self._folds_inputs():
-            return self._folded_states(batch, seq.rows, last_only=False, at=at)
         real = self.fle(seq.pose[seq.mask], seq.force[seq.mask])      # inputs of real steps only
         z = self._run_gru(real.new_zeros(*seq.mask.shape, real.shape[-1]).index_put((seq.mask,), real),
                           seq.count)
@@ -238,33 +222,6 @@ class ParticleEncoder(nn.Module):
         seq = self.gather_sequence(batch)
         seq.z = self.states_at(batch, seq)
         return seq
-
-    def _folds_inputs(self) -> bool:
-        """The paper's FLE feeds the GRU directly (no subclass changes the inputs or the recurrence)."""
-        return isinstance(self._modules.get("fle"), ForceLocationEncoder) \
-            and type(self)._run_gru is ParticleEncoder._run_gru
-
-    def _input_gates(self, batch: Batch, pose: Tensor, scan: Tensor, step: Tensor) -> Tensor:
-        """The GRU's input gates ``W_ih FLE(pose, force) + b_ih`` of S real steps, with the linear maps
-        folded.
-
-        ``W_ih (P phi(pose) + p + MLP(force))``: the pose part goes through the product ``W_ih P`` (3H x
-        6 * 2 n_freq, much narrower than d_z), the force part is computed once per scan step and gathered
-        (a step lies in the fields of several particles).
-
-        Args:
-            batch: the batch (its forces).
-            pose: (S, 6) centred poses of the real steps.
-            scan, step: (S,) long, the batch row and time step of each.
-
-        Returns:
-            (S, 3H).
-        """
-        w, proj = self.gru.weight_ih_l0, self.fle.pose_encoding.proj
-        per_step = self.fle.force_mlp(batch.force) @ w.t()                   # (B, L, 3H)
-        bias = torch.addmv(self.gru.bias_ih_l0, w, proj.bias)
-        return torch.addmm(bias, self.fle.pose_encoding.features(pose),
-                           (w @ proj.weight).t()) + per_step[scan, step]
 
     def _run_gru(self, x: Tensor, count: Tensor) -> Tensor:
         """GRU over (N, C, dim) inputs, each row only up to its ``count`` real steps (inputs past it are
@@ -281,13 +238,7 @@ class ParticleEncoder(nn.Module):
 
     def forward(self, batch: Batch) -> ParticleStates:
         """Batch -> ParticleStates with z (B, P, d_z)."""
-        if not self._folds_inputs():
-            return self.encode_sequence(batch).final_states()
-        rows = self._gather(batch)
-        last = self._folded_states(batch, rows, last_only=True)
-        seen_at = (rows.batch_index, rows.particle_index)
-        z = last.new_zeros(*rows.gathered.count.shape, self.dim).index_put(seen_at, last)
-        return ParticleStates(z=z, xy_mm=self.xy_mm.to(batch.pose.dtype), seen=rows.gathered.seen)
+        return self.encode_sequence(batch).final_states()
 
 
 class GlobalEncoder(ParticleEncoder):

@@ -67,6 +67,10 @@ class PatchDecoder(nn.Module):
         context_width: features it adds.
     """
 
+    # Fast paths (lesscli.models.subpixel), each timed against the modules by ``less bench imaging``:
+    subpixel_eval = True         # evaluation decodes in sub-pixel form
+    subpixel_train = True        # training on the CPU decodes in sub-pixel form, with its own backward
+
     @staticmethod
     def grid_settings(grid: ImageGrid, patch_px: int, stitch: str, context: int = 0) -> dict:
         """Constructor arguments that follow from the training grid (and the image settings)."""
@@ -136,7 +140,7 @@ class PatchDecoder(nn.Module):
                 out.index_copy_(0, rows, part)
             out = to_channels_last(out) if channels_last else out.contiguous()
         else:
-            out = run_eval(self.up, self._first_map(z.reshape(b * p, -1)), self._keep(), channels_last)
+            out = self._decode_eval(z.reshape(b * p, -1), channels_last)
         out = out if self.dim == 3 else out[:, :, None]
         return out.reshape(b, p, *out.shape[1:]).to(torch.float32)
 
@@ -149,11 +153,23 @@ class PatchDecoder(nn.Module):
         """Output depth rows to keep (a 3D column's depth; None in 2D)."""
         return self.depth_px if self.dim == 3 else None
 
-    def _decode_train(self, z: Tensor) -> Tensor:
-        """(N, d_in) -> (N, C, [depth_px,] ph, pw) differentiable logits: :func:`run_train` on the CPU
-        (where it was measured faster), the modules elsewhere."""
+    def _decode_eval(self, z: Tensor, channels_last: bool) -> Tensor:
+        """(N, d_in) -> (N, C, [depth_px,] ph, pw) logits in evaluation: the modules, or with
+        ``subpixel_eval`` :func:`run_eval` (the same values to float32 rounding)."""
         h, keep = self._first_map(z), self._keep()
-        return run_train(self.up, h, keep) if h.device.type == "cpu" else self.up(h)[:, :, :keep]
+        if not self.subpixel_eval:
+            out = self.up(h)[:, :, :keep]
+            return to_channels_last(out) if channels_last else out.contiguous()
+        return run_eval(self.up, h, keep, channels_last)
+
+    def _decode_train(self, z: Tensor) -> Tensor:
+        """(N, d_in) -> (N, C, [depth_px,] ph, pw) differentiable logits: the modules, or with
+        ``subpixel_train`` on the CPU :func:`run_train` (the same values and gradients to float32
+        rounding)."""
+        h, keep = self._first_map(z), self._keep()
+        if not (self.subpixel_train and h.device.type == "cpu"):
+            return self.up(h)[:, :, :keep]
+        return run_train(self.up, h, keep)
 
     def forward(self, states, grid: ImageGrid) -> Tensor:
         """Decode and place.

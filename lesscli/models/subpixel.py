@@ -88,7 +88,8 @@ def _hidden_layer(x: Tensor, conv_t: nn.Module, act: nn.Module, rows: int | None
     """act(conv_t(x)) for x with its zero rows (``padding=0``) or without (1); returns the output with
     one zero row on both ends of every axis (only its first ``rows`` rows along axis 0 or more, None:
     all), channels-last."""
-    ph = act(_phases(x, *eval_weights(conv_t), padding))                    # elementwise: before the shuffle
+    # elementwise: before the shuffle
+    ph = act(_phases(x, *subpixel_weights(conv_t), padding))
     windows = ph.shape[1]
     out = _interleaved(ph, windows if rows is None else min(windows, -(-rows // 2)), channels_last=True)
     for axis in range(2, out.dim()):                                         # the rows conv_t crops -> 0
@@ -134,25 +135,16 @@ def to_channels_last(x: Tensor) -> Tensor:
     return x if fmt is None else x.contiguous(memory_format=fmt)
 
 
-def eval_weights(conv_t: nn.Module) -> tuple[Tensor, Tensor]:
-    """:func:`subpixel_weights` of ``conv_t``, kept until its parameters change (in place or replaced)."""
-    key = tuple((t.data_ptr(), t._version, t.dtype, t.device) for t in (conv_t.weight, conv_t.bias))
-    cached = conv_t.__dict__.get("_subpixel")
-    if cached is None or cached[0] != key:
-        cached = conv_t.__dict__["_subpixel"] = (key, *subpixel_weights(conv_t))
-    return cached[1], cached[2]
-
-
 def run_eval(stack: nn.Sequential, x: Tensor, keep: int | None = None, channels_last: bool = False) -> Tensor:
     """``stack(x)[:, :, :keep]`` for an :func:`upsampling_stack`, in its faster evaluation form (in
     channels-last memory with ``channels_last``).
 
     The first hidden layer runs as a transposed convolution (its sub-pixel form would compute the
     output rows it crops too: (L + 1)^dim windows for L^dim inputs, nearly twice the work on the 4 x 4
-    x 4 first map), every later layer in sub-pixel form (a stride-1 convolution, weights rearranged once,
-    see :func:`eval_weights`), all on channels-last memory: each sub-pixel hidden layer's output is
-    interleaved straight into the zero-bordered input of the next, with the activation applied before
-    the shuffle, and the layer before the last keeps only the rows the kept outputs read.
+    x 4 first map), every later layer in sub-pixel form (a stride-1 convolution, its weights rearranged
+    per call), all on channels-last memory: each sub-pixel hidden layer's output is interleaved straight
+    into the zero-bordered input of the next, with the activation applied before the shuffle, and the
+    layer before the last keeps only the rows the kept outputs read.
     """
     *hidden, last = list(stack)
     x = to_channels_last(x)
@@ -163,7 +155,7 @@ def run_eval(stack: nn.Sequential, x: Tensor, keep: int | None = None, channels_
             continue
         rows = -(-keep // 2) + 2 if keep is not None and i == len(hidden) - 1 else None
         x, padding = _hidden_layer(x, *block, rows, padding), 0
-    return _last_layer(x, *eval_weights(last), keep, padding, channels_last)
+    return _last_layer(x, *subpixel_weights(last), keep, padding, channels_last)
 
 
 class _SubpixelConvT(torch.autograd.Function):
@@ -175,7 +167,7 @@ class _SubpixelConvT(torch.autograd.Function):
     def forward(ctx, x: Tensor, weight: Tensor, bias: Tensor, conv_t: nn.Module, keep: int | None) -> Tensor:
         ctx.save_for_backward(x, weight)
         ctx.geometry = (conv_t.stride, conv_t.padding, conv_t.dilation, conv_t.output_padding)
-        return _last_layer(x, *eval_weights(conv_t), keep, padding=1, channels_last=True)
+        return _last_layer(x, *subpixel_weights(conv_t), keep, padding=1, channels_last=True)
 
     @staticmethod
     def backward(ctx, grad: Tensor):

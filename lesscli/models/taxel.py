@@ -74,6 +74,7 @@ class TaxelParticleEncoder(ParticleEncoder):
 
     name = "less-taxel"
     force_norm = "scale"         # uncentred, flat-fielded forces: stiffness keeps its meaning
+    fle_module = "paper_fle"     # the paper's FLE feeds the GRU; :meth:`fle` adds the map beside it
 
     def __init__(self, force_dim: int, taxel_xy_mm, map_cells: int = 7, map_pitch_mm: float = 2.5,
                  map_contrast: str = "step", **kwargs) -> None:
@@ -96,8 +97,6 @@ class TaxelParticleEncoder(ParticleEncoder):
         self.gru_dim = self.dim
         self.cells = int(map_cells) ** 2
         self.dim = self.gru_dim + MAP_CHANNELS * self.cells
-        # the paper's FLE feeds the GRU; fle() adds the map
-        self.paper_fle = self._modules.pop("fle")
 
     def fle(self, pose: Tensor, force: Tensor) -> Tensor:
         """Step inputs ``[FLE(pose, force) (gru_dim), sum w log k, sum w contrast, sum w (m each)]``.

@@ -1,4 +1,4 @@
-"""The fast LESS paths (ragged GRU, folded input gates, factored force decoder) against straightforward
+"""The fast LESS paths (ragged GRU, factored force decoder) against straightforward
 references of the same maths: the library's packed GRU over the FLE of every gathered slot, a masked
 GRU-cell update of every particle slot by slot, and the decoder's MLP over the broadcast pairs."""
 

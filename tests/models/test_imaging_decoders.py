@@ -170,24 +170,6 @@ def test_evaluation_decodes_like_training(dim, patch_px, width, depth):
         assert last.stride(2) == 1 and last.stride(-1) == 4 and torch.equal(last, mode.patches(z))
 
 
-def test_evaluation_weights_follow_parameter_updates():
-    """The rearranged sub-pixel weights are reused, and rebuilt after an optimiser step or a load."""
-    from lesscli.models.subpixel import eval_weights, subpixel_weights
-
-    dec = PatchDecoder(d_z=6, n_classes=4, dim=2, patch_px=16, width=16).eval()
-    last = dec.up[-1]
-    z = torch.randn(1, 2, 6, generator=torch.Generator().manual_seed(2))
-    first = eval_weights(last)
-    assert eval_weights(last)[0] is first[0]
-    with torch.no_grad():
-        last.weight.mul_(2.0)                           # in place, as an optimiser step is
-        stepped = eval_weights(last)[0]
-        assert torch.equal(stepped, subpixel_weights(last)[0]) and not torch.equal(stepped, first[0])
-        dec.load_state_dict(PatchDecoder(d_z=6, n_classes=4, dim=2, patch_px=16, width=16).state_dict())
-        loaded = dec.patches(z)
-        assert float((loaded - dec.train().patches(z)).abs().max()) <= 1e-5
-
-
 def test_patch_decoder_needs_one_upsampling_layer():
     with pytest.raises(ValueError, match="k >= 1"):
         PatchDecoder(d_z=6, n_classes=4, dim=2, patch_px=4)
