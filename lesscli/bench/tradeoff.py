@@ -34,7 +34,6 @@ LOCAL = ("less-taxel", "less")                  # particles with a receptive fie
 TAXEL = ("less-taxel", "global-taxel")          # per-step stiffness maps
 PRECISIONS = ("float32", "bfloat16", "int8")
 # linear layers an encoder reads as tensors (folded into its GRU)
-FOLDED = ("pose_encoding",)
 STREAM_UPDATES = 200                            # streaming updates timed per seed (after half a scan)
 LATENCY_REPEATS = 3                             # whole-set predictions timed per seed (the best is kept)
 EFFECT_SPREADS = 2.0                            # an effect exceeds this many seed spreads
@@ -423,8 +422,8 @@ def _max(*values):
 def prediction_arithmetic(imager, precision: str, device) -> Iterator:
     """The imager to predict with under ``precision``: float32 as it is, bfloat16 under autocast,
     int8 a copy with its linear layers dynamically quantised (CPU only; the GRU runs its own ragged
-    recurrence on the float weights, the decoder's convolutions and the layers in ``FOLDED`` stay
-    float). Raises ValueError where this torch or device cannot."""
+    recurrence on the float weights and the decoder's convolutions stay float). Raises ValueError
+    where this torch or device cannot."""
     import torch
 
     if precision == "float32":
@@ -438,12 +437,10 @@ def prediction_arithmetic(imager, precision: str, device) -> Iterator:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")         # torch.ao.quantization announces its own deprecation
             try:
-                from torch.ao.quantization import default_dynamic_qconfig, quantize_dynamic
+                from torch.ao.quantization import quantize_dynamic
             except ImportError as exc:
                 raise ValueError(f"this torch has no dynamic quantisation ({exc})") from None
-            spec = {name: default_dynamic_qconfig for name, m in imager.named_modules()
-                    if isinstance(m, torch.nn.Linear) and not any(part in FOLDED for part in name.split("."))}
-            quantized = quantize_dynamic(copy.deepcopy(imager), spec, dtype=torch.qint8)
+            quantized = quantize_dynamic(copy.deepcopy(imager), {torch.nn.Linear}, dtype=torch.qint8)
         yield quantized
     else:
         raise ValueError(f"unknown precision {precision!r}; one of {', '.join(PRECISIONS)}")
