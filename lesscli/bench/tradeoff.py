@@ -284,7 +284,7 @@ def make_data(plan: TradeoffPlan, workdir: str | None = None) -> BenchData:
     return data
 
 
-def training_scans(data: BenchData, s: Setting) -> tuple[object, object]:
+def setting_scans(data: BenchData, s: Setting) -> tuple[object, object]:
     """The training and validation scans of setting ``s``, subsampled and in their surface frame."""
     from lesscli.data.compat import prepare
     from lesscli.data.ops import subsample
@@ -299,7 +299,7 @@ def training_scans(data: BenchData, s: Setting) -> tuple[object, object]:
                                                         "tradeoff validation")
 
 
-def test_scans(data: BenchData, s: Setting) -> dict[str, object]:
+def eval_scans(data: BenchData, s: Setting) -> dict[str, object]:
     """The two test sets at the setting's prediction rate, in their surface frame."""
     from lesscli.data.compat import prepare
     from lesscli.data.ops import subsample
@@ -386,7 +386,7 @@ class Trainer:
     def _train(self, s: Setting, seed: int, key: str) -> dict:
         from lesscli.train.forcemap_fit import fit_forcemap
 
-        train, val = training_scans(self.data, s)
+        train, val = setting_scans(self.data, s)
         path = self.store.file("imager", key)
         if s.model == CLASSICAL:
             sigmas = (s.sigma_mm,) if s.sigma_mm else None
@@ -513,7 +513,7 @@ def evaluate(model: dict, s: Setting, data: BenchData, run: TradeoffRun) -> dict
     from lesscli.train.distributed import resolve_device
 
     device = resolve_device(run.device)
-    sets, out = test_scans(data, s), {}
+    sets, out = eval_scans(data, s), {}
     with predicting(model, s, device) as (predict_set, streamer):
         for name, scans in sets.items():
             with peak_memory() as mem:
@@ -536,10 +536,10 @@ def average_reference(data: BenchData, run: TradeoffRun, classical: dict) -> dic
     from lesscli.metrics.baseline import average_baseline
     from lesscli.metrics.score import score_baseline_set
 
-    train, _ = training_scans(data, BASES[CLASSICAL])
+    train, _ = setting_scans(data, BASES[CLASSICAL])
     baseline = average_baseline(v for v in (train.label_of(i) for i in range(train.n_scans)) if v is not None)
     ckpt, out = load_checkpoint(classical["path"]), {}
-    for name, scans in test_scans(data, BASES[CLASSICAL]).items():
+    for name, scans in eval_scans(data, BASES[CLASSICAL]).items():
         preds = predict_forcemap(ckpt, scans, PredictOptions(), classical["path"], name)
         summary = summarise(score_baseline_set(preds, baseline, name))[0]
         out.update({f"f1_{name}": summary.get("f1_micro_3d"),

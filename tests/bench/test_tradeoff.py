@@ -114,7 +114,7 @@ def test_compare_to_base_gives_ratios_deltas_and_effects_per_model():
 def _fake_stages(monkeypatch, calls):
     monkeypatch.setattr(tradeoff, "make_data", lambda plan,
                         workdir: tradeoff.BenchData(None, None, None, None, 1.0))
-    monkeypatch.setattr(tradeoff, "training_scans", lambda data, s: (s, s))
+    monkeypatch.setattr(tradeoff, "setting_scans", lambda data, s: (s, s))
     seed_of = {}
 
     def stage(kind, s, seed, *args):
