@@ -1,4 +1,5 @@
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -6,6 +7,17 @@ from pathlib import Path
 import pytest
 
 BIN = Path(sys.executable).parent
+
+
+def popen_interruptible(args, **kwargs) -> subprocess.Popen:
+    """``subprocess.Popen(args)`` with SIGINT caught (not ignored) here while the child starts: a suite
+    started in the background (`make test &`) ignores SIGINT and a child inherits an ignored signal,
+    while a handled one is reset to the default at exec, as a terminal's foreground job has it."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return subprocess.Popen(args, **kwargs)
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 @pytest.fixture

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import popen_interruptible
 from factories import random_scanset
 
 from lesscli.cli.registry import COMMANDS
@@ -75,13 +76,8 @@ def test_traceback_only_with_verbose(run_less):
 
 
 def _start(args, **kwargs):
-    """Start ``less ARGS`` with SIGINT caught (not ignored) here, so the child gets the default action
-    even when this test runs under a shell that ignores SIGINT."""
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        return subprocess.Popen([LESS, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kwargs)
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    """Start ``less ARGS``, Ctrl-C reaching it as from a terminal."""
+    return popen_interruptible([LESS, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kwargs)
 
 
 def _wait_until_loaded(pid: int, library: str = "_multiarray_umath", timeout_s: float = 120.0) -> None:

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import popen_interruptible
 from factories import TINY_SCENE, random_scanset
 
 from lesscli.io.scans import save_scans
@@ -43,8 +44,8 @@ def _long_scene(folder: Path) -> Path:
 def interrupt_simulate(folder: Path, delay_s: float) -> tuple[int, float, str]:
     """Start ``simulate --jobs 2`` in its own process group, wait until its workers run (plus ``delay_s``),
     send SIGINT to the whole group as a terminal's Ctrl-C does; (exit status, seconds to exit, stderr)."""
-    proc = subprocess.Popen([LESS, "simulate", "long.toml", "-o", "out.npz", "--jobs", "2"], cwd=folder,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    proc = popen_interruptible([LESS, "simulate", "long.toml", "-o", "out.npz", "--jobs", "2"], cwd=folder,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
     try:
         deadline = time.monotonic() + 120
         while len(_children(proc.pid)) < 2 and time.monotonic() < deadline and proc.poll() is None:
@@ -176,9 +177,9 @@ def test_image_predict_writes_its_prediction_only_with_its_nifti_folder(tmp_path
 # two writers
 
 def _start_pretrain(folder: Path, output: str, epochs: int = 400) -> subprocess.Popen:
-    return subprocess.Popen([LESS, "-q", "pretrain", "s.npz", "-o", output, "--epochs", str(epochs), "--dim",
-                             "8"],
-                            cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return popen_interruptible([LESS, "-q", "pretrain", "s.npz", "-o", output, "--epochs", str(epochs),
+                                "--dim", "8"], cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
 
 
 def _wait_for(path: Path, proc: subprocess.Popen, timeout_s: float = 120) -> None:

@@ -185,18 +185,12 @@ def test_emulate_in_background_with_real_pipes(run_less, tmp_path, cfg_path):
 
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_interrupt_mid_move_drops_torque(cfg_path, sig, code):
-    from conftest import BIN
+    from conftest import BIN, popen_interruptible
 
     emulator = ServoEmulator(lift_servos(load_config(str(cfg_path))), time_scale=1.0)  # homing takes seconds
     with PtyEmulator(emulator) as pty:
-        # a suite started in the background (`make test &`) ignores SIGINT, and a child inherits an ignored
-        # signal; a handled one is reset to the default at exec, as an interactive shell would give it
-        previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-        try:
-            proc = subprocess.Popen([str(BIN / "less"), "lift", "--port", pty.port, "--config", str(cfg_path),
-                                     "home"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        finally:
-            signal.signal(signal.SIGINT, previous)
+        proc = popen_interruptible([str(BIN / "less"), "lift", "--port", pty.port, "--config", str(cfg_path),
+                                    "home"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             first = json.loads(proc.stdout.readline())
             assert first["event"] == "homing" and first["torque"][0] is True
