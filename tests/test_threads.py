@@ -1,6 +1,6 @@
 """The thread policy (pure rules, table-tested; fixed by the cores unless the work is latency-bound or
-``--threads auto`` asks), the user's ``OMP_NUM_THREADS``, ``--threads`` reaching torch, and ``bench stream
---load``."""
+``--threads auto`` asks, then by the load average too), the user's ``OMP_NUM_THREADS``, ``--threads``
+reaching torch, ``bench stream --load`` and ``--realtime``."""
 
 from __future__ import annotations
 
@@ -23,20 +23,15 @@ from lesscli.cli.main import cli
 from lesscli.infer.stream import StreamingImager
 from lesscli.io.scans import save_scans
 from lesscli.threads import (
-    LARGE_WORK,
     POOL_ENV_VARS,
     apply_threads,
-    choose_threads,
-    combined_load,
     free_cores,
-    other_load,
+    load_average,
     parse_threads,
     resolve_threads,
-    runnable_now,
     user_threads,
 )
 
-BIG, SMALL = LARGE_WORK, LARGE_WORK - 1
 BIN = Path(sys.executable).parent
 
 
@@ -47,52 +42,34 @@ def test_free_cores_subtract_the_rounded_load_and_keep_one(cores, load, expected
     assert free_cores(cores, load) == expected
 
 
-@pytest.mark.parametrize("average, now, starting, expected", [
-    (1.9, 0.0, 0, 0.0),          # a job that ended a minute ago: the average still shows it, the sample not
-    (1.0, 1.0, 0, 1.0),          # a steady job beside us: both see it
-    (0.2, 2.0, 2, 2.0),          # two busy processes just started: counted once, not twice
-    (0.2, 0.0, 2, 0.0),          # ... already gone again
-    (0.3, 2.5, 0, 0.3),          # a burst right at the sample: the average is the steadier figure
-    (1.5, None, 0, 1.5),         # no runnable count on this platform: the average alone
-    (0.5, None, 2, 2.5),
+def test_the_load_average_is_finite_and_never_negative():
+    assert 0.0 <= load_average() < float("inf")
+
+
+@pytest.mark.parametrize("work, cores, override, user, jobs, load, expected", [
+    ("throughput", 2, None, None, 1, 0.0, 2),      # training on a quiet machine: every core
+    ("throughput", 8, None, None, 1, 7.0, 8),      # ... beside a busy one: still every core (same bits)
+    ("throughput", 8, None, None, 2, 7.0, 4),      # workers split the cores, not the free ones
+    ("throughput", 8, None, None, 3, 0.0, 2),      # ... rounding down
+    ("throughput", 2, None, None, 4, 0.0, 1),      # more workers than cores: one each
+    ("throughput", 8, None, 3, 1, 7.0, 3),         # the user's OMP_NUM_THREADS
+    ("throughput", 8, 5, 3, 1, 7.0, 5),            # --threads wins over it
+    ("throughput", 2, 3, None, 1, 0.0, 3),         # ... even above the cores
+    ("throughput", 8, "auto", None, 1, 3.0, 5),    # --threads auto: the free cores
+    ("throughput", 8, "auto", None, 2, 2.4, 3),    # ... split between workers (8 - 2 = 6 free)
+    ("throughput", 8, "auto", 2, 1, 3.0, 5),       # ... asked for, so the user's count does not cap it
+    ("throughput", 2, "auto", None, 1, 5.0, 1),    # overloaded: still one
+    ("latency", 8, None, None, 1, 0.0, 2),         # stream / guide: two threads when two cores are free
+    ("latency", 2, None, None, 1, 0.4, 2),
+    ("latency", 2, None, None, 1, 0.6, 1),         # ... one when a busy neighbour takes a core
+    ("latency", 8, None, None, 8, 0.0, 1),         # ... or each of the workers has one
+    ("latency", 8, None, 1, 1, 0.0, 1),            # ... at most the user's OMP_NUM_THREADS
+    ("latency", 8, 3, None, 1, 7.0, 3),            # --threads wins
+    ("latency", 8, "auto", None, 1, 1.0, 7),       # --threads auto: all the free cores
 ])
-def test_others_load_is_the_smaller_of_average_and_sample(average, now, starting, expected):
-    assert combined_load(average, now, starting) == pytest.approx(expected)
-
-
-def test_runnable_now_reads_the_kernel_count_less_this_process(tmp_path):
-    fake, tasks = tmp_path / "loadavg", tmp_path / "task"
-    fake.write_text("1.90 0.80 0.40 4/412 98765\n")
-    for tid, state in (("11", "R"), ("12", "S"), ("13", "R")):     # the reader and a spinning pool thread
-        (tasks / tid).mkdir(parents=True)
-        (tasks / tid / "stat").write_text(f"{tid} (py thon) {state} 1 2 3\n")
-    assert runnable_now(str(fake), str(tasks)) == 2.0
-    (tasks / "13" / "stat").write_text("13 (py thon) S 1 2 3\n")
-    assert runnable_now(str(fake), str(tasks)) == 3.0
-    assert runnable_now(str(fake), str(tmp_path / "no-tasks")) == 3.0    # unreadable: at least the reader
-    fake.write_text("garbage\n")
-    assert runnable_now(str(fake)) is None
-    assert runnable_now(str(tmp_path / "missing")) is None
-    assert other_load() >= 0.0          # the real machine's figure: finite and never negative
-
-
-@pytest.mark.parametrize("cores, load, work, size, override, jobs, expected", [
-    (2, 0.0, "throughput", 0, None, 1, 2),       # training on a quiet machine: every core
-    (8, 3.0, "throughput", 0, None, 1, 5),       # ... on a busy one: the free cores
-    (8, 0.0, "throughput", 0, None, 2, 4),       # two workers split them
-    (8, 0.0, "throughput", 0, None, 3, 2),       # ... rounding down
-    (2, 0.0, "throughput", 0, None, 4, 1),       # more workers than cores: one each
-    (2, 3.0, "throughput", 0, None, 1, 1),       # overloaded: still one
-    (8, 0.0, "latency", SMALL, None, 1, 1),      # small latency-bound work: one thread on an idle machine
-    (8, 0.0, "latency", BIG, None, 1, 8),        # large latency-bound work, cores clearly free
-    (2, 1.0, "latency", BIG, None, 1, 1),        # ... but only one core free
-    (8, 0.0, "latency", BIG, None, 8, 1),        # ... or one core per worker
-    (8, 0.0, "latency", BIG, None, 4, 2),
-    (2, 0.0, "latency", 0, 3, 1, 3),             # --threads wins, even above the cores
-    (2, 5.0, "throughput", 0, 2, 2, 2),
-])
-def test_thread_policy_table(cores, load, work, size, override, jobs, expected):
-    assert choose_threads(cores, load, work, size, override, jobs) == expected
+def test_thread_policy_table(work, cores, override, user, jobs, load, expected):
+    n, why = resolve_threads(work, cores, override, user, jobs, load)
+    assert n == expected, why
 
 
 @pytest.mark.parametrize("text, levels", [("0", [0]), ("2", [0, 2]), ("0,1,2", [0, 1, 2]), ("1,", [1])])
@@ -179,22 +156,18 @@ def test_image_predict_records_the_thread_count(tiny_files, keep_threads):
     assert json.loads(result.stdout.splitlines()[-1])["threads"] == 3 == torch.get_num_threads()
 
 
-def test_apply_threads_sizes_the_work_only_when_it_chooses(monkeypatch):
-    """--threads fixes the count without reading the machine or sizing the work (a function then is
-    never called); without it the size is asked for once."""
+def test_apply_threads_sets_torch_and_takes_the_callers_load(monkeypatch):
+    """--threads fixes the count; latency-bound work beside a load the caller knows (busy processes it
+    just started) takes one thread, on a quiet machine of two cores or more two."""
     for name in POOL_ENV_VARS:                      # restored after the test
         monkeypatch.setenv(name, os.environ.get(name, ""))
+    monkeypatch.delenv("OMP_NUM_THREADS")
     before = torch.get_num_threads()
-    calls = []
-
-    def size() -> float:
-        calls.append(1)
-        return 0.0
-
     try:
-        assert apply_threads("latency", size, override=3) == 3 and calls == []
-        assert torch.get_num_threads() == 3
-        assert apply_threads("latency", size) == 1 and calls == [1]     # small latency work: one thread
+        assert apply_threads("latency", override=3) == 3 == torch.get_num_threads()
+        assert apply_threads("latency", load=float(os.cpu_count())) == 1 == torch.get_num_threads()
+        quiet = 2 if len(os.sched_getaffinity(0)) >= 2 else 1
+        assert apply_threads("latency", load=0.0) == quiet == torch.get_num_threads()
     finally:
         torch.set_num_threads(before)
 
@@ -206,7 +179,7 @@ _PROBE = "import os\nos.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
 _SET = """
 import os, sys, threading
 from lesscli.errors import LessError
-from lesscli.threads import set_realtime
+from lesscli.realtime import set_realtime
 {before}
 started = threading.Event()
 worker = threading.Thread(target=lambda: (started.set(), threading.Event().wait(5)), daemon=True)
@@ -273,44 +246,6 @@ def test_realtime_commands_run_under_it_or_stop_with_one_line(command, tiny_file
     else:
         assert out.returncode == 1 and out.stdout == ""
         assert out.stderr.strip().count("\n") == 0 and "--realtime" in out.stderr
-
-
-# ---------------------------------------------------------------------------------------------- the policy
-
-def _busy(load: float):
-    """A load reader that records that it was asked."""
-    asked = []
-
-    def read() -> float:
-        asked.append(load)
-        return load
-    return read, asked
-
-
-@pytest.mark.parametrize("work, cores, override, user, jobs, load, expected, reads_load", [
-    ("throughput", 8, None, None, 1, 7.0, 8, False),     # training beside a busy machine: still every core
-    ("throughput", 8, None, None, 2, 7.0, 4, False),     # workers split the cores, not the free ones
-    ("throughput", 2, None, None, 4, 0.0, 1, False),     # more workers than cores: one each
-    ("throughput", 8, None, 3, 1, 7.0, 3, False),        # the user's OMP_NUM_THREADS
-    ("throughput", 8, 5, 3, 1, 7.0, 5, False),           # --threads wins over it
-    ("throughput", 8, "auto", None, 1, 3.0, 5, True),    # --threads auto: the free cores
-    ("throughput", 8, "auto", 2, 1, 3.0, 5, True),       # ... asked for, so the user's count does not cap it
-    ("latency", 8, None, None, 1, 0.0, 1, True),         # stream / guide follow the load (small work: one)
-    ("latency", 2, None, None, 1, 1.5, 1, True),
-    ("latency", 8, 3, None, 1, 0.0, 3, False),
-])
-def test_the_default_is_fixed_by_the_cores_and_only_asked_for_work_follows_the_load(
-        work, cores, override, user, jobs, load, expected, reads_load):
-    read, asked = _busy(load)
-    n, why = resolve_threads(work, cores, override, user, jobs, read)
-    assert n == expected and bool(asked) == reads_load, why
-
-
-def test_large_latency_work_takes_free_cores_but_at_most_the_users_count():
-    read, _ = _busy(0.0)
-    assert resolve_threads("latency", 8, None, None, 1, read, lambda: BIG)[0] == 8
-    capped = (2, "latency-bound: cores 8, others' load 0.00, capped by OMP_NUM_THREADS")
-    assert resolve_threads("latency", 8, None, 2, 1, read, lambda: BIG) == capped
 
 
 @pytest.mark.parametrize("text, expected", [("3", 3), ("auto", "auto"), ("AUTO", "auto"), (None, None)])

@@ -158,17 +158,17 @@ def run_stream(models: list[tuple], steps: list[int], loads: list[int], updates:
     import torch
 
     from lesscli.bench.timing import busy_processes
-    from lesscli.infer.stream import update_work
-    from lesscli.threads import apply_threads, set_realtime
+    from lesscli.realtime import set_realtime
+    from lesscli.threads import apply_threads, load_average
 
-    work = max(update_work(imager) for imager, _, _ in models)
+    before = load_average()          # the others' load, read before this process's own work adds to it
     if realtime:
         set_realtime()
     rows = []
     for load in loads:
         with busy_processes(load):
-            # the stream command's choice beside them
-            apply_threads("latency", work, threads, extra_load=load)
+            # the stream command's choice once the average counts them
+            apply_threads("latency", threads, load=before + load)
             for imager, stats, name in models:
                 rng = np.random.default_rng(seed)
                 for n in steps:

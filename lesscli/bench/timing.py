@@ -20,7 +20,7 @@ def best_time(fn: Callable[[], object], repeat: int) -> tuple[float, object]:
 
 
 # A busy process: one core's worth of pure-Python spinning, as an ordinary process even when started
-# from one under the real-time policy (threads.set_realtime).
+# from one under the real-time policy (realtime.set_realtime).
 SPIN = ("import os\nif hasattr(os, 'sched_setscheduler'):\n    os.sched_setscheduler(0, os.SCHED_OTHER, "
         "os.sched_param(0))\nwhile True:\n    pass\n")
 

@@ -235,8 +235,8 @@ class ThreadsType(click.ParamType):
 THROUGHPUT_THREADS = ("CPU threads for torch and BLAS: a number, or 'auto' to follow the machine's load "
                       "(faster beside busy processes, not bit-identical). Default: OMP_NUM_THREADS if set, "
                       "else the usable cores, whatever the load.")
-LATENCY_THREADS = ("CPU threads for torch and BLAS (default: one, more for large updates when cores are "
-                   "free; at most OMP_NUM_THREADS if set).")
+LATENCY_THREADS = ("CPU threads for torch and BLAS (default: two where the load average leaves two cores "
+                   "free, else one; at most OMP_NUM_THREADS if set).")
 
 
 def threads_option(help: str = THROUGHPUT_THREADS):
@@ -247,7 +247,7 @@ def threads_option(help: str = THROUGHPUT_THREADS):
 
 def realtime_option():
     """``--realtime``: latency-bound commands run under the real-time FIFO policy
-    (lesscli.threads.set_realtime)."""
+    (lesscli.realtime.set_realtime)."""
     return click.option("--realtime", is_flag=True,
                         help="Run under the real-time FIFO scheduling policy, so that busy processes do not "
                              "delay updates (Linux; needs root, CAP_SYS_NICE or `ulimit -r`).")

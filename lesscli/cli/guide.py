@@ -47,12 +47,10 @@ def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margi
 
     Example: less guide imager.pt partial.npz --k 5 --plot overlay.png
     """
-    import numpy as np
 
     from lesscli.errors import DataError
     from lesscli.infer.guide import UNCERTAINTY, GuideOptions, guide_scan
     from lesscli.infer.predict import load_imager, scans_for_model
-    from lesscli.infer.stream import update_work
     from lesscli.io.records import emit_records
     from lesscli.models.registry import lookup
     from lesscli.threads import apply_threads
@@ -66,9 +64,7 @@ def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margi
     chosen = [scan_index] if scan_index is not None else list(range(scans.n_scans))
     if plot_path and len(chosen) != 1:
         raise click.UsageError(f"--plot draws one scan; {partial} has {scans.n_scans}: pick one with --scan")
-    longest = max(np.diff(scans.scan_step_offsets())[chosen], default=1)
-    # one full pass over a partial scan
-    apply_threads("latency", lambda: update_work(imager) * longest, threads)
+    apply_threads("latency", threads)
     opts = GuideOptions(k, radius_mm, exclusion_mm, margin_mm, score)
     rows = []
     for s in chosen:

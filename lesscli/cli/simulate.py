@@ -39,14 +39,14 @@ def cli(scene_path: str, output: str, overrides: tuple[str, ...], seed: int | No
     from lesscli.scenes import resolve
     from lesscli.sim.scene import load_scene, scene_document
     from lesscli.sim.simulate import scan_jobs, simulate
-    from lesscli.threads import AUTO, apply_threads, free_cores, other_load, usable_cores
+    from lesscli.threads import AUTO, apply_threads, free_cores, load_average, usable_cores
 
     t0 = time.perf_counter()
     i_n = parse_shard(shard)
     scene = load_scene(resolve(scene_path), overrides, options={"seed": seed})
     config_resolved(scene_document(scene))
     adaptive = jobs == AUTO
-    load = other_load() if adaptive else None                               # read the machine once, if asked
+    load = load_average() if adaptive else None    # read the machine once, if asked
     wanted = free_cores(usable_cores(), load) if adaptive else (jobs or usable_cores())
     jobs = min(wanted, max(1, len(scan_jobs(scene, i_n))))
     threads = apply_threads("throughput", jobs=jobs, torch_too=False, load=load,   # per worker: --jobs splits

@@ -60,13 +60,13 @@ def cli(model, source, rate, emit_every, monitor_dir, on_error, threshold, min_v
     import os
 
     from lesscli.infer.predict import labelling_rule, load_imager
-    from lesscli.infer.stream import update_work
-    from lesscli.threads import apply_threads, set_realtime
+    from lesscli.realtime import set_realtime
+    from lesscli.threads import apply_threads
     from lesscli.train.distributed import resolve_device
 
     dev = resolve_device(device)
     imager, ckpt = load_imager(model, dev)
-    apply_threads("latency", lambda: update_work(imager), threads)
+    apply_threads("latency", threads)
     if realtime:
         set_realtime()
     if monitor_dir:

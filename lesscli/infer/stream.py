@@ -141,29 +141,6 @@ class WholeImage:
 CANVASES: dict[type, type] = {PatchDecoder: PatchCanvas, GlobalDecoder: WholeImage}
 
 
-PARTICLES_PER_TOUCH = 10        # particles a touch typically reaches (default model: 9.5 per update)
-
-
-def update_work(imager: torch.nn.Module) -> int:
-    """Floating-point operations of one stream update, roughly: each particle a touch reaches takes a
-    step through the encoder's weights and re-decodes its patch (counted by torch's flop counter), and
-    so does every particle whose neighbour context reads one of them."""
-    from torch.utils.flop_counter import FlopCounterMode
-
-    decoder = imager.decoder
-    per_patch = 0
-    if hasattr(decoder, "patches"):
-        counter = FlopCounterMode(display=False)
-        with counter, torch.no_grad():
-            decoder.patches(torch.zeros(1, 1, decoder.inp.in_features))
-        per_patch = counter.get_total_flops()
-    encoder = 2 * sum(p.numel() for p in imager.encoder.parameters())
-    # a context re-decodes the advanced ones' neighbours
-    reach = getattr(decoder, "context", 0) or 1
-    decoded = (math.sqrt(PARTICLES_PER_TOUCH) + reach - 1) ** 2
-    return round(PARTICLES_PER_TOUCH * encoder + decoded * per_patch)
-
-
 class StreamingImager:
     """Incremental imaging with a trained :class:`lesscli.models.imager.Imager`.
 

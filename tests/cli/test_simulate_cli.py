@@ -62,7 +62,7 @@ def test_jobs_default_to_the_cores_at_most_one_a_scan_and_follow_the_load_only_w
     runs = {}
     for load, orientations, jobs in ((0.0, "[0]", []), (0.0, "[0, 4]", []), (2.2, "[0]", []),
                                      (2.2, "[0]", ["--jobs", "auto"]), (2.2, "[0, 4]", ["--jobs", "auto"])):
-        monkeypatch.setattr(threads, "other_load", lambda starting=0.0, load=load: load + starting)
+        monkeypatch.setattr(threads, "load_average", lambda load=load: load)
         res = CliRunner().invoke(cli, ["simulate", str(tmp_path / "tiny.toml"), "-o", str(tmp_path / "x.npz"),
                                        "--set", f"phantoms.orientations={orientations}", "--set",
                                        "motion.n_traj=1", "--format", "jsonl", *jobs])
