@@ -47,7 +47,6 @@ def cli(model, partial, k, scan_index, plot_path, radius_mm, exclusion_mm, margi
 
     Example: less guide imager.pt partial.npz --k 5 --plot overlay.png
     """
-
     from lesscli.errors import DataError
     from lesscli.infer.guide import UNCERTAINTY, GuideOptions, guide_scan
     from lesscli.infer.predict import load_imager, scans_for_model
