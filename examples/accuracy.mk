@@ -100,8 +100,8 @@ $(P)/forcemap.pt: $(P)/train.npz
 # ---------------------------------------------------------------- predictions: <regime dir>/pred_<imager>_on_<set>.npz
 # each learned imager with its own config's turns; local ones grow their particle grid over the large inserts
 # the model behind an imager stem: img_<model>[-<variant>]_s<seed> (variants: -full, -init, -maponly, -frozen,
-# -endtoend, -long, -n<N>-d<D>)
-strip_variant = $(patsubst %-long,%,$(patsubst %-endtoend,%,$(patsubst %-frozen,%,$(patsubst %-init,%,$(patsubst %-maponly,%,$(patsubst %-full,%,$(1)))))))
+# -endtoend, -long, -endtoend-long, -n<N>-d<D>)
+strip_variant = $(patsubst %-full,%,$(patsubst %-maponly,%,$(patsubst %-init,%,$(patsubst %-frozen,%,$(patsubst %-endtoend,%,$(patsubst %-long,%,$(1)))))))
 model_of = $(firstword $(subst -n, ,$(call strip_variant,$(word 2,$(subst _, ,$(1))))))
 define ACC_PREDICT
 $(1)/pred_%_on_$(2).npz: $(1)/%.pt $(1)/$(2).npz
@@ -170,13 +170,15 @@ ablation: $(ABL_PREDS)
 # ---------------------------------------------------------------- scaling: the paper's pair against data and width
 #   make -C examples scaling -j2 [ACC_TIER=winkler] [DEVICE=cuda SCALE_DIMS="16 64 256 1024"]
 # `less` and `global` (each with its config's other settings, seed 0) trained on 51 / 102 / 204 inserts of
-# the family (204: the training split and the reserve) at d_z SCALE_DIMS, scored on the validation split;
-# results/scaling-<tier>/scaling.md with each training's seconds (results/scaling-<tier>/times.jsonl).
+# the family (204: the training split and the reserve) at d_z SCALE_DIMS (one model's own: SCALE_DIMS_<model>,
+# e.g. SCALE_DIMS_less="16 64" where its widest trainings do not fit the time), scored on the validation
+# split; results/scaling-<tier>/scaling.md with each training's seconds (results/scaling-<tier>/times.jsonl).
 SC  := $(A)/scaling
 SCR := results/scaling-$(ACC_TIER)
 SCALE_MODELS ?= less global
 SCALE_DIMS   ?= 16 64 256
 SCALE_SCANS  := 51 102 204
+scale_dims    = $(or $(SCALE_DIMS_$(1)),$(SCALE_DIMS))
 $(SC)/train51.npz: $(A)/search/train.npz
 	@mkdir -p $(@D)
 	ln -sf ../search/train.npz $@
@@ -197,9 +199,9 @@ $(SC)/img_$(1)-n$(2)-d$(3)_s0.pt: $(SC)/rep_$(1)-n$(2)-d$(3)_s0.pt
 	$(LESS) image fit $(SC)/train$(2).npz --val $(SC)/val.npz --rep $$< -o $$@ --dim 3 --seed 0 --device $(DEVICE) \
 	  $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) --format jsonl > $$@.json
 endef
-$(foreach m,$(SCALE_MODELS),$(foreach n,$(SCALE_SCANS),$(foreach d,$(SCALE_DIMS),$(eval $(call SCALE_TRAIN,$(m),$(n),$(d))))))
+$(foreach m,$(SCALE_MODELS),$(foreach n,$(SCALE_SCANS),$(foreach d,$(call scale_dims,$(m)),$(eval $(call SCALE_TRAIN,$(m),$(n),$(d))))))
 $(eval $(call ACC_PREDICT,$(SC),val))
-SCALE_PREDS := $(foreach m,$(SCALE_MODELS),$(foreach n,$(SCALE_SCANS),$(foreach d,$(SCALE_DIMS),$(SC)/pred_img_$(m)-n$(n)-d$(d)_s0_on_val.npz)))
+SCALE_PREDS := $(foreach m,$(SCALE_MODELS),$(foreach n,$(SCALE_SCANS),$(foreach d,$(call scale_dims,$(m)),$(SC)/pred_img_$(m)-n$(n)-d$(d)_s0_on_val.npz)))
 .PHONY: scaling
 scaling: $(SCR)/scaling.md
 $(SCR)/scaling.md: $(SCALE_PREDS)
@@ -215,7 +217,10 @@ $(SCR)/scaling.md: $(SCALE_PREDS)
 # each of `less` and `global` with its config, seed 0, on the search scans: the imaging fit with the
 # representation frozen (as published) and trained end to end with the imaging loss (--finetune). If the
 # end-to-end fit images the validation scans and the frozen one cannot, the architecture can hold the
-# inclusion and self-supervision at this budget is what loses it.
+# inclusion and self-supervision at this budget is what loses it. The end-to-end fit is also run with five
+# times the imaging epochs (-endtoend-long): a model that fits its training scans there is held back by the
+# budget, one that does not by its capacity or its optimisation.
+DIAG_LONG_EPOCHS ?= 100
 DG  := $(A)/diagnose
 DGR := results/diagnose-$(ACC_TIER)
 DIAG_MODELS ?= less global
@@ -230,11 +235,14 @@ $(DG)/img_$(1)-frozen_s0.pt: $(DG)/rep_$(1)_s0.pt
 $(DG)/img_$(1)-endtoend_s0.pt: $(DG)/rep_$(1)_s0.pt
 	$(LESS) image fit $(A)/search/train.npz --val $(A)/split/val.npz --rep $$< -o $$@ --dim 3 --seed 0 \
 	  --device $(DEVICE) $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) --finetune --format jsonl > $$@.json
+$(DG)/img_$(1)-endtoend-long_s0.pt: $(DG)/rep_$(1)_s0.pt
+	$(LESS) image fit $(A)/search/train.npz --val $(A)/split/val.npz --rep $$< -o $$@ --dim 3 --seed 0 \
+	  --device $(DEVICE) $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) --finetune \
+	  --epochs $(DIAG_LONG_EPOCHS) --format jsonl > $$@.json
 endef
 $(foreach m,$(DIAG_MODELS),$(eval $(call DIAG_TRAIN,$(m))))
 # capacity: the paper regime's seed-0 representation, decoded with five times the imaging epochs (100), scored
 # on its own training scans and on the held-out ones: can the model fit what it was trained on?
-DIAG_LONG_EPOCHS ?= 100
 define DIAG_LONG
 $(P)/img_$(1)-long_s0.pt: $(P)/rep_$(1)_s0.pt
 	$(LESS) image fit $(P)/train.npz --val $(P)/val.npz --rep $$< -o $$@ --dim 3 --seed 0 --device $(DEVICE) \
@@ -249,7 +257,7 @@ $(DG)/train.npz: | $(A)/search/train.npz
 	ln -sf ../search/train.npz $@
 $(eval $(call ACC_PREDICT,$(DG),val))
 $(eval $(call ACC_PREDICT,$(DG),train))
-DIAG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach v,frozen endtoend,$(foreach t,val train,$(DG)/pred_img_$(m)-$(v)_s0_on_$(t).npz)))
+DIAG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach v,frozen endtoend endtoend-long,$(foreach t,val train,$(DG)/pred_img_$(m)-$(v)_s0_on_$(t).npz)))
 DIAG_LONG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach t,train test,$(P)/pred_img_$(m)-long_s0_on_$(t).npz))
 .PHONY: diagnose
 diagnose: $(DGR)/diagnose.md $(DGR)/capacity.md
