@@ -207,9 +207,9 @@ scaling: $(SCR)/scaling.md
 $(SCR)/scaling.md: $(SCALE_PREDS)
 	@mkdir -p $(@D)
 	$(LESS) metrics $^ --summary-only --format jsonl > $(SCR)/scaling.jsonl
-	for f in $(SCALE_PREDS:_on_val.npz=.pt); do \
+	for f in $(subst /pred_,/,$(SCALE_PREDS:_on_val.npz=.pt)); do \
 	  $(PYTHON) -c 'import json,sys; a,b=(json.loads(open(p).read().splitlines()[-1]) for p in sys.argv[2:]); print(json.dumps({"imager": sys.argv[1], "seconds": a["seconds"] + b["seconds"]}))' \
-	    $$(basename $$f .pt) $$(echo $$f | sed 's|/img_|/rep_|').json $$f.json; done > $(SCR)/times.jsonl
+	    $$(basename $$f .pt) $$(echo $$f | sed 's|/img_|/rep_|').json $$f.json || exit 1; done > $(SCR)/times.jsonl
 	$(PYTHON) headline.py $(SCR)/scaling.jsonl --no-paper --times $(SCR)/times.jsonl > $@.part && mv $@.part $@
 
 # ---------------------------------------------------------------- what holds the paper's pair back
