@@ -229,17 +229,18 @@ $(DG)/rep_$(1)_s0.pt: $(A)/search/train.npz $(A)/split/val.npz $(CFG)/$(1).toml
 	@mkdir -p $$(@D)
 	$(LESS) pretrain $(A)/search/train.npz --val $(A)/split/val.npz -o $$@ --model $(1) --seed 0 --device $(DEVICE) \
 	  $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml pretrain) --format jsonl > $$@.json
-$(DG)/img_$(1)-frozen_s0.pt: $(DG)/rep_$(1)_s0.pt
-	$(LESS) image fit $(A)/search/train.npz --val $(A)/split/val.npz --rep $$< -o $$@ --dim 3 --seed 0 \
-	  --device $(DEVICE) $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) --format jsonl > $$@.json
-$(DG)/img_$(1)-endtoend_s0.pt: $(DG)/rep_$(1)_s0.pt
-	$(LESS) image fit $(A)/search/train.npz --val $(A)/split/val.npz --rep $$< -o $$@ --dim 3 --seed 0 \
-	  --device $(DEVICE) $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) --finetune --format jsonl > $$@.json
-$(DG)/img_$(1)-endtoend-long_s0.pt: $(DG)/rep_$(1)_s0.pt
-	$(LESS) image fit $(A)/search/train.npz --val $(A)/split/val.npz --rep $$< -o $$@ --dim 3 --seed 0 \
-	  --device $(DEVICE) $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) --finetune \
-	  --epochs $(DIAG_LONG_EPOCHS) --format jsonl > $$@.json
 endef
+# the imaging fits: $(1) model, $(2) variant (its own fit arguments: DIAG_FIT_<variant>)
+DIAG_VARIANTS          := frozen endtoend endtoend-long
+DIAG_FIT_frozen        :=
+DIAG_FIT_endtoend      := --finetune
+DIAG_FIT_endtoend-long := --finetune --epochs $(DIAG_LONG_EPOCHS)
+define DIAG_FIT
+$(DG)/img_$(1)-$(2)_s0.pt: $(DG)/rep_$(1)_s0.pt
+	$(LESS) image fit $(A)/search/train.npz --val $(A)/split/val.npz --rep $$< -o $$@ --dim 3 --seed 0 \
+	  --device $(DEVICE) $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) $(DIAG_FIT_$(2)) --format jsonl > $$@.json
+endef
+$(foreach m,$(DIAG_MODELS),$(foreach v,$(DIAG_VARIANTS),$(eval $(call DIAG_FIT,$(m),$(v)))))
 $(foreach m,$(DIAG_MODELS),$(eval $(call DIAG_TRAIN,$(m))))
 # capacity: the paper regime's seed-0 representation, decoded with five times the imaging epochs (100), scored
 # on its own training scans and on the held-out ones: can the model fit what it was trained on?
@@ -257,7 +258,7 @@ $(DG)/train.npz: | $(A)/search/train.npz
 	ln -sf ../search/train.npz $@
 $(eval $(call ACC_PREDICT,$(DG),val))
 $(eval $(call ACC_PREDICT,$(DG),train))
-DIAG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach v,frozen endtoend endtoend-long,$(foreach t,val train,$(DG)/pred_img_$(m)-$(v)_s0_on_$(t).npz)))
+DIAG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach v,$(DIAG_VARIANTS),$(foreach t,val train,$(DG)/pred_img_$(m)-$(v)_s0_on_$(t).npz)))
 DIAG_LONG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach t,train test,$(P)/pred_img_$(m)-long_s0_on_$(t).npz))
 .PHONY: diagnose
 diagnose: $(DGR)/diagnose.md $(DGR)/capacity.md
