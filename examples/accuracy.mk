@@ -100,8 +100,8 @@ $(P)/forcemap.pt: $(P)/train.npz
 # ---------------------------------------------------------------- predictions: <regime dir>/pred_<imager>_on_<set>.npz
 # each learned imager with its own config's turns; local ones grow their particle grid over the large inserts
 # the model behind an imager stem: img_<model>[-<variant>]_s<seed> (variants: -full, -init, -maponly, -frozen,
-# -endtoend, -long, -endtoend-long, -n<N>-d<D>)
-strip_variant = $(patsubst %-full,%,$(patsubst %-maponly,%,$(patsubst %-init,%,$(patsubst %-frozen,%,$(patsubst %-endtoend,%,$(patsubst %-long,%,$(1)))))))
+# -endtoend, -long, -endtoend-long, -fast, -fast-endtoend, -n<N>-d<D>)
+strip_variant = $(patsubst %-full,%,$(patsubst %-maponly,%,$(patsubst %-init,%,$(patsubst %-frozen,%,$(patsubst %-fast,%,$(patsubst %-endtoend,%,$(patsubst %-long,%,$(1))))))))
 model_of = $(firstword $(subst -n, ,$(call strip_variant,$(word 2,$(subst _, ,$(1))))))
 define ACC_PREDICT
 $(1)/pred_%_on_$(2).npz: $(1)/%.pt $(1)/$(2).npz
@@ -244,12 +244,36 @@ $(foreach m,$(DIAG_MODELS),$(foreach v,$(DIAG_VARIANTS),$(eval $(call DIAG_FIT,$
 $(foreach m,$(DIAG_MODELS),$(eval $(call DIAG_TRAIN,$(m))))
 # capacity: the paper regime's seed-0 representation, decoded with five times the imaging epochs (100), scored
 # on its own training scans and on the held-out ones: can the model fit what it was trained on?
-define DIAG_LONG
-$(P)/img_$(1)-long_s0.pt: $(P)/rep_$(1)_s0.pt
+# $(1) model, $(2) variant (its own fit arguments: DIAG_FIT_<variant>)
+DIAG_FIT_long := --epochs $(DIAG_LONG_EPOCHS)
+define DIAG_PAPER
+$(P)/img_$(1)-$(2)_s0.pt: $(P)/rep_$(1)_s0.pt
 	$(LESS) image fit $(P)/train.npz --val $(P)/val.npz --rep $$< -o $$@ --dim 3 --seed 0 --device $(DEVICE) \
-	  $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) --epochs $(DIAG_LONG_EPOCHS) --format jsonl > $$@.json
+	  $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) $(DIAG_FIT_$(2)) --format jsonl > $$@.json
 endef
-$(foreach m,$(DIAG_MODELS),$(eval $(call DIAG_LONG,$(m))))
+$(foreach m,$(DIAG_MODELS),$(eval $(call DIAG_PAPER,$(m),long)))
+# global's decoder: `make -C examples decoder -j2 [ACC_TIER=winkler]` -> results/diagnose-<tier>/decoder*.
+# decoder_oracle.py fits the global decoder to codes that hold the answer (its ceiling at an imaging setting);
+# `global`'s own states are decoded with the search's other imaging level (trial 0's: lr 1e-2, power 0.5,
+# width 16, -fast), frozen and end to end, on the search scans and in the paper's regime (its val, not test)
+DIAG_FAST := --lr 1e-2 --set loss.alpha_power=0.5 --set image.width=16
+DIAG_FIT_fast := $(DIAG_FAST)
+DIAG_FIT_fast-endtoend := $(DIAG_FAST) --finetune
+$(foreach v,fast fast-endtoend,$(eval $(call DIAG_FIT,global,$(v))))
+$(eval $(call DIAG_PAPER,global,fast))
+$(eval $(call ACC_PREDICT,$(P),val))
+DECODER_PREDS := $(foreach v,frozen fast fast-endtoend,$(foreach t,val train,$(DG)/pred_img_global-$(v)_s0_on_$(t).npz))
+DECODER_PAPER_PREDS := $(foreach i,img_global_s0 img_global-fast_s0,$(foreach t,val train,$(P)/pred_$(i)_on_$(t).npz))
+ORACLE = $(PYTHON) decoder_oracle.py $(A)/search/train.npz --epochs 30
+ORACLE_RUNS := "--code scan --width 32" "--code scan --width 128" \
+  "--code answer --width 32 --val $(A)/split/val.npz" "--code answer --width 128 --val $(A)/split/val.npz" \
+  "--code answer --width 16 --lr 1e-2 --alpha-power 0.5 --val $(A)/split/val.npz"
+.PHONY: decoder
+decoder: $(DGR)/decoder.md $(DGR)/decoder-paper.md $(DGR)/decoder-oracle.txt
+$(DGR)/decoder-oracle.txt: decoder_oracle.py $(A)/search/train.npz $(A)/split/val.npz
+	@mkdir -p $(@D)
+	for a in $(ORACLE_RUNS); do echo "# $(ORACLE) $$a"; \
+	  $(ORACLE) $$a || exit 1; done > $@.part && mv $@.part $@
 $(DG)/val.npz: | $(A)/split/val.npz
 	@mkdir -p $(@D)
 	ln -sf ../split/val.npz $@
@@ -262,11 +286,14 @@ DIAG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach v,$(DIAG_VARIANTS),$(foreach 
 DIAG_LONG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach t,train test,$(P)/pred_img_$(m)-long_s0_on_$(t).npz))
 .PHONY: diagnose
 diagnose: $(DGR)/diagnose.md $(DGR)/capacity.md
-$(DGR)/diagnose.md: $(DIAG_PREDS)
-	@mkdir -p $(@D)
-	$(LESS) metrics $^ --summary-only --format jsonl > $(DGR)/diagnose.jsonl
-	$(PYTHON) headline.py $(DGR)/diagnose.jsonl --no-paper > $@.part && mv $@.part $@
-$(DGR)/capacity.md: $(DIAG_LONG_PREDS)
-	@mkdir -p $(@D)
-	$(LESS) metrics $^ --summary-only --format jsonl > $(DGR)/capacity.jsonl
-	$(PYTHON) headline.py $(DGR)/capacity.jsonl --no-paper > $@.part && mv $@.part $@
+# a diagnosis table: $(1) its name, $(2) its predictions
+define DIAG_TABLE
+$(DGR)/$(1).md: $(2)
+	@mkdir -p $$(@D)
+	$(LESS) metrics $$^ --summary-only --format jsonl > $(DGR)/$(1).jsonl
+	$(PYTHON) headline.py $(DGR)/$(1).jsonl --no-paper > $$@.part && mv $$@.part $$@
+endef
+$(eval $(call DIAG_TABLE,diagnose,$(DIAG_PREDS)))
+$(eval $(call DIAG_TABLE,capacity,$(DIAG_LONG_PREDS)))
+$(eval $(call DIAG_TABLE,decoder,$(DECODER_PREDS)))
+$(eval $(call DIAG_TABLE,decoder-paper,$(DECODER_PAPER_PREDS)))
