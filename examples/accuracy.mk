@@ -243,7 +243,8 @@ endef
 $(foreach m,$(DIAG_MODELS),$(foreach v,$(DIAG_VARIANTS),$(eval $(call DIAG_FIT,$(m),$(v)))))
 $(foreach m,$(DIAG_MODELS),$(eval $(call DIAG_TRAIN,$(m))))
 # capacity: the paper regime's seed-0 representation, decoded with five times the imaging epochs (100), scored
-# on its own training scans and on the held-out ones: can the model fit what it was trained on?
+# on its own training scans and on its validation scans (not the test scans): can the model fit what it was
+# trained on?
 # $(1) model, $(2) variant (its own fit arguments: DIAG_FIT_<variant>)
 DIAG_FIT_long := --epochs $(DIAG_LONG_EPOCHS)
 define DIAG_PAPER
@@ -283,7 +284,7 @@ $(DG)/train.npz: | $(A)/search/train.npz
 $(eval $(call ACC_PREDICT,$(DG),val))
 $(eval $(call ACC_PREDICT,$(DG),train))
 DIAG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach v,$(DIAG_VARIANTS),$(foreach t,val train,$(DG)/pred_img_$(m)-$(v)_s0_on_$(t).npz)))
-DIAG_LONG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach t,train test,$(P)/pred_img_$(m)-long_s0_on_$(t).npz))
+DIAG_LONG_PREDS := $(foreach m,$(DIAG_MODELS),$(foreach t,val train,$(P)/pred_img_$(m)-long_s0_on_$(t).npz))
 .PHONY: diagnose
 diagnose: $(DGR)/diagnose.md $(DGR)/capacity.md
 # a diagnosis table: $(1) its name, $(2) its predictions
