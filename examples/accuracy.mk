@@ -261,10 +261,10 @@ DIAG_FAST := --lr 1e-2 --set loss.alpha_power=0.5 --set image.width=16
 DIAG_FIT_fast := $(DIAG_FAST)
 DIAG_FIT_fast-endtoend := $(DIAG_FAST) --finetune
 $(foreach v,fast fast-endtoend,$(eval $(call DIAG_FIT,global,$(v))))
-$(eval $(call DIAG_PAPER,global,fast))
+$(foreach v,fast fast-endtoend,$(eval $(call DIAG_PAPER,global,$(v))))
 $(eval $(call ACC_PREDICT,$(P),val))
 DECODER_PREDS := $(foreach v,frozen fast fast-endtoend,$(foreach t,val train,$(DG)/pred_img_global-$(v)_s0_on_$(t).npz))
-DECODER_PAPER_PREDS := $(foreach i,img_global_s0 img_global-fast_s0,$(foreach t,val train,$(P)/pred_$(i)_on_$(t).npz))
+DECODER_PAPER_PREDS := $(foreach i,img_global_s0 img_global-fast_s0 img_global-fast-endtoend_s0,$(foreach t,val train,$(P)/pred_$(i)_on_$(t).npz))
 ORACLE = $(PYTHON) decoder_oracle.py $(A)/search/train.npz --epochs 30
 ORACLE_RUNS := "--code scan --width 32" "--code scan --width 128" \
   "--code answer --width 32 --val $(A)/split/val.npz" "--code answer --width 128 --val $(A)/split/val.npz" \
