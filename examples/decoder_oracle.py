@@ -26,6 +26,7 @@ import torch
 from lesscli.data.image_labels import training_targets
 from lesscli.io.labels import INCLUSION
 from lesscli.io.scans import load_scans
+from lesscli.metrics.masks import confusion, f1_from
 from lesscli.models.encoders import ParticleStates
 from lesscli.models.global_decoder import GlobalDecoder
 from lesscli.models.imaging_loss import imaging_loss
@@ -56,12 +57,13 @@ def decode(decoder: GlobalDecoder, z: torch.Tensor, grid) -> torch.Tensor:
 
 
 def f1(decoder: GlobalDecoder, code: torch.Tensor, y: torch.Tensor, grid) -> float:
-    tp = fp = fn = 0
+    """Micro inclusion F1 of the argmax over all scans (0 when no voxel is predicted or true)."""
+    counts = np.zeros(3, dtype=np.int64)
     with torch.no_grad():
         for i in range(0, len(y), 8):
-            pred, true = decode(decoder, code[i:i + 8], grid).argmax(1) == INCLUSION, y[i:i + 8] == INCLUSION
-            tp, fp, fn = tp + int((pred & true).sum()), fp + int((pred & ~true).sum()), fn + int((~pred & true).sum())
-    return 2 * tp / max(1, 2 * tp + fp + fn)
+            pred = decode(decoder, code[i:i + 8], grid).argmax(1) == INCLUSION
+            counts += confusion(pred.numpy(), (y[i:i + 8] == INCLUSION).numpy())
+    return f1_from(*map(int, counts)) or 0.0
 
 
 def main() -> None:
@@ -82,6 +84,7 @@ def main() -> None:
     y, grid = labels(args.train)
     code = torch.eye(len(y)) if args.code == "scan" else answer_code(y)
     val = labels(args.val) if args.val else None
+    val_code = answer_code(val[0]) if val is not None else None
     decoder = GlobalDecoder(code.shape[1], 4, 3, grid.shape, args.width)
     opt = torch.optim.Adam(decoder.parameters(), lr=args.lr)
     t0 = time.perf_counter()
@@ -97,7 +100,7 @@ def main() -> None:
             line = (f"code {args.code} width {args.width} epoch {epoch}: loss {total / len(y):.3f}, "
                     f"train F1 {f1(decoder, code, y, grid):.3f}")
             if val is not None:
-                line += f", val F1 {f1(decoder, answer_code(val[0]), val[0], grid):.3f}"
+                line += f", val F1 {f1(decoder, val_code, val[0], grid):.3f}"
             print(f"{line} ({time.perf_counter() - t0:.0f} s)", flush=True)
 
 
