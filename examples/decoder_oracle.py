@@ -52,7 +52,8 @@ def answer_code(y: torch.Tensor) -> torch.Tensor:
 
 
 def decode(decoder: GlobalDecoder, z: torch.Tensor, grid) -> torch.Tensor:
-    states = ParticleStates(z=z[:, None], xy_mm=torch.zeros(1, 2), seen=torch.ones(len(z), 1, dtype=torch.bool))
+    seen = torch.ones(len(z), 1, dtype=torch.bool)
+    states = ParticleStates(z=z[:, None], xy_mm=torch.zeros(1, 2), seen=seen)
     return decoder(states, grid)
 
 
