@@ -100,8 +100,8 @@ $(P)/forcemap.pt: $(P)/train.npz
 # ---------------------------------------------------------------- predictions: <regime dir>/pred_<imager>_on_<set>.npz
 # each learned imager with its own config's turns; local ones grow their particle grid over the large inserts
 # the model behind an imager stem: img_<model>[-<variant>]_s<seed> (variants: -full, -init, -maponly, -frozen,
-# -endtoend, -long, -endtoend-long, -fast, -fast-endtoend, -n<N>-d<D>)
-strip_variant = $(patsubst %-full,%,$(patsubst %-maponly,%,$(patsubst %-init,%,$(patsubst %-frozen,%,$(patsubst %-fast,%,$(patsubst %-endtoend,%,$(patsubst %-long,%,$(1))))))))
+# -endtoend, -long, -endtoend-long, -fast, -fast-endtoend, -fit, -n<N>-d<D>)
+strip_variant = $(patsubst %-fit,%,$(patsubst %-full,%,$(patsubst %-maponly,%,$(patsubst %-init,%,$(patsubst %-frozen,%,$(patsubst %-fast,%,$(patsubst %-endtoend,%,$(patsubst %-long,%,$(1)))))))))
 model_of = $(firstword $(subst -n, ,$(call strip_variant,$(word 2,$(subst _, ,$(1))))))
 define ACC_PREDICT
 $(1)/pred_%_on_$(2).npz: $(1)/%.pt $(1)/$(2).npz
@@ -298,3 +298,24 @@ $(eval $(call DIAG_TABLE,diagnose,$(DIAG_PREDS)))
 $(eval $(call DIAG_TABLE,capacity,$(DIAG_LONG_PREDS)))
 $(eval $(call DIAG_TABLE,decoder,$(DECODER_PREDS)))
 $(eval $(call DIAG_TABLE,decoder-paper,$(DECODER_PAPER_PREDS)))
+# can each model of the paper's pair (and global-taxel) fit its own training scans in the paper's regime?
+# `make -C examples fit -j2 ACC_TIER=winkler` -> results/diagnose-<tier>/fit.md: the seed-0 representation
+# trained end to end for 100 epochs, the decoder at the search's faster level (lr 1e-2, power 0.5, width 16)
+# and the recurrent encoder at its own lower rate (image.encoder_lr; at 1e-2 it does not learn), scored on
+# its own training scans and its validation scans (not its test scans)
+# and what one `global` state holds (state_probe.py: its memory of the scan, a linear probe for the inclusion),
+# after the config's 20 epochs of self-supervision and after ten times as many -> results/diagnose-<tier>/state-probe.txt
+$(P)/rep_global-ssl200_s0.pt: $(P)/train.npz $(P)/val.npz $(CFG)/global.toml
+	$(LESS) pretrain $(P)/train.npz --val $(P)/val.npz -o $@ --model global --seed 0 --device $(DEVICE) \
+	  $$($(PYTHON) tune.py args $(CFG)/global.toml pretrain) --epochs 200 --format jsonl > $@.json
+$(DGR)/state-probe.txt: state_probe.py $(P)/rep_global_s0.pt $(P)/rep_global-ssl200_s0.pt
+	@mkdir -p $(@D)
+	for r in $(filter %.pt,$^); do $(PYTHON) state_probe.py $$r $(P)/train.npz $(P)/val.npz || exit 1; \
+	  done > $@.part && mv $@.part $@
+FIT_MODELS := less global global-taxel
+DIAG_FIT_fit := $(DIAG_FAST) --finetune --epochs $(DIAG_LONG_EPOCHS) --set image.encoder_lr=3e-3
+$(foreach m,$(FIT_MODELS),$(eval $(call DIAG_PAPER,$(m),fit)))
+FIT_PREDS := $(foreach m,$(FIT_MODELS),$(foreach t,val train,$(P)/pred_img_$(m)-fit_s0_on_$(t).npz))
+.PHONY: fit
+fit: $(DGR)/fit.md $(DGR)/state-probe.txt
+$(eval $(call DIAG_TABLE,fit,$(FIT_PREDS)))

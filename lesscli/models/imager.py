@@ -39,12 +39,14 @@ class Imager(nn.Module):
         decoder: PatchDecoder or GlobalDecoder.
         grid: the default output grid (the training label grid).
         frozen: keep the encoder fixed (no gradients, no graph).
+        encoder_lr: when trained, the encoder's own learning rate (None: the decoder's).
     """
 
-    def __init__(self, encoder: nn.Module, decoder: nn.Module, grid: ImageGrid, frozen: bool = True) -> None:
+    def __init__(self, encoder: nn.Module, decoder: nn.Module, grid: ImageGrid, frozen: bool = True,
+                 encoder_lr: float | None = None) -> None:
         super().__init__()
         self.encoder, self.decoder, self.grid = encoder, decoder, grid
-        self.frozen = frozen
+        self.frozen, self.encoder_lr = frozen, encoder_lr
         if frozen:
             for p in self.encoder.parameters():
                 p.requires_grad_(False)
@@ -54,6 +56,16 @@ class Imager(nn.Module):
         if self.frozen:
             self.encoder.eval()
         return self
+
+    def param_groups(self, lr: float) -> list[dict]:
+        """The optimiser's parameter groups: one at ``lr`` unless a trained encoder has its own rate."""
+        trained = [p for p in self.parameters() if p.requires_grad]
+        if self.frozen or self.encoder_lr is None:
+            return [{"params": trained, "lr": lr}]
+        encoder = {id(p) for p in self.encoder.parameters()}
+        return [g for g in ({"params": [p for p in trained if id(p) not in encoder], "lr": lr},
+                            {"params": [p for p in trained if id(p) in encoder], "lr": self.encoder_lr})
+                if g["params"]]
 
     def states(self, batch):
         """The encoder's ParticleStates (no graph when frozen)."""

@@ -48,6 +48,7 @@ class ImageModelConfig:
     stitch: str = "sum"           # overlapping patch logits: sum (paper) or mean
     context: int = 0              # k x k convolution over the particle grid before decoding (odd; 0: none)
     finetune: bool = False        # train the representation too
+    encoder_lr: float | None = None  # with finetune: the representation's learning rate; None: train.lr
     slice: int = AUTO_SLICE       # 2D label slice; -1 = through the inclusion centre
     select: str = "f1"            # best epoch on --val: inclusion "f1" (ties: loss) or "loss"
     threshold: float | None = None  # inclusion only above this probability at predict; None: chosen on --val
@@ -84,7 +85,8 @@ _RULES = [("image.dim", lambda v: v in (2, 3), "2 or 3"), ("image.width", lambda
           ("image.min_volume_mm3", lambda v: v is None or v >= 0, "unset or >= 0"),
           ("image.smooth_mm", lambda v: v is None or v >= 0, "unset or >= 0"),
           ("train.epochs", lambda v: v >= 1, ">= 1"), ("train.batch_size", lambda v: v >= 1, ">= 1"),
-          ("train.lr", lambda v: v > 0, "> 0")]
+          ("train.lr", lambda v: v > 0, "> 0"),
+          ("image.encoder_lr", lambda v: v is None or v > 0, "unset or > 0")]
 
 
 def check_config(cfg: ImageFitConfig) -> ImageFitConfig:
@@ -93,6 +95,9 @@ def check_config(cfg: ImageFitConfig) -> ImageFitConfig:
     if cfg.image.decoder and cfg.image.decoder not in DECODERS:
         raise SettingError("image.decoder", cfg.image.decoder, f"one of {', '.join(sorted(DECODERS))} "
                            "(or unset: the encoder's own)")
+    if cfg.image.encoder_lr is not None and not cfg.image.finetune:
+        raise SettingError("image.encoder_lr", cfg.image.encoder_lr,
+                           "unset unless --finetune trains the representation")
     return cfg
 
 
@@ -303,7 +308,8 @@ def fit_imager(train: ScanSet, val: ScanSet | None, rep_path: str, cfg: ImageFit
         by_f1 = cfg.image.select == "f1" and any(bool((t == INCLUSION).any()) for t in val_targets)
     enc_cfg = encoder.config()
     dec = decoder_settings(cfg, enc_cfg["name"], encoder.dim, grid)
-    model = Imager(encoder, build_decoder(dec, cfg.train.seed), grid, frozen=not cfg.image.finetune)
+    model = Imager(encoder, build_decoder(dec, cfg.train.seed), grid, frozen=not cfg.image.finetune,
+                   encoder_lr=cfg.image.encoder_lr)
     config = {**to_dict(cfg), "encoder": enc_cfg, "decoder": dec, "grid": grid_to_dict(grid),
               "representation": {"path": rep_path, "config": rep.get("config", {})}}
     inputs = fit_inputs(model, train_set, val_set, cfg.train.batch_size, env.device,

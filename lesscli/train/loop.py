@@ -144,7 +144,9 @@ class _Trainer:
         self.ckpt_info, self.watch = ckpt_info, watch
         params = [p for p in self.raw.parameters() if p.requires_grad]
         self.params = params
-        self.opt = torch.optim.Adam(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+        # a model may give its parts their own learning rates (an imager's trained encoder)
+        groups = self.raw.param_groups(cfg.lr) if params and hasattr(self.raw, "param_groups") else params
+        self.opt = torch.optim.Adam(groups, lr=cfg.lr, weight_decay=cfg.weight_decay)
         self.total_steps = 1
         self.sched = None
         self.data_gen = torch.Generator()

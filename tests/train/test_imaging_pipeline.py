@@ -6,8 +6,10 @@ import math
 import nibabel as nib
 import numpy as np
 import pytest
+import torch
 from imaging_factory import TOUCH_X_MM, learnable_scanset, make_representation
 
+from lesscli.io.checkpoint import encoder_state
 from lesscli.io.labels import INCLUSION
 from lesscli.io.predictions import load_predictions
 from lesscli.io.scans import save_scans
@@ -126,6 +128,16 @@ def test_resume_finetune_and_errors(tmp_path, run_less, sets):
     (tuned,) = _ok(run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "b.pt", "--epochs", "1",
                             "--finetune", *common, env=ONE_THREAD))
     assert not tuned["frozen"] and tuned["trainable_parameters"] > first["trainable_parameters"]
+    # image.encoder_lr: the representation's own learning rate, the decoder's --lr unchanged
+    rep = encoder_state(torch.load(tmp_path / "rep.pt", weights_only=False)["model_state"])
+    moved = {}
+    for name, extra in (("b.pt", []), ("slow.pt", ["--set", "image.encoder_lr=1e-9"])):
+        if extra:
+            _ok(run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", name, "--epochs", "1",
+                         "--finetune", *extra, *common, env=ONE_THREAD))
+        state = torch.load(tmp_path / name, weights_only=False)["model_state"]
+        moved[name] = max(float((v - rep[k]).abs().max()) for k, v in encoder_state(state).items())
+    assert moved["b.pt"] > 1e-4 and moved["slow.pt"] < 1e-7
     # a representation is not an imaging model
     proc = run_less("image", "predict", "rep.pt", "test.npz", "-o", "p.npz", "--device", "cpu")
     assert (proc.returncode == 1 and b"not an imaging checkpoint" in proc.stderr
@@ -152,12 +164,14 @@ def test_resume_finetune_and_errors(tmp_path, run_less, sets):
 @pytest.mark.parametrize("key,value,ok", [
     ("image.patch_px", 4, False), ("image.patch_px", 8, True), ("image.patch_px", 12, False),
     ("image.patch_px", 64, True),           # a 4-pixel patch would be the first feature map itself
-    ("loss.dice_per", "batch", True), ("loss.dice_per", "scan", True), ("loss.dice_per", "voxel", False)])
+    ("loss.dice_per", "batch", True), ("loss.dice_per", "scan", True), ("loss.dice_per", "voxel", False),
+    ("image.encoder_lr", None, True), ("image.encoder_lr", 3e-3, True), ("image.encoder_lr", 0.0, False)])
 def test_image_fit_settings_are_checked(key, value, ok):
     from lesscli.errors import LessError
     from lesscli.train.image_fit import ImageFitConfig, check_config
 
     cfg = ImageFitConfig()
+    cfg.image.finetune = key == "image.encoder_lr"
     section, name = key.split(".")
     setattr(getattr(cfg, section), name, value)
     if ok:
@@ -165,3 +179,14 @@ def test_image_fit_settings_are_checked(key, value, ok):
     else:
         with pytest.raises(LessError, match=f"{key} = {value!r} is invalid: must be "):
             check_config(cfg)
+
+
+def test_encoder_lr_needs_finetune():
+    """An encoder learning rate for a frozen representation would be ignored: it is refused instead."""
+    from lesscli.errors import LessError
+    from lesscli.train.image_fit import ImageFitConfig, check_config
+
+    cfg = ImageFitConfig()
+    cfg.image.encoder_lr = 3e-3
+    with pytest.raises(LessError, match="encoder_lr = 0.003 is invalid: must be unset unless --finetune"):
+        check_config(cfg)
