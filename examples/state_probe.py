@@ -24,7 +24,6 @@ from decoder_oracle import answer_code, labels
 
 from lesscli.data.batching import batches
 from lesscli.io.scans import load_scans
-from lesscli.models.recurrence import ragged_gru
 from lesscli.train.representation import load_representation
 
 LAGS = (0, 5, 10, 20, 40, 80, 120, 160)
@@ -34,10 +33,18 @@ TARGETS = ("depth", "row", "column", "size")
 def horizon(encoder, batch) -> np.ndarray:
     """(T,) Jacobian norm of the last state with respect to the input of each step, last step first."""
     seq = encoder.gather_sequence(batch)
-    x = encoder.fle(seq.pose[seq.mask], seq.force[seq.mask]).detach().requires_grad_(True)
-    z = ragged_gru(x.new_zeros(*seq.mask.shape, x.shape[-1]).index_put((seq.mask,), x), seq.count,
-                   encoder.gru)
-    last = z[0, seq.count[0] - 1]
+    inputs = []
+
+    def track(module, args, out):                       # the encoder's own path, from a leaf input on
+        inputs.append(out.detach().requires_grad_(True))
+        return inputs[-1]
+
+    hook = encoder.fle.register_forward_hook(track)
+    try:
+        z = encoder.states_at(batch, seq)
+    finally:
+        hook.remove()
+    x, last = inputs[0], z[0, seq.count[0] - 1]
     jac = torch.stack([torch.autograd.grad(last[k], x, retain_graph=True)[0] for k in range(last.shape[0])])
     return jac.norm(dim=(0, 2)).numpy()[::-1]
 

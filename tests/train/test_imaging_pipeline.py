@@ -154,6 +154,10 @@ def test_resume_finetune_and_errors(tmp_path, run_less, sets):
     proc = run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "d.pt", "--select", "dice", *common)
     assert proc.returncode == 2 and b"--select" in proc.stderr
     proc = run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "d.pt", "--set",
+                    "image.encoder_lr=3e-3", *common)           # a rate for a frozen representation
+    assert (proc.returncode == 2 and b"image.encoder_lr" in proc.stderr and b"--finetune" in proc.stderr
+            and not (tmp_path / "d.pt").exists())
+    proc = run_less("image", "fit", "train.npz", "--rep", "rep.pt", "-o", "d.pt", "--set",
                     "loss.alpha_power=5", *common)
     assert proc.returncode == 2 and b"loss.alpha_power" in proc.stderr and not (tmp_path / "d.pt").exists()
     assert proc.stderr.decode().strip().splitlines()[-1] == ("Error: Invalid value for '--set': 5.0: "
