@@ -104,8 +104,23 @@ def main(argv: list[str] | None = None) -> None:
     except LessError as exc:
         _fail(str(exc), 1)
     except Exception as exc:  # noqa: BLE001 - last line of defence: one line, exit 1
+        if _interrupted(exc):
+            click.echo("less: interrupted", err=True)
+            sys.exit(130)
         _fail(f"{type(exc).__name__}: {exc} (run with -v for the traceback)", 1)
     _flush_stdout()
+
+
+def _interrupted(exc: BaseException) -> bool:
+    """Whether a Ctrl-C lies under ``exc``: one that arrives while a module is being imported can come
+    back wrapped (Python re-raises it from ``__set_name__`` as a RuntimeError)."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def _flush_stdout() -> None:

@@ -12,6 +12,7 @@ import pytest
 from conftest import popen_interruptible
 from factories import random_scanset
 
+from lesscli.cli.main import main
 from lesscli.cli.registry import COMMANDS
 from lesscli.io.atomic import atomic_path
 from lesscli.io.scans import save_scans
@@ -105,6 +106,24 @@ def test_ctrl_c_exits_130(tmp_path):
         proc.kill()
     assert proc.returncode == 130, err
     assert b"interrupted" in err and b"Traceback" not in err
+
+
+def test_ctrl_c_wrapped_by_an_import_still_exits_130(monkeypatch, capsys, scanset_file):
+    """A Ctrl-C during a class body's ``__set_name__`` (torch's import) comes back as a RuntimeError
+    whose cause is the KeyboardInterrupt: still an interrupt, not an error."""
+    from lesscli.data import describe
+
+    def interrupted_import(*_args, **_kwargs):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise RuntimeError("Error calling __set_name__ on 'Field' instance") from exc
+
+    monkeypatch.setattr(describe, "describe_file", interrupted_import)
+    with pytest.raises(SystemExit) as stop:
+        main(["info", str(scanset_file)])
+    assert stop.value.code == 130
+    assert capsys.readouterr().err == "less: interrupted\n"
 
 
 def test_closed_pipe_is_not_an_error(tmp_path):
