@@ -60,18 +60,40 @@ def val_scores(pred: str, args: argparse.Namespace) -> dict:
     return {k: row.get(k) for k in (SCORE, TIE, "f1_micro_2d", "com_error_mm_2d")}
 
 
-def run_trial(trial: dict, turns: list[int], args: argparse.Namespace) -> dict:
-    work = Path(args.work)
-    rep, img = work / f"rep_t{trial['trial']}.pt", work / f"img_t{trial['trial']}.pt"
+def pretrained(trial: dict, trials: list[dict], args: argparse.Namespace) -> tuple[Path, dict]:
+    """The trial's representation and its `less pretrain` record. Trials with the same pretrain arguments
+    share one (named after the first of them), trained once: a rerun reuses it when its arguments match."""
+    first = next(t["trial"] for t in trials if t["pretrain"] == trial["pretrain"])
+    rep = Path(args.work) / f"rep_t{first}.pt"
+    meta = rep.with_suffix(".json")
+    if rep.exists() and meta.exists():
+        saved = json.loads(meta.read_text())
+        if saved["pretrain"] == trial["pretrain"] and saved["seed"] == args.seed:
+            return rep, saved
     t0 = time.perf_counter()
     ssl = less(["pretrain", args.train, "--val", args.val, "-o", str(rep), "--model", args.model,
                 "--seed", str(args.seed), *trial["pretrain"]], args)
+    saved = {"pretrain": trial["pretrain"], "seed": args.seed, "record": ssl,
+             "seconds": round(time.perf_counter() - t0, 1)}
+    meta.write_text(json.dumps(saved))
+    return rep, saved
+
+
+def run_trial(trial: dict, trials: list[dict], turns: list[int], args: argparse.Namespace) -> dict:
+    work = Path(args.work)
+    rep, ssl = pretrained(trial, trials, args)
+    img = work / f"img_t{trial['trial']}.pt"
+    t0 = time.perf_counter()
     fit = less(["image", "fit", args.train, "--val", args.val, "--rep", str(rep), "-o", str(img), "--dim",
                 "3", "--seed", str(args.seed), *trial["fit"]], args)
-    record = {**trial, "model": args.model, "ssl_best_loss": ssl.get("best_loss"),
-              "ssl_best_epoch": ssl.get("best_epoch"), "fit_best_epoch": fit.get("best_epoch"),
+    fit_seconds = round(time.perf_counter() - t0, 1)
+    # train_seconds: what the trial's model costs to train from nothing (its self-supervision counted in
+    # full even where another trial shares it)
+    record = {**trial, "model": args.model, "ssl_best_loss": ssl["record"].get("best_loss"),
+              "ssl_best_epoch": ssl["record"].get("best_epoch"), "fit_best_epoch": fit.get("best_epoch"),
               "labelling": {k: fit.get(k) for k in ("threshold", "min_volume_mm3", "smooth_mm")},
-              "train_seconds": round(time.perf_counter() - t0, 1), "val": {}}
+              "ssl_seconds": ssl["seconds"], "fit_seconds": fit_seconds,
+              "train_seconds": round(ssl["seconds"] + fit_seconds, 1), "val": {}}
     for k in turns:
         pred = work / f"pred_t{trial['trial']}_turns{k}.npz"
         less(["image", "predict", str(img), args.val, "-o", str(pred), "--turns", str(k)], args)
@@ -115,13 +137,14 @@ def cmd_run(args: argparse.Namespace) -> None:
     done = {}
     if Path(args.log).exists():                      # a rerun continues the search where it stopped
         done = {r["trial"]: r for r in map(json.loads, Path(args.log).read_text().splitlines())
-                if r.get("pretrain") == space["trials"][r["trial"]]["pretrain"]}
+                if r["trial"] < len(space["trials"])
+                and all(r.get(k) == space["trials"][r["trial"]][k] for k in ("pretrain", "fit"))}
     records = []
     for trial in space["trials"]:
         if trial["trial"] in done:
             records.append(done[trial["trial"]])
             continue
-        record = run_trial(trial, space["turns"], args)
+        record = run_trial(trial, space["trials"], space["turns"], args)
         records.append(record)
         with open(args.log, "a") as log:
             log.write(json.dumps(record) + "\n")

@@ -65,7 +65,7 @@ def test_a_tiny_search_writes_its_log_and_the_chosen_config(tmp_path):
     space.write_text('[common]\npretrain = ["--epochs", "1", "--set", "n_freq=2"]\n'
                      'fit = ["--epochs", "1", "--set", "image.patch_px=8", "--set", "image.width=8"]\n'
                      'turns = [1, 2]\n[[trial]]\npretrain = ["--dim", "8"]\n[[trial]]\npretrain = ["--dim", '
-                     '"4"]\n')
+                     '"4"]\n[[trial]]\npretrain = ["--dim", "8"]\nfit = ["--lr", "1e-3"]\n')
     cmd = [sys.executable, str(SCRIPT), "run", "--model", "less-taxel", "--space", str(space), "--train",
            "tr.npz", "--val", "va.npz", "--work", "work", "--log", "log.jsonl", "-o", "best.toml", "--less",
            str(BIN / "less")]
@@ -74,7 +74,11 @@ def test_a_tiny_search_writes_its_log_and_the_chosen_config(tmp_path):
                                                                                   "PATH": str(BIN)})
     assert proc.returncode == 0, proc.stderr
     log = [json.loads(line) for line in (tmp_path / "log.jsonl").read_text().splitlines()]
-    assert [r["trial"] for r in log] == [0, 1] and all(set(r["val"]) == {"1", "2"} for r in log)
+    assert [r["trial"] for r in log] == [0, 1, 2] and all(set(r["val"]) == {"1", "2"} for r in log)
+    # trial 2 shares trial 0's self-supervision: one representation, trained once, its cost counted in both
+    assert sorted(p.name for p in (tmp_path / "work").glob("rep_t?.pt")) == ["rep_t0.pt", "rep_t1.pt"]
+    assert all(log[2][k] == log[0][k] for k in ("ssl_best_loss", "ssl_seconds"))
+    assert log[2]["train_seconds"] == round(log[2]["ssl_seconds"] + log[2]["fit_seconds"], 1)
     config = tomllib.loads((tmp_path / "best.toml").read_text())
     best, turns = _module().choose(log)
     assert (config["trial"], config["turns"]) == (best["trial"], turns)
@@ -86,3 +90,10 @@ def test_a_tiny_search_writes_its_log_and_the_chosen_config(tmp_path):
                            env={"OMP_NUM_THREADS": "1",
                                                                                    "PATH": str(BIN)})
     assert again.returncode == 0 and again.stderr == ""            # a rerun reads the log, trains nothing
+    # a trial whose fit arguments changed since its record is run again, on the shared representation
+    space.write_text(space.read_text().replace('"1e-3"', '"2e-3"'))
+    changed = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, check=False,
+                             env={"OMP_NUM_THREADS": "1", "PATH": str(BIN)})
+    assert changed.returncode == 0, changed.stderr
+    reruns = [json.loads(line) for line in changed.stderr.splitlines()]
+    assert [r["trial"] for r in reruns] == [2]
