@@ -13,7 +13,7 @@
 #   paper  the authors' split: the catalogue's single inserts at all 8 orientations, split by scan file (an
 #          insert may sit in training and test at another orientation), tested on the held-out scans, on
 #          multiple and on large, and scored on its own training scans. Tables: results/accuracy-paper$(ACC_SUFFIX)/
-# Every learned imager reads its settings from tuning/<tier>/<model>.toml: the best of the same four trials
+# Every learned imager reads its settings from tuning/<tier>/<model>.toml: the best of the same six trials
 # (tuning/space.toml) on the validation scans of our regime (`make tune`, examples/tune.py; logs in
 # results/tuning-<tier>/). Test sets are read by the `accuracy` target only.
 
@@ -27,6 +27,9 @@ AR         := results/accuracy$(ACC_SUFFIX)
 PR         := results/accuracy-paper$(ACC_SUFFIX)
 CFG        := tuning/$(ACC_TIER)
 TUNE_LOG   := results/tuning-$(ACC_TIER)
+# the first run's configs (the best of the frozen trials 0-3): the diagnosis and the scaling study of the
+# paper's pair were made with them and read them still; their self-supervision is the current configs' too
+FCFG       := $(CFG)/frozen
 PYTHON     ?= python3
 ACC_MODELS := less global less-taxel global-taxel
 ACC_COUNT  ?= 240
@@ -100,8 +103,8 @@ $(P)/forcemap.pt: $(P)/train.npz
 # ---------------------------------------------------------------- predictions: <regime dir>/pred_<imager>_on_<set>.npz
 # each learned imager with its own config's turns; local ones grow their particle grid over the large inserts
 # the model behind an imager stem: img_<model>[-<variant>]_s<seed> (variants: -full, -init, -maponly, -frozen,
-# -endtoend, -long, -endtoend-long, -fast, -fast-endtoend, -fit, -n<N>-d<D>)
-strip_variant = $(patsubst %-fit,%,$(patsubst %-full,%,$(patsubst %-maponly,%,$(patsubst %-init,%,$(patsubst %-frozen,%,$(patsubst %-fast,%,$(patsubst %-endtoend,%,$(patsubst %-long,%,$(1)))))))))
+# -endtoend, -long, -endtoend-long, -fast, -fast-endtoend, -fit, -last, -n<N>-d<D>)
+strip_variant = $(patsubst %-last,%,$(patsubst %-fit,%,$(patsubst %-full,%,$(patsubst %-maponly,%,$(patsubst %-init,%,$(patsubst %-frozen,%,$(patsubst %-fast,%,$(patsubst %-endtoend,%,$(patsubst %-long,%,$(1))))))))))
 model_of = $(firstword $(subst -n, ,$(call strip_variant,$(word 2,$(subst _, ,$(1))))))
 define ACC_PREDICT
 $(1)/pred_%_on_$(2).npz: $(1)/%.pt $(1)/$(2).npz
@@ -192,12 +195,12 @@ $(SC)/val.npz: | $(A)/split/val.npz
 	@mkdir -p $(@D)
 	ln -sf ../split/val.npz $@
 define SCALE_TRAIN
-$(SC)/rep_$(1)-n$(2)-d$(3)_s0.pt: $(SC)/train$(2).npz $(SC)/val.npz $(CFG)/$(1).toml
+$(SC)/rep_$(1)-n$(2)-d$(3)_s0.pt: $(SC)/train$(2).npz $(SC)/val.npz $(FCFG)/$(1).toml
 	$(LESS) pretrain $$< --val $(SC)/val.npz -o $$@ --model $(1) --seed 0 --device $(DEVICE) \
-	  $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml pretrain) --dim $(3) --format jsonl > $$@.json
+	  $$$$($(PYTHON) tune.py args $(FCFG)/$(1).toml pretrain) --dim $(3) --format jsonl > $$@.json
 $(SC)/img_$(1)-n$(2)-d$(3)_s0.pt: $(SC)/rep_$(1)-n$(2)-d$(3)_s0.pt
 	$(LESS) image fit $(SC)/train$(2).npz --val $(SC)/val.npz --rep $$< -o $$@ --dim 3 --seed 0 --device $(DEVICE) \
-	  $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) --format jsonl > $$@.json
+	  $$$$($(PYTHON) tune.py args $(FCFG)/$(1).toml fit) --format jsonl > $$@.json
 endef
 $(foreach m,$(SCALE_MODELS),$(foreach n,$(SCALE_SCANS),$(foreach d,$(call scale_dims,$(m)),$(eval $(call SCALE_TRAIN,$(m),$(n),$(d))))))
 $(eval $(call ACC_PREDICT,$(SC),val))
@@ -225,10 +228,10 @@ DG  := $(A)/diagnose
 DGR := results/diagnose-$(ACC_TIER)
 DIAG_MODELS ?= less global
 define DIAG_TRAIN
-$(DG)/rep_$(1)_s0.pt: $(A)/search/train.npz $(A)/split/val.npz $(CFG)/$(1).toml
+$(DG)/rep_$(1)_s0.pt: $(A)/search/train.npz $(A)/split/val.npz $(FCFG)/$(1).toml
 	@mkdir -p $$(@D)
 	$(LESS) pretrain $(A)/search/train.npz --val $(A)/split/val.npz -o $$@ --model $(1) --seed 0 --device $(DEVICE) \
-	  $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml pretrain) --format jsonl > $$@.json
+	  $$$$($(PYTHON) tune.py args $(FCFG)/$(1).toml pretrain) --format jsonl > $$@.json
 endef
 # the imaging fits: $(1) model, $(2) variant (its own fit arguments: DIAG_FIT_<variant>)
 DIAG_VARIANTS          := frozen endtoend endtoend-long
@@ -238,7 +241,7 @@ DIAG_FIT_endtoend-long := --finetune --epochs $(DIAG_LONG_EPOCHS)
 define DIAG_FIT
 $(DG)/img_$(1)-$(2)_s0.pt: $(DG)/rep_$(1)_s0.pt
 	$(LESS) image fit $(A)/search/train.npz --val $(A)/split/val.npz --rep $$< -o $$@ --dim 3 --seed 0 \
-	  --device $(DEVICE) $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) $(DIAG_FIT_$(2)) --format jsonl > $$@.json
+	  --device $(DEVICE) $$$$($(PYTHON) tune.py args $(FCFG)/$(1).toml fit) $(DIAG_FIT_$(2)) --format jsonl > $$@.json
 endef
 $(foreach m,$(DIAG_MODELS),$(foreach v,$(DIAG_VARIANTS),$(eval $(call DIAG_FIT,$(m),$(v)))))
 $(foreach m,$(DIAG_MODELS),$(eval $(call DIAG_TRAIN,$(m))))
@@ -250,7 +253,7 @@ DIAG_FIT_long := --epochs $(DIAG_LONG_EPOCHS)
 define DIAG_PAPER
 $(P)/img_$(1)-$(2)_s0.pt: $(P)/rep_$(1)_s0.pt
 	$(LESS) image fit $(P)/train.npz --val $(P)/val.npz --rep $$< -o $$@ --dim 3 --seed 0 --device $(DEVICE) \
-	  $$$$($(PYTHON) tune.py args $(CFG)/$(1).toml fit) $(DIAG_FIT_$(2)) --format jsonl > $$@.json
+	  $$$$($(PYTHON) tune.py args $(FCFG)/$(1).toml fit) $(DIAG_FIT_$(2)) --format jsonl > $$@.json
 endef
 $(foreach m,$(DIAG_MODELS),$(eval $(call DIAG_PAPER,$(m),long)))
 # global's decoder: `make -C examples decoder -j2 [ACC_TIER=winkler]` -> results/diagnose-<tier>/decoder*.
@@ -305,9 +308,9 @@ $(eval $(call DIAG_TABLE,decoder-paper,$(DECODER_PAPER_PREDS)))
 # its own training scans and its validation scans (not its test scans)
 # and what one `global` state holds (state_probe.py: its memory of the scan, a linear probe for the inclusion),
 # after the config's 20 epochs of self-supervision and after ten times as many -> results/diagnose-<tier>/state-probe.txt
-$(P)/rep_global-ssl200_s0.pt: $(P)/train.npz $(P)/val.npz $(CFG)/global.toml
+$(P)/rep_global-ssl200_s0.pt: $(P)/train.npz $(P)/val.npz $(FCFG)/global.toml
 	$(LESS) pretrain $(P)/train.npz --val $(P)/val.npz -o $@ --model global --seed 0 --device $(DEVICE) \
-	  $$($(PYTHON) tune.py args $(CFG)/global.toml pretrain) --epochs 200 --format jsonl > $@.json
+	  $$($(PYTHON) tune.py args $(FCFG)/global.toml pretrain) --epochs 200 --format jsonl > $@.json
 $(DGR)/state-probe.txt: state_probe.py $(P)/rep_global_s0.pt $(P)/rep_global-ssl200_s0.pt
 	@mkdir -p $(@D)
 	for r in $(filter %.pt,$^); do $(PYTHON) state_probe.py $$r $(P)/train.npz $(P)/val.npz || exit 1; \
@@ -319,3 +322,17 @@ FIT_PREDS := $(foreach m,$(FIT_MODELS),$(foreach t,val train,$(P)/pred_img_$(m)-
 .PHONY: fit
 fit: $(DGR)/fit.md $(DGR)/state-probe.txt
 $(eval $(call DIAG_TABLE,fit,$(FIT_PREDS)))
+# learnt or memorised? each end-to-end imager of the headline's paper regime at its last epoch (the loop's
+# <stem>.last.pt, kept beside the checkpoint chosen on validation; labelled by argmax, as it carries no rule
+# chosen on validation), on its own training scans and its validation scans (not its test scans):
+# `make -C examples last ACC_TIER=winkler` -> results/diagnose-<tier>/last.md
+LAST_MODELS := less global global-taxel
+define LAST_LINK
+$(P)/img_$(1)-last_s$(2).pt: $(P)/img_$(1)_s$(2).pt
+	ln -sf img_$(1)_s$(2).last.pt $$@
+endef
+$(foreach m,$(LAST_MODELS),$(foreach s,$(SEEDS),$(eval $(call LAST_LINK,$(m),$(s)))))
+LAST_PREDS := $(foreach m,$(LAST_MODELS),$(foreach s,$(SEEDS),$(foreach t,val train,$(P)/pred_img_$(m)-last_s$(s)_on_$(t).npz)))
+.PHONY: last
+last: $(DGR)/last.md
+$(eval $(call DIAG_TABLE,last,$(LAST_PREDS)))
