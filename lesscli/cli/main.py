@@ -96,8 +96,7 @@ def main(argv: list[str] | None = None) -> None:
         exc.show()
         sys.exit(exc.exit_code)
     except (KeyboardInterrupt, click.exceptions.Abort):
-        click.echo("less: interrupted", err=True)
-        sys.exit(130)
+        _interrupt()
     except (BrokenPipeError, PipeClosed):
         _silence_stdout()
         sys.exit(0)
@@ -105,10 +104,14 @@ def main(argv: list[str] | None = None) -> None:
         _fail(str(exc), 1)
     except Exception as exc:  # noqa: BLE001 - last line of defence: one line, exit 1
         if _interrupted(exc):
-            click.echo("less: interrupted", err=True)
-            sys.exit(130)
+            _interrupt()
         _fail(f"{type(exc).__name__}: {exc} (run with -v for the traceback)", 1)
     _flush_stdout()
+
+
+def _interrupt() -> None:
+    click.echo("less: interrupted", err=True)
+    sys.exit(130)
 
 
 def _interrupted(exc: BaseException) -> bool:
