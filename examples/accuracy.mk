@@ -194,15 +194,25 @@ $(SC)/train204.npz: $(A)/split/train.npz $(A)/split/reserve.npz
 $(SC)/val.npz: | $(A)/split/val.npz
 	@mkdir -p $(@D)
 	ln -sf ../split/val.npz $@
-define SCALE_TRAIN
-$(SC)/rep_$(1)-n$(2)-d$(3)_s0.pt: $(SC)/train$(2).npz $(SC)/val.npz $(FCFG)/$(1).toml
-	$(LESS) pretrain $$< --val $(SC)/val.npz -o $$@ --model $(1) --seed 0 --device $(DEVICE) \
-	  $$$$($(PYTHON) tune.py args $(FCFG)/$(1).toml pretrain) --dim $(3) --format jsonl > $$@.json
-$(SC)/img_$(1)-n$(2)-d$(3)_s0.pt: $(SC)/rep_$(1)-n$(2)-d$(3)_s0.pt
-	$(LESS) image fit $(SC)/train$(2).npz --val $(SC)/val.npz --rep $$< -o $$@ --dim 3 --seed 0 --device $(DEVICE) \
-	  $$$$($(PYTHON) tune.py args $(FCFG)/$(1).toml fit) --format jsonl > $$@.json
+# one seed-0 training of a study (scaling, density): $(1) folder, $(2) model, $(3) the variant in its stem
+# (img_<model>-<variant>_s0), $(4) training set, $(5) validation set, $(6) config folder, $(7) extra
+# self-supervision arguments
+define STUDY_TRAIN
+$(1)/rep_$(2)-$(3)_s0.pt: $(4) $(5) $(6)/$(2).toml
+	$(LESS) pretrain $(4) --val $(5) -o $$@ --model $(2) --seed 0 --device $(DEVICE) \
+	  $$$$($(PYTHON) tune.py args $(6)/$(2).toml pretrain) $(7) --format jsonl > $$@.json
+$(1)/img_$(2)-$(3)_s0.pt: $(1)/rep_$(2)-$(3)_s0.pt
+	$(LESS) image fit $(4) --val $(5) --rep $$< -o $$@ --dim 3 --seed 0 --device $(DEVICE) \
+	  $$$$($(PYTHON) tune.py args $(6)/$(2).toml fit) --format jsonl > $$@.json
 endef
-$(foreach m,$(SCALE_MODELS),$(foreach n,$(SCALE_SCANS),$(foreach d,$(call scale_dims,$(m)),$(eval $(call SCALE_TRAIN,$(m),$(n),$(d))))))
+# each training's seconds (self-supervision and imaging fit) behind a study's predictions on val.npz:
+# $(1) those predictions, $(2) the JSON lines written
+define STUDY_TIMES
+	for f in $(subst /pred_,/,$(1:_on_val.npz=.pt)); do \
+	  $(PYTHON) -c 'import json,sys; a,b=(json.loads(open(p).read().splitlines()[-1]) for p in sys.argv[2:]); print(json.dumps({"imager": sys.argv[1], "seconds": a["seconds"] + b["seconds"]}))' \
+	    $$(basename $$f .pt) $$(echo $$f | sed 's|/img_|/rep_|').json $$f.json || exit 1; done > $(2)
+endef
+$(foreach m,$(SCALE_MODELS),$(foreach n,$(SCALE_SCANS),$(foreach d,$(call scale_dims,$(m)),$(eval $(call STUDY_TRAIN,$(SC),$(m),n$(n)-d$(d),$(SC)/train$(n).npz,$(SC)/val.npz,$(FCFG),--dim $(d))))))
 $(eval $(call ACC_PREDICT,$(SC),val))
 SCALE_PREDS := $(foreach m,$(SCALE_MODELS),$(foreach n,$(SCALE_SCANS),$(foreach d,$(call scale_dims,$(m)),$(SC)/pred_img_$(m)-n$(n)-d$(d)_s0_on_val.npz)))
 .PHONY: scaling
@@ -210,9 +220,7 @@ scaling: $(SCR)/scaling.md
 $(SCR)/scaling.md: $(SCALE_PREDS)
 	@mkdir -p $(@D)
 	$(LESS) metrics $^ --summary-only --format jsonl > $(SCR)/scaling.jsonl
-	for f in $(subst /pred_,/,$(SCALE_PREDS:_on_val.npz=.pt)); do \
-	  $(PYTHON) -c 'import json,sys; a,b=(json.loads(open(p).read().splitlines()[-1]) for p in sys.argv[2:]); print(json.dumps({"imager": sys.argv[1], "seconds": a["seconds"] + b["seconds"]}))' \
-	    $$(basename $$f .pt) $$(echo $$f | sed 's|/img_|/rep_|').json $$f.json || exit 1; done > $(SCR)/times.jsonl
+	$(call STUDY_TIMES,$(SCALE_PREDS),$(SCR)/times.jsonl)
 	$(PYTHON) headline.py $(SCR)/scaling.jsonl --no-paper --times $(SCR)/times.jsonl > $@.part && mv $@.part $@
 
 # ---------------------------------------------------------------- what holds the paper's pair back
@@ -351,3 +359,61 @@ LONGER_PREDS := $(foreach s,$(LONGER_SEEDS),$(foreach t,val train,$(P)/pred_img_
 .PHONY: longer
 longer: $(DGR)/longer.md
 $(eval $(call DIAG_TABLE,longer,$(LONGER_PREDS)))
+
+# ---------------------------------------------------------------- the paper's scan density
+#   make -C examples density -j2 [ACC_TIER=winkler]      -> results/density-<tier>/density.md
+# The authors palpated every insert at every orientation many times (3372 scans, each with its own random
+# sensor yaw and grid jitter), so their split by scan file puts a held-out scan's insert in training at the
+# same orientation; the paper's regime above has one scan per insert and orientation (168 training scans).
+# Here the paper's set is palpated again (scene seeds 1-7: other yaw, jitter, surface and noise) and the
+# paper's pair (each with its config, seed 0) is trained on the regime's training scans plus
+#   n<N>-same: re-palpations of the training scans' own insert-orientation pairs (pairs.py): a validation
+#              scan's insert sits in training at other orientations only, as in the regime above;
+#   n<N>-all:  re-palpations of all 240 pairs, the paper's density: a validation scan's insert sits in
+#              training at its own orientation, palpated otherwise;
+# scored on the regime's validation scans (not its test scans) and on its 168 training scans.
+DN  := $(A)/density
+DNR := results/density-$(ACC_TIER)
+DENSITY_MODELS ?= global less
+DENSITY_RE := 1 2 3 4 5 6 7
+$(foreach r,$(DENSITY_RE),$(eval ACC_SIM_paper-r$(r) := $(ACC_SIM_paper) --seed $(r)))
+$(DN)/same-r%.npz: $(A)/paper-r%.npz $(P)/train.npz pairs.py
+	@mkdir -p $(@D)
+	$(PYTHON) pairs.py $< --of $(P)/train.npz -o $@ > /dev/null
+# the first $(2) re-palpations of the training pairs ($(1) = same) or of every pair ($(1) = all)
+density_re = $(foreach r,$(wordlist 1,$(2),$(DENSITY_RE)),$(if $(filter same,$(1)),$(DN)/same-r$(r).npz,$(A)/paper-r$(r).npz))
+DENSITY_n336-same  := $(call density_re,same,1)
+DENSITY_n672-same  := $(call density_re,same,3)
+DENSITY_n1344-same := $(call density_re,same,7)
+DENSITY_n408-all   := $(call density_re,all,1)
+DENSITY_n888-all   := $(call density_re,all,3)
+DENSITY_n1848-all  := $(call density_re,all,7)
+# every model's variants, or one model's own (DENSITY_VARIANTS_<model>): the paper's 8 scans per pair
+# (n1344, n1848) for `global` only, where `less`'s would not fit the 2-core budget
+DENSITY_VARIANTS ?= n168 n336-same n408-all n672-same n888-all
+DENSITY_VARIANTS_global ?= $(DENSITY_VARIANTS) n1344-same n1848-all
+density_variants = $(or $(DENSITY_VARIANTS_$(1)),$(DENSITY_VARIANTS))
+$(DN)/train-n168.npz: | $(P)/train.npz
+	@mkdir -p $(@D)
+	ln -sf ../paper/train.npz $@
+$(foreach v,$(filter-out n168,$(sort $(foreach m,$(DENSITY_MODELS),$(call density_variants,$(m))))),$(eval \
+  $(DN)/train-$(v).npz: $(P)/train.npz $(DENSITY_$(v)) ; $(LESS) concat $$^ -o $$@ > /dev/null))
+$(DN)/val.npz $(DN)/train.npz: $(DN)/%.npz: | $(P)/val.npz $(P)/train.npz
+	@mkdir -p $(@D)
+	ln -sf ../paper/$*.npz $@
+$(foreach m,$(DENSITY_MODELS),$(foreach v,$(call density_variants,$(m)),$(eval $(call STUDY_TRAIN,$(DN),$(m),$(v),$(DN)/train-$(v).npz,$(DN)/val.npz,$(CFG)))))
+$(eval $(call ACC_PREDICT,$(DN),val))
+$(eval $(call ACC_PREDICT,$(DN),train))
+DENSITY_VAL   := $(foreach m,$(DENSITY_MODELS),$(foreach v,$(call density_variants,$(m)),$(DN)/pred_img_$(m)-$(v)_s0_on_val.npz))
+DENSITY_PREDS := $(DENSITY_VAL) $(DENSITY_VAL:_on_val.npz=_on_train.npz)
+# curves.png: the imaging fits at the paper's split (n168 and the -all variants), one colour each
+DENSITY_PLOT  := $(filter-out %-same_s0_on_val.npz,$(DENSITY_VAL))
+.PHONY: density
+density: $(DNR)/density.md
+$(DNR)/density.md: $(DENSITY_PREDS)
+	@mkdir -p $(@D)
+	$(LESS) metrics $^ --baseline-from $(P)/train.npz --summary-only --format jsonl > $(DNR)/density.jsonl
+	$(call STUDY_TIMES,$(DENSITY_VAL),$(DNR)/times.jsonl)
+	$(PYTHON) headline.py $(DNR)/density.jsonl --no-paper --times $(DNR)/times.jsonl > $@.part && mv $@.part $@
+	$(LESS) plot log $(patsubst $(DN)/pred_%_on_val.npz,$(DN)/%.log.jsonl,$(DENSITY_PLOT)) -o $(DNR)/curves.png \
+	  $(foreach p,$(DENSITY_PLOT),--label $(patsubst pred_img_%_s0_on_val.npz,%,$(notdir $(p)))) > /dev/null

@@ -68,9 +68,15 @@ def read_groups(path: str) -> dict:
 
 
 def imagers(groups: dict) -> list[str]:
-    """The imagers of ``groups``: the headline's in their order, then any other (e.g. ablation variants)."""
+    """The imagers of ``groups``: the headline's in their order, then any other (e.g. ablation variants),
+    their numbers in order of value."""
     names = {k[1] for k in groups}
-    return [m for m in IMAGERS if m in names] + sorted(names - set(IMAGERS))
+    return [m for m in IMAGERS if m in names] + sorted(names - set(IMAGERS), key=_natural)
+
+
+def _natural(name: str) -> list:
+    """Sort key that orders the numbers in a name by value (``-n168`` before ``-n1344``)."""
+    return [(0, int(t), "") if t.isdigit() else (1, 0, t) for t in re.split(r"(\d+)", name)]
 
 
 def main_table(groups: dict) -> list[str]:

@@ -62,3 +62,10 @@ def test_the_table_leads_with_2d_and_gives_each_imager_its_ratio(tmp_path):
     quiet = subprocess.run([sys.executable, str(SCRIPT), str(_records(tmp_path)), "--no-paper"],
                            capture_output=True, text=True, check=True).stdout
     assert "paper" not in quiet
+
+
+def test_other_imagers_follow_the_headlines_with_their_numbers_in_order_of_value():
+    names = ["global-n1344-same", "less", "global-n888-all", "global-n168", "average", "global-n168-d64"]
+    groups = {("val", n): {} for n in names}
+    assert _module().imagers(groups) == ["less", "average", "global-n168", "global-n168-d64",
+                                         "global-n888-all", "global-n1344-same"]
