@@ -19,40 +19,47 @@ import sys
 
 import numpy as np
 
-from lesscli.errors import DataError
+from lesscli.errors import DataError, LessError
 from lesscli.io.scans import ScanSet, append_history, load_scans, save_scans
+
+
+def _pair_of_each_scan(scans: ScanSet) -> list[tuple[str, int]]:
+    return list(zip(scans.scan_insert.tolist(), (int(o) for o in scans.scan_orientation.tolist())))
 
 
 def pairs(scans: ScanSet) -> set[tuple[str, int]]:
     """The (insert, orientation) pairs a set holds."""
-    return set(zip(scans.scan_insert.tolist(), (int(o) for o in scans.scan_orientation.tolist())))
+    return set(_pair_of_each_scan(scans))
 
 
-def scans_of_pairs(scans: ScanSet, wanted: set[tuple[str, int]]) -> ScanSet:
-    """The scans of ``scans`` (in their order) whose (insert, orientation) is in ``wanted``."""
-    keep = [i for i, pair in enumerate(zip(scans.scan_insert.tolist(),
-                                           (int(o) for o in scans.scan_orientation.tolist())))
-            if pair in wanted]
+def scans_of_pairs(scans: ScanSet, wanted: set[tuple[str, int]], name: str = "scan set") -> ScanSet:
+    """The scans of ``scans`` (in their order) whose (insert, orientation) is in ``wanted``.
+
+    Raises:
+        DataError: no scan has one of those pairs (``name`` says which set).
+    """
+    keep = [i for i, pair in enumerate(_pair_of_each_scan(scans)) if pair in wanted]
     if not keep:
-        raise DataError("no scan of the set has an insert and orientation asked for")
+        raise DataError(f"{name}: no scan has an insert and orientation asked for")
     return scans.select_scans(np.asarray(keep, np.int64))
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scans", help="scan set to pick from")
     ap.add_argument("--of", required=True, help="scan set whose insert-orientation pairs are kept")
     ap.add_argument("-o", "--output", required=True, help="output scan set (.npz)")
     args = ap.parse_args(argv)
     try:
-        src, ref = load_scans(args.scans), load_scans(args.of)
+        src, ref = load_scans(args.scans), load_scans(args.of)      # their errors name their file
         wanted = pairs(ref)
-        out = scans_of_pairs(src, wanted)
-    except DataError as err:
-        print(f"pairs.py: {args.scans}: {err}", file=sys.stderr)
+        out = scans_of_pairs(src, wanted, name=args.scans)
+        out.meta = append_history(out.meta, argv=[], script=shlex.join(["examples/pairs.py", *argv]))
+        save_scans(args.output, out)
+    except LessError as err:
+        print(f"pairs.py: {err}", file=sys.stderr)
         return 1
-    out.meta = append_history(out.meta, argv=[], script=shlex.join(["examples/pairs.py", *sys.argv[1:]]))
-    save_scans(args.output, out)
     print(json.dumps({"file": args.output, "scans": out.n_scans, "of": src.n_scans,
                       "pairs_missing": len(wanted - pairs(src))}))
     return 0

@@ -39,7 +39,9 @@ def test_the_script_writes_the_set_and_reports_the_pairs_it_lacks(tmp_path, caps
     record = json.loads(capsys.readouterr().out)
     assert record == {"file": str(out), "scans": 1, "of": 4, "pairs_missing": 2}
     kept = load_scans(str(out))
-    assert kept.scan_insert.tolist() == ["B"] and "examples/pairs.py" in kept.meta["history"][-1]["script"]
+    assert kept.scan_insert.tolist() == ["B"]
+    given = f"{tmp_path / 'src.npz'} --of {tmp_path / 'ref.npz'} -o {out}"
+    assert kept.meta["history"][-1]["script"] == f"examples/pairs.py {given}"
 
 
 def test_no_matching_scan_is_a_one_line_error_and_no_file(tmp_path, capsys):
@@ -51,4 +53,16 @@ def test_no_matching_scan_is_a_one_line_error_and_no_file(tmp_path, capsys):
     assert pairs.main([str(tmp_path / "src.npz"), "--of", str(tmp_path / "ref.npz"), "-o", str(out)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "src.npz" in err[0] and "insert and orientation" in err[0]
+    assert not out.exists()
+
+
+def test_an_unreadable_reference_is_one_line_naming_it_and_no_file(tmp_path, capsys):
+    pairs = example_script("pairs")
+    save_scans(str(tmp_path / "src.npz"), random_scanset(2, seed=1))
+    (tmp_path / "ref.npz").write_bytes(b"junk")
+    out = tmp_path / "out.npz"
+    for ref in (tmp_path / "ref.npz", tmp_path / "missing.npz"):
+        assert pairs.main([str(tmp_path / "src.npz"), "--of", str(ref), "-o", str(out)]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"pairs.py: {ref}:") and "src.npz" not in err[0]
     assert not out.exists()
