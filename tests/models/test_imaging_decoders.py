@@ -216,3 +216,35 @@ def test_neighbour_context_needs_a_square_grid():
     dec = PatchDecoder(d_z=4, dim=2, patch_px=8, width=8, context=3)
     with pytest.raises(ValueError, match="square particle grid"):
         dec.with_context(torch.zeros(1, 6, 4), torch.ones(1, 6, dtype=torch.bool))
+
+
+def test_global_decoder_norm_ignores_a_common_offset_and_scale():
+    """The input norm: a state shifted and scaled as a whole (the map's evidence is never negative) decodes
+    as it was; without the norm the same shift changes every logit."""
+    gen = torch.Generator().manual_seed(0)
+    z = torch.randn(3, 1, 96, generator=gen)
+    shifted = 4.0 * z + 3.0
+    for norm in (True, False):
+        torch.manual_seed(1)
+        dec = GlobalDecoder(d_z=96, n_classes=4, dim=2, shape=(1, 16, 16), width=8, input_norm=norm).eval()
+        with torch.no_grad():
+            a, b = dec(_states(z, torch.zeros(1, 2)), _grid((1, 16, 16))), \
+                dec(_states(shifted, torch.zeros(1, 2)), _grid((1, 16, 16)))
+        assert torch.isfinite(a).all() and torch.isfinite(b).all()
+        assert (float((a - b).abs().max()) <= 1e-4) == norm
+
+
+def test_global_decoder_fits_get_the_norm_and_old_checkpoints_load_without_it():
+    from lesscli.models.registry import build_decoder
+    from lesscli.train.image_fit import ImageFitConfig, decoder_settings
+
+    cfg = ImageFitConfig()
+    cfg.image.dim = 3
+    settings = decoder_settings(cfg, "global-taxel", 24, _grid((8, 16, 16)))
+    assert settings["name"] == "global" and settings["input_norm"] is True
+    fitted = build_decoder(settings, seed=0)
+    assert {"norm.weight", "norm.bias"} <= set(fitted.state_dict())
+    old = {k: v for k, v in settings.items() if k != "input_norm"}   # a checkpoint from before the norm
+    before = build_decoder(old, seed=0)
+    assert not any(k.startswith("norm.") for k in before.state_dict())
+    before.load_state_dict({k: v for k, v in fitted.state_dict().items() if not k.startswith("norm.")})
