@@ -366,7 +366,7 @@ $(eval $(call DIAG_TABLE,longer,$(LONGER_PREDS)))
 # sensor yaw and grid jitter), so their split by scan file puts a held-out scan's insert in training at the
 # same orientation; the paper's regime above has one scan per insert and orientation (168 training scans).
 # Here the paper's set is palpated again (scene seeds 1-7: other yaw, jitter, surface and noise) and the
-# paper's pair and `global-taxel` (each with its config, seed 0) are trained on the regime's training scans plus
+# paper's pair and the taxel pair (each with its config, seed 0) are trained on the regime's training scans plus
 #   n<N>-same: re-palpations of the training scans' own insert-orientation pairs (pairs.py): a validation
 #              scan's insert sits in training at other orientations only, as in the regime above;
 #   n<N>-all:  re-palpations of all 240 pairs, the paper's density: a validation scan's insert sits in
@@ -374,7 +374,7 @@ $(eval $(call DIAG_TABLE,longer,$(LONGER_PREDS)))
 # scored on the regime's validation scans (not its test scans) and on its 168 training scans.
 DN  := $(A)/density
 DNR := results/density-$(ACC_TIER)
-DENSITY_MODELS ?= global less global-taxel
+DENSITY_MODELS ?= global less global-taxel less-taxel
 DENSITY_RE := 1 2 3 4 5 6 7
 $(foreach r,$(DENSITY_RE),$(eval ACC_SIM_paper-r$(r) := $(ACC_SIM_paper) --seed $(r)))
 $(DN)/same-r%.npz: $(A)/paper-r%.npz $(P)/train.npz pairs.py
@@ -389,11 +389,12 @@ DENSITY_n408-all   := $(call density_re,all,1)
 DENSITY_n888-all   := $(call density_re,all,3)
 DENSITY_n1848-all  := $(call density_re,all,7)
 # every model's variants, or one model's own (DENSITY_VARIANTS_<model>): the paper's 8 scans per pair
-# (n1344, n1848) for `global` only, where `less`'s would not fit the 2-core budget; `global-taxel` (the
-# partner of less-taxel) at the paper's split only
+# (n1344, n1848) for `global` only, where `less`'s would not fit the 2-core budget; the taxel pair
+# (`less-taxel`, `global-taxel`) at the paper's split only
 DENSITY_VARIANTS ?= n168 n336-same n408-all n672-same n888-all
 DENSITY_VARIANTS_global ?= $(DENSITY_VARIANTS) n1344-same n1848-all
 DENSITY_VARIANTS_global-taxel ?= n168 n408-all n888-all
+DENSITY_VARIANTS_less-taxel ?= n168 n408-all n888-all
 density_variants = $(or $(DENSITY_VARIANTS_$(1)),$(DENSITY_VARIANTS))
 $(DN)/train-n168.npz: | $(P)/train.npz
 	@mkdir -p $(@D)
