@@ -347,7 +347,8 @@ $(eval $(call DIAG_TABLE,last,$(LAST_PREDS)))
 # is the budget what keeps global-taxel under 0.8 on its training scans? its config's end-to-end fit for
 # 100 epochs instead of 50, seeds 1 and 2 (still learning at epoch 50; seed 0's 100-epoch point is fit.md's),
 # on its own training scans and its validation scans: `make -C examples longer -j2 ACC_TIER=winkler`
-# -> results/diagnose-<tier>/longer.md
+# -> results/diagnose-<tier>/longer.md (the second run's question, asked before the global decoder's input norm;
+# with it every seed fits its training scans in 50 epochs)
 LONGER_SEEDS := 1 2
 define LONGER_FIT
 $(P)/img_global-taxel-e100_s$(1).pt: $(P)/rep_global-taxel_s$(1).pt
