@@ -215,13 +215,15 @@ endef
 $(foreach m,$(SCALE_MODELS),$(foreach n,$(SCALE_SCANS),$(foreach d,$(call scale_dims,$(m)),$(eval $(call STUDY_TRAIN,$(SC),$(m),n$(n)-d$(d),$(SC)/train$(n).npz,$(SC)/val.npz,$(FCFG),--dim $(d))))))
 $(eval $(call ACC_PREDICT,$(SC),val))
 SCALE_PREDS := $(foreach m,$(SCALE_MODELS),$(foreach n,$(SCALE_SCANS),$(foreach d,$(call scale_dims,$(m)),$(SC)/pred_img_$(m)-n$(n)-d$(d)_s0_on_val.npz)))
+# the study tables are written by their phony targets, as the headline's are (a study given more models
+# or variants is tabled again)
 .PHONY: scaling
-scaling: $(SCR)/scaling.md
-$(SCR)/scaling.md: $(SCALE_PREDS)
-	@mkdir -p $(@D)
+scaling: $(SCALE_PREDS)
+	@mkdir -p $(SCR)
 	$(LESS) metrics $^ --summary-only --format jsonl > $(SCR)/scaling.jsonl
 	$(call STUDY_TIMES,$(SCALE_PREDS),$(SCR)/times.jsonl)
-	$(PYTHON) headline.py $(SCR)/scaling.jsonl --no-paper --times $(SCR)/times.jsonl > $@.part && mv $@.part $@
+	$(PYTHON) headline.py $(SCR)/scaling.jsonl --no-paper --times $(SCR)/times.jsonl > $(SCR)/scaling.md.part \
+	  && mv $(SCR)/scaling.md.part $(SCR)/scaling.md
 
 # ---------------------------------------------------------------- what holds the paper's pair back
 #   make -C examples diagnose -j2 [ACC_TIER=winkler]      -> results/diagnose-<tier>/diagnose.md
@@ -413,11 +415,11 @@ DENSITY_PREDS := $(DENSITY_VAL) $(DENSITY_VAL:_on_val.npz=_on_train.npz)
 # curves.png: the imaging fits at the paper's split (n168 and the -all variants), one colour each
 DENSITY_PLOT  := $(filter-out %-same_s0_on_val.npz,$(DENSITY_VAL))
 .PHONY: density
-density: $(DNR)/density.md
-$(DNR)/density.md: $(DENSITY_PREDS)
-	@mkdir -p $(@D)
+density: $(DENSITY_PREDS)
+	@mkdir -p $(DNR)
 	$(LESS) metrics $^ --baseline-from $(P)/train.npz --summary-only --format jsonl > $(DNR)/density.jsonl
 	$(call STUDY_TIMES,$(DENSITY_VAL),$(DNR)/times.jsonl)
-	$(PYTHON) headline.py $(DNR)/density.jsonl --no-paper --times $(DNR)/times.jsonl > $@.part && mv $@.part $@
+	$(PYTHON) headline.py $(DNR)/density.jsonl --no-paper --times $(DNR)/times.jsonl > $(DNR)/density.md.part \
+	  && mv $(DNR)/density.md.part $(DNR)/density.md
 	$(LESS) plot log $(patsubst $(DN)/pred_%_on_val.npz,$(DN)/%.log.jsonl,$(DENSITY_PLOT)) -o $(DNR)/curves.png \
 	  $(foreach p,$(DENSITY_PLOT),--label $(patsubst pred_img_%_s0_on_val.npz,%,$(notdir $(p)))) > /dev/null
