@@ -104,11 +104,11 @@ def ratio_table(groups: dict) -> list[str]:
     out = ["| imager | multiple / single 2D | large / single 2D | multiple / single 3D | large / single 3D |",
            "|---|---|---|---|---|"]
     for m in imagers(groups):
-        if m != "average":
-            cells = [ratio(groups, o, m, k) for k in ("f1_micro_2d", "f1_micro_3d")
-                     for o in ("multiple", "large")]
+        cells = [ratio(groups, o, m, k) for k in ("f1_micro_2d", "f1_micro_3d")
+                 for o in ("multiple", "large")]
+        if m != "average" and any(c != "-" for c in cells):       # only imagers scored beside single
             out.append(f"| {NAMES.get(m, m)} | " + " | ".join(cells) + " |")
-    return out
+    return out if len(out) > 2 else []
 
 
 def paper_table() -> list[str]:
@@ -141,9 +141,9 @@ def main(argv: list[str]) -> None:
         add_times(groups, args.times)
         COLUMNS.append(("train_seconds", "training s", 0))
     lines = [f"Inclusion class; micro F1 over each set's scans, mean ± std over seeds (from {args.records}).",
-             "", *main_table(groups), "",
-             "Generalisation: each imager's micro F1 on a set over its F1 on single.", "",
-             *ratio_table(groups)]
+             "", *main_table(groups)]
+    if ratios := ratio_table(groups):
+        lines += ["", "Generalisation: each imager's micro F1 on a set over its F1 on single.", "", *ratios]
     if not args.no_paper:
         lines += ["", "The paper's numbers (real data; 2D):", "", *paper_table()]
     print("\n".join(lines))

@@ -69,3 +69,14 @@ def test_other_imagers_follow_the_headlines_with_their_numbers_in_order_of_value
     groups = {("val", n): {} for n in names}
     assert _module().imagers(groups) == ["less", "average", "global-n168", "global-n168-d64",
                                          "global-n888-all", "global-n1344-same"]
+
+
+def test_a_study_scored_on_one_set_has_no_ratio_section_and_imagers_without_ratios_get_no_row(tmp_path):
+    rows = [_row("w/pred_img_less_s0_on_val.npz", "less", 0.5, 0.6)]
+    (tmp_path / "val.jsonl").write_text("".join(json.dumps({**r, "set": "validation"}) + "\n" for r in rows))
+    out = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path / "val.jsonl"), "--no-paper"],
+                         capture_output=True, text=True, check=True).stdout
+    assert "| validation | less (n=1) | 0.600 |" in out and "Generalisation" not in out
+    full = subprocess.run([sys.executable, str(SCRIPT), str(_records(tmp_path))], capture_output=True,
+                          text=True, check=True).stdout
+    assert "| less |" in full and "| forcemap |" not in full            # forcemap was scored on single only
